@@ -1,0 +1,104 @@
+"""Pinhole camera in the internal OpenCV frame (x right, y down, z forward; method.md §1).
+
+Pixel ``(u, v)`` = (column, row), 0-based, pixel centres at integers:
+``u = fx * x / z + cx``, ``v = fy * y / z + cy``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics, image size and clip planes of a depth camera.
+
+    Attributes:
+        fx, fy: focal lengths in pixels.
+        cx, cy: principal point in pixels (0-based, pixel-centre convention).
+        width, height: image size in pixels.
+        clip_start, clip_end: near and far clip planes in metres (depth normalization range).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    clip_start: float
+    clip_end: float
+
+    def __post_init__(self) -> None:
+        values = (self.fx, self.fy, self.cx, self.cy, self.clip_start, self.clip_end)
+        if not all(math.isfinite(float(v)) for v in values):
+            raise ValueError(f"Camera parameters must be finite, got {self}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"Camera focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"Camera size must be positive, got {self.width}x{self.height}")
+        if not 0 < self.clip_start < self.clip_end:
+            raise ValueError(
+                f"Camera clip planes must satisfy 0 < clip_start < clip_end, "
+                f"got clip_start={self.clip_start}, clip_end={self.clip_end}"
+            )
+
+    @classmethod
+    def from_fov(
+        cls, fov_deg: float, width: int, height: int, clip_start: float, clip_end: float
+    ) -> Camera:
+        """Square-pixel camera whose horizontal field of view is ``fov_deg`` (degrees)."""
+        f = width / (2.0 * math.tan(math.radians(fov_deg) / 2.0))
+        return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height, clip_start, clip_end)
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def project(self, points_cam: torch.Tensor | np.ndarray) -> torch.Tensor | np.ndarray:
+        """Project camera-frame points (..., 3), metres, to pixels (..., 2) as (u, v)."""
+        lib = torch if isinstance(points_cam, torch.Tensor) else np
+        x, y, z = points_cam[..., 0], points_cam[..., 1], points_cam[..., 2]
+        return lib.stack((self.fx * x / z + self.cx, self.fy * y / z + self.cy), -1)
+
+    def backproject(self, u, v, z):  # noqa: ANN001, ANN201 - arrays or tensors, same shapes
+        """Pixel coordinates and depth (metres) of the same shape to camera-frame points (..., 3)."""
+        lib = torch if isinstance(z, torch.Tensor) else np
+        return lib.stack(((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z), -1)
+
+    def depth_to_points(self, depth: np.ndarray) -> np.ndarray:
+        """(H, W) z-depth in metres (NaN = missing) to (H, W, 3) camera-frame points."""
+        if depth.shape != (self.height, self.width):
+            raise ValueError(f"depth has shape {depth.shape}, camera expects {(self.height, self.width)}")
+        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
+        return self.backproject(u, v, depth.astype(np.float64))
+
+    def normalize_depth(self, z):  # noqa: ANN001, ANN201
+        """Depth in metres to ``(z - clip_start) / (clip_end - clip_start)`` (method.md §2)."""
+        return (z - self.clip_start) / (self.clip_end - self.clip_start)
+
+    def denormalize_depth(self, d):  # noqa: ANN001, ANN201
+        """Inverse of :meth:`normalize_depth`."""
+        return self.clip_start + d * (self.clip_end - self.clip_start)
+
+    def resized(self, width: int, height: int) -> Camera:
+        """The same camera seen at another resolution (pixel-centre aligned scaling)."""
+        sx, sy = width / self.width, height / self.height
+        return replace(
+            self,
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+            width=width,
+            height=height,
+        )
+
+    def cropped(self, x0: int, y0: int, width: int, height: int) -> Camera:
+        """The camera of the sub-image ``[y0:y0+height, x0:x0+width]`` (x0, y0 may be negative: padding)."""
+        return replace(self, cx=self.cx - x0, cy=self.cy - y0, width=width, height=height)

@@ -1,0 +1,87 @@
+"""Loading object models from mesh files, configs, and Siléane poseutils.json files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from opnet.geometry.rotations import euler_to_matrix
+from opnet.geometry.symmetry import Symmetry
+from opnet.objects.library import BUILTINS, builtin_names, builtin_object
+from opnet.objects.model import ObjectModel
+
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
+
+
+def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) -> trimesh.Trimesh:
+    """Read a triangle mesh file and bring it to metres in the model frame.
+
+    Args:
+        path: .obj, .stl, .ply, ... (anything trimesh reads as one mesh; scenes are merged).
+        scale: multiply coordinates by this (0.001 for a mesh in millimetres).
+        model_rotation: optional fixed correction so that the symmetry axis becomes z: a 3x3
+            matrix, or three Z-Y-Z Euler angles in degrees, applied as ``x_model = R x_file``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: mesh file not found")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise ValueError(f"{path}: unsupported mesh format {path.suffix!r}; expected one of {MESH_SUFFIXES}")
+    try:
+        loaded = trimesh.load(path, force="mesh", process=True)
+    except Exception as e:  # trimesh raises many types on corrupt files
+        raise ValueError(f"{path}: cannot read mesh ({type(e).__name__}: {e})") from e
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise ValueError(f"{path}: file holds no triangle mesh")
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"{path}: mesh_scale must be a positive number, got {scale}")
+    mesh = loaded.copy()
+    if scale != 1.0:
+        mesh.apply_scale(scale)
+    if model_rotation is not None:
+        R = np.asarray(model_rotation, dtype=np.float64)
+        if R.shape == (3,):
+            R = euler_to_matrix(np.radians(R))
+        if R.shape != (3, 3) or np.abs(R.T @ R - np.eye(3)).max() > 1e-6:
+            raise ValueError(f"{path}: model_rotation must be a rotation matrix or 3 Z-Y-Z angles in degrees")
+        T = np.eye(4)
+        T[:3, :3] = R
+        mesh.apply_transform(T)
+    return mesh
+
+
+def load_object(
+    name: str,
+    *,
+    mesh: str | Path | None = None,
+    symmetry: Symmetry | str | dict | None = None,
+    mesh_scale: float = 1.0,
+    model_rotation: Any = None,
+    builtin: str | None = None,
+    poseutils: str | Path | None = None,
+) -> ObjectModel:
+    """Build an object model from whichever source is given.
+
+    Exactly one of ``builtin``, ``mesh`` or ``poseutils`` is needed; with no source, ``name`` is
+    looked up among the built-in objects. ``poseutils`` together with ``mesh`` takes Λ, the group and
+    δ from the official file and keeps the mesh for rendering.
+    """
+    if builtin is None and mesh is None and poseutils is None:
+        if name not in BUILTINS:
+            raise ValueError(
+                f"unknown object {name!r}: not a built-in ({', '.join(builtin_names())}) and no mesh or poseutils given"
+            )
+        builtin = name
+    if builtin is not None:
+        if mesh is not None or poseutils is not None:
+            raise ValueError(f"object {name!r}: give either builtin or mesh/poseutils, not both")
+        obj = builtin_object(builtin)
+        return obj if obj.name == name else ObjectModel.from_mesh(name, obj.mesh, obj.symmetry, f"built-in {builtin!r}")
+    mesh_obj = None if mesh is None else load_mesh(mesh, mesh_scale, model_rotation)
+    if poseutils is not None:
+        return ObjectModel.from_poseutils(poseutils, name, mesh_obj)
+    assert mesh_obj is not None
+    return ObjectModel.from_mesh(name, mesh_obj, Symmetry.from_spec(symmetry), source=str(mesh))

@@ -1,0 +1,1 @@
+"""opnet.synthesis"""
