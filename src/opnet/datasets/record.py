@@ -18,7 +18,7 @@ class SceneRecord:
     """One scene.
 
     Attributes:
-        name: unique scene name within its dataset, e.g. "cycle_0003/012" or "bunny_3_070".
+        name: unique scene name within its dataset, e.g. "cycle_0003_012" or "bunny_3_070".
         depth: (H, W) float32 z-depth in metres, camera frame; NaN where depth is missing.
         camera: intrinsics and clip planes of ``depth``.
         segmentation: (H, W) int32 instance ids (0 = background / bin), or None.

@@ -1,0 +1,36 @@
+"""Atomic file writes: a reader never sees a half-written dataset file.
+
+The data goes to a temporary file in the destination folder (same file system), which then
+replaces the destination with ``os.replace`` (atomic on POSIX and Windows). No fsync: this guards
+against concurrent readers and crashed writers, not against power loss.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically, creating the parent folders.
+
+    Args:
+        path: destination file; replaced if it exists.
+        data: the complete file content.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically (``\\n`` line endings on every platform)."""
+    write_bytes_atomic(path, text.encode("utf-8"))
