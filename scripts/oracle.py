@@ -1,0 +1,54 @@
+"""Ceiling study: the AP every parameterization reaches with a perfect network, per dataset.
+
+    python scripts/oracle.py --data <dir> [--data <dir> ...] --out <dir>
+                             [--max-scenes N] [--object name]
+
+Each dataset's object comes from its ``object.json`` (an object config), else from ``--object`` (a
+built-in or a conf/object/<name>.yaml). Prints the table and writes ceiling.md and ceiling.csv to
+--out. The logic lives in :mod:`opnet.parameterizations.ceiling`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from opnet.datasets import open_dataset
+from opnet.parameterizations.ceiling import dataset_object, run_ceiling_study
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--data", type=Path, action="append", required=True, help="dataset folder (repeatable)"
+    )
+    parser.add_argument(
+        "--out", type=Path, required=True, help="folder for ceiling.md and ceiling.csv"
+    )
+    parser.add_argument(
+        "--max-scenes",
+        type=int,
+        default=None,
+        help="at most this many scenes per dataset, evenly spread",
+    )
+    parser.add_argument("--object", default=None, help="object of datasets without object.json")
+    args = parser.parse_args(argv)
+    datasets = []
+    for root in args.data:
+        dataset = open_dataset(root)
+        n = len(dataset) if args.max_scenes is None else min(args.max_scenes, len(dataset))
+        picks = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int)) if n else []
+        datasets.append((dataset_object(root, args.object), [dataset[int(i)] for i in picks]))
+        print(f"{root}: {len(picks)} of {len(dataset)} scenes, object {datasets[-1][0].name}")
+    report = run_ceiling_study(datasets)
+    print(report.markdown())
+    report.write(args.out)
+    print(f"wrote {args.out / 'ceiling.md'} and {args.out / 'ceiling.csv'}")
+
+
+if __name__ == "__main__":
+    main()

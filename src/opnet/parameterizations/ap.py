@@ -1,0 +1,102 @@
+"""OP-Net AP, additional reference points (method.md §4, paper "Additional Points").
+
+As vanilla, plus the cells containing the projections of additional reference points defined in
+the object frame. Default points (two for the built-in classes): revolution objects ``±a e_z`` on
+the symmetry axis; cyclic objects the orbit of ``a e_x`` under the symmetry group (``±a e_x`` for
+k = 2), so the points permute under the symmetry steps; no symmetry: ``a e`` on each of the two
+principal axes of largest spread, pointing to the side where the mesh reaches farther. ``a`` is
+half the mesh's extent along that axis. Points never overwrite an origin cell; conflicts go to the
+highest visibility. An object is representable as soon as one of its cells is, even with its
+origin outside the image; the position is relative to the enlarged image and the hypotheses are
+averaged (method.md §6).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from opnet.objects.model import ObjectModel
+from opnet.parameterizations.assignment import ORIGIN_PRIORITY, Candidates, flat_cell
+from opnet.parameterizations.base import GroundTruthBatch, Parameterization
+from opnet.parameterizations.positions import EnlargedImagePosition, ObjectProjection, cell_position
+
+
+def default_reference_points(obj: ObjectModel) -> np.ndarray:
+    """Additional reference points of an object, (P, 3) float64 metres in the model frame."""
+    if obj.mesh is None:
+        raise ValueError(
+            f"ap: object {obj.name!r} has no mesh; give the additional points explicitly "
+            "(points: [[x, y, z], ...])"
+        )
+    vertices = np.asarray(obj.mesh.vertices, dtype=np.float64)
+    symmetry = obj.symmetry
+    if symmetry.is_revolution:
+        a = np.ptp(vertices[:, 2]) / 2
+        return np.array([[0.0, 0.0, a], [0.0, 0.0, -a]])
+    if symmetry.kind != "none":
+        a = np.ptp(vertices[:, 0]) / 2
+        orbit = symmetry.group() @ np.array([a, 0.0, 0.0])  # (K, 3)
+        return np.unique(np.round(orbit, 12), axis=0)
+    _, eigenvectors = np.linalg.eigh(obj.covariance)
+    points = []
+    for axis in eigenvectors[:, [2, 1]].T:  # the two largest principal axes
+        along = vertices @ axis
+        sign = 1.0 if along.max() >= -along.min() else -1.0
+        points.append(sign * np.ptp(along) / 2 * axis)
+    return np.array(points)
+
+
+class APParameterization(EnlargedImagePosition, Parameterization):
+    """Vanilla grid plus the cells of additional reference points.
+
+    Args:
+        obj: the object model.
+        grid: S (16 in the paper).
+        points: (P, 3) additional points in the object frame, metres; None for the defaults of
+            :func:`default_reference_points`.
+        averaging: cluster and average the hypotheses (default on).
+        **kwargs: the common settings of :class:`Parameterization`.
+    """
+
+    def __init__(
+        self,
+        obj: ObjectModel,
+        grid: int = 16,
+        points: Sequence[Sequence[float]] | None = None,
+        averaging: bool = True,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(obj, grid, averaging=averaging, **kwargs)
+        pts = (
+            default_reference_points(obj)
+            if points is None
+            else np.asarray(points, dtype=np.float64)
+        )
+        if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
+            raise ValueError(
+                f"ap points must be a list of [x, y, z] in metres, got shape {pts.shape}"
+            )
+        self.points = torch.from_numpy(pts)  # (P, 3) float64, object frame
+
+    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+        M, P = len(gt), len(self.points)
+        position, representable = proj.enlarged(self.obj.diameter)
+        pts = self.points.to(gt.R_cam_obj.device)
+        world = (
+            torch.einsum("mij,pj->mpi", gt.R_cam_obj.double(), pts) + gt.t_cam_obj.double()[:, None]
+        )  # (M, P, 3)
+        cams = proj.cams.take(torch.arange(M, device=pts.device).repeat_interleave(P))  # (M*P) rows
+        u, v, depth = cams.project(world.reshape(M * P, 3))
+        extra = cell_position(u, v, cams, self.grid_size)
+        origin = proj.cells(self.grid_size)
+        row = torch.cat((origin.row[:, None], extra.row.reshape(M, P)), 1)  # (M, 1 + P)
+        col = torch.cat((origin.col[:, None], extra.col.reshape(M, P)), 1)
+        inside = torch.cat((origin.inside[:, None], (extra.inside & (depth > 0)).reshape(M, P)), 1)
+        m, k = torch.nonzero(inside & representable[:, None], as_tuple=True)
+        priority = gt.visibility[m].double() + ORIGIN_PRIORITY * (k == 0)
+        cell = flat_cell(gt.batch_index[m], 0, row[m, k], col[m, k], self.slots, self.grid_size)
+        return Candidates(m, cell, priority, position[m])

@@ -1,0 +1,331 @@
+"""The protocol every output parameterization implements (method.md §3-§6, architecture.md 1-2).
+
+A parameterization owns both directions: :meth:`Parameterization.encode` turns ground truth into
+the network's target tensor and :meth:`Parameterization.decode` turns a network output back into
+pose hypotheses. The contract: decoding a perfect output (the target itself) recovers every
+instance the parameterization represents (:meth:`Parameterization.assigned`) up to symmetry.
+
+Channel layout (slot-major): ``channel = slot * channels_per_slot + c`` with c indexing
+``[p, v, x, y, z, φ1, φ2, (φ3)]``; slots are the depth slabs of Z, the pose slots of MP, else one.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from opnet.geometry.camera import Camera
+from opnet.metrics.records import HypothesisSet
+from opnet.objects.model import ObjectModel
+from opnet.parameterizations.assignment import Candidates, resolve
+from opnet.parameterizations.averaging import PoseAveraging
+from opnet.parameterizations.euler_codec import EulerCodec
+from opnet.parameterizations.positions import (
+    CameraBatch,
+    CellIndex,
+    DecodedPosition,
+    ObjectProjection,
+    project_origins,
+)
+
+SCORES = ("p", "p*v", "v")
+POSE_WEIGHTINGS = ("cubic", "linear")
+CHANNEL_NAMES = ("p", "v", "x", "y", "z", "phi1", "phi2", "phi3")
+
+
+@dataclass
+class GroundTruthBatch:
+    """Ground truth of a batch, flat with a batch index (one row per instance).
+
+    Attributes:
+        batch_index: (M,) long, the image of each instance.
+        R_cam_obj: (M, 3, 3) float32 object -> camera rotations.
+        t_cam_obj: (M, 3) float32 metres, object origins in the camera frame.
+        visibility: (M,) float32 visible fraction in [0, 1].
+        instance_id: (M,) long, the instance's value in ``segmentation``.
+        batch_size: number of images B (images may have no instance).
+        segmentation: (B, H, W) long instance ids at network-input resolution (0 = background),
+            or None (only SI needs it).
+    """
+
+    batch_index: torch.Tensor
+    R_cam_obj: torch.Tensor
+    t_cam_obj: torch.Tensor
+    visibility: torch.Tensor
+    instance_id: torch.Tensor
+    batch_size: int
+    segmentation: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        m = len(self.batch_index)
+        expected = {
+            "R_cam_obj": (m, 3, 3),
+            "t_cam_obj": (m, 3),
+            "visibility": (m,),
+            "instance_id": (m,),
+        }
+        for name, shape in expected.items():
+            if tuple(getattr(self, name).shape) != shape:
+                raise ValueError(
+                    f"GroundTruthBatch.{name}: expected shape {shape}, "
+                    f"got {tuple(getattr(self, name).shape)}"
+                )
+        if m and (
+            int(self.batch_index.min()) < 0 or int(self.batch_index.max()) >= self.batch_size
+        ):
+            raise ValueError(
+                f"GroundTruthBatch.batch_index: expected values in [0, {self.batch_size}), "
+                f"got {self.batch_index.tolist()}"
+            )
+        if self.segmentation is not None and (
+            self.segmentation.ndim != 3 or len(self.segmentation) != self.batch_size
+        ):
+            raise ValueError(
+                f"GroundTruthBatch.segmentation: expected shape ({self.batch_size}, H, W), "
+                f"got {tuple(self.segmentation.shape)}"
+            )
+
+    def __len__(self) -> int:
+        return len(self.batch_index)
+
+    @classmethod
+    def from_arrays(cls, images: Sequence[tuple[Any, Any, Any, Any, Any]]) -> GroundTruthBatch:
+        """Collate per-image ground truth into one flat batch.
+
+        Args:
+            images: per image ``(R (N,3,3), t (N,3) metres, visibility (N,), instance_id (N,),
+                segmentation (H,W) | None)``, numpy arrays or tensors.
+        """
+        segs = [img[4] for img in images]
+        if any(s is None for s in segs) and not all(s is None for s in segs):
+            raise ValueError(
+                "GroundTruthBatch.from_arrays: segmentation must be given for every image "
+                "or for none"
+            )
+        counts = [len(img[1]) for img in images]
+
+        def cat(k: int, dtype: torch.dtype, tail: tuple[int, ...]) -> torch.Tensor:
+            parts = [
+                torch.as_tensor(np.asarray(img[k])).to(dtype).reshape((-1,) + tail)
+                for img in images
+            ]
+            return torch.cat(parts) if parts else torch.zeros((0,) + tail, dtype=dtype)
+
+        return cls(
+            batch_index=torch.repeat_interleave(
+                torch.arange(len(images)), torch.tensor(counts, dtype=torch.long)
+            ),
+            R_cam_obj=cat(0, torch.float32, (3, 3)),
+            t_cam_obj=cat(1, torch.float32, (3,)),
+            visibility=cat(2, torch.float32, ()),
+            instance_id=cat(3, torch.long, ()),
+            batch_size=len(images),
+            segmentation=None
+            if not segs or segs[0] is None
+            else torch.stack([torch.as_tensor(np.asarray(s)).long() for s in segs]),
+        )
+
+    def to(self, device: torch.device | str) -> GroundTruthBatch:
+        """The same batch on another device."""
+        seg = None if self.segmentation is None else self.segmentation.to(device)
+        return GroundTruthBatch(
+            self.batch_index.to(device),
+            self.R_cam_obj.to(device),
+            self.t_cam_obj.to(device),
+            self.visibility.to(device),
+            self.instance_id.to(device),
+            self.batch_size,
+            seg,
+        )
+
+
+class Parameterization(abc.ABC):
+    """Encode ground truth into OP-Net's output grid and decode network outputs into poses.
+
+    Args:
+        obj: the object model (symmetry, diameter, pose space).
+        grid: output grid size S (the network outputs (B, out_channels, S, S)).
+        euler: Euler convention of the orientation channels (method.md §3).
+        threshold: presence threshold τ of a hypothesis (method.md §6).
+        score: hypothesis score: "p" (p̂), "p*v" (p̂ v̂) or "v" (v̂).
+        averaging: cluster and average the hypotheses of each image (method.md §6).
+        averaging_eps: DBSCAN radius as a fraction of δ.
+        averaging_min_samples: DBSCAN core-point threshold.
+        averaging_score: cluster score, "max", "sum" or "mean".
+        slots: slots per cell (Z: depth slabs, MP: poses per cell).
+
+    Attributes:
+        grid_size, slots, channels_per_slot (8, or 7 for revolution objects), out_channels,
+        pose_weighting ("cubic": λ3 = 8 v³, "linear": λ3 = v), needs_segmentation, euler (the
+        angle codec).
+    """
+
+    pose_weighting: str = "cubic"
+    needs_segmentation: bool = False  # encode needs GroundTruthBatch.segmentation
+
+    def __init__(
+        self,
+        obj: ObjectModel,
+        grid: int,
+        euler: str = "ZYZ",
+        threshold: float = 0.1,
+        score: str = "p",
+        averaging: bool = False,
+        averaging_eps: float = 0.5,
+        averaging_min_samples: int = 1,
+        averaging_score: str = "max",
+        slots: int = 1,
+    ) -> None:
+        if int(grid) != grid or grid < 1:
+            raise ValueError(f"parameterization grid must be a positive integer, got {grid!r}")
+        if int(slots) != slots or slots < 1:
+            raise ValueError(f"parameterization slots must be a positive integer, got {slots!r}")
+        if not 0 <= threshold < 1:
+            raise ValueError(f"parameterization threshold must lie in [0, 1), got {threshold}")
+        if score not in SCORES:
+            raise ValueError(f"parameterization score must be one of {SCORES}, got {score!r}")
+        assert self.pose_weighting in POSE_WEIGHTINGS
+        self.obj = obj
+        self.grid_size = int(grid)
+        self.slots = int(slots)
+        self.threshold = float(threshold)
+        self.score = score
+        self.euler = EulerCodec(obj.symmetry, euler)
+        self.channels_per_slot = 5 + self.euler.num_angles
+        self.averaging = (
+            PoseAveraging(obj.pose_space, averaging_eps, averaging_min_samples, averaging_score)
+            if averaging
+            else None
+        )
+
+    # ---- layout ------------------------------------------------------------------------------
+    @property
+    def out_channels(self) -> int:
+        return self.slots * self.channels_per_slot
+
+    def channel_layout(self) -> list[str]:
+        """Name of every output channel, e.g. "p", "phi2" (one slot) or "p[1]" (several slots)."""
+        names = CHANNEL_NAMES[: self.channels_per_slot]
+        if self.slots == 1:
+            return list(names)
+        return [f"{name}[{slot}]" for slot in range(self.slots) for name in names]
+
+    def split_slots(self, tensor: torch.Tensor) -> torch.Tensor:
+        """(B, out_channels, S, S) -> (B, slots, channels_per_slot, S, S) view."""
+        B = tensor.shape[0]
+        if tuple(tensor.shape[1:]) != (self.out_channels, self.grid_size, self.grid_size):
+            raise ValueError(
+                f"{type(self).__name__}: expected a tensor of shape "
+                f"(B, {self.out_channels}, {self.grid_size}, "
+                f"{self.grid_size}), got {tuple(tensor.shape)}"
+            )
+        return tensor.reshape(B, self.slots, self.channels_per_slot, self.grid_size, self.grid_size)
+
+    # ---- encoding ----------------------------------------------------------------------------
+    def encode(self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]) -> torch.Tensor:
+        """Target tensor of a batch.
+
+        Args:
+            gt: ground truth, camera frame, metres.
+            camera: the network-input camera (one for all images, or one per image).
+        Returns:
+            (B, out_channels, S, S) float32 in [0, 1]; cells without an object are all zero.
+        """
+        winners = self._assign(gt, camera)
+        angles = self.euler.encode(gt.R_cam_obj[winners.index])  # (W, num_angles)
+        ones = torch.ones_like(winners.priority)[:, None]
+        values = torch.cat(
+            (ones, gt.visibility[winners.index, None].double(), winners.position, angles), 1
+        )
+        S, L, C = self.grid_size, self.slots, self.channels_per_slot
+        target = torch.zeros(
+            gt.batch_size * L * S * S, C, dtype=torch.float32, device=gt.t_cam_obj.device
+        )
+        target[winners.cell] = values.float()
+        return (
+            target.reshape(gt.batch_size, L, S, S, C)
+            .permute(0, 1, 4, 2, 3)
+            .reshape(gt.batch_size, L * C, S, S)
+        )
+
+    def assigned(self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]) -> torch.Tensor:
+        """(M,) bool: the instances that appear in the target (the others cannot be predicted)."""
+        mask = torch.zeros(len(gt), dtype=torch.bool, device=gt.t_cam_obj.device)
+        mask[self._assign(gt, camera).index] = True
+        return mask
+
+    def _assign(self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]) -> Candidates:
+        cams = CameraBatch.of(camera, gt.batch_size, gt.t_cam_obj.device)
+        proj = project_origins(gt.t_cam_obj, gt.batch_index, cams)
+        return resolve(self._candidates(gt, proj))
+
+    @abc.abstractmethod
+    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+        """The (instance, cell) pairs this variant would fill, with priorities and positions."""
+
+    # ---- decoding ----------------------------------------------------------------------------
+    def decode(
+        self, output: torch.Tensor, camera: Camera | Sequence[Camera]
+    ) -> list[HypothesisSet]:
+        """Pose hypotheses of every image.
+
+        Args:
+            output: (B, out_channels, S, S) network output in [0, 1].
+            camera: the network-input camera (one for all images, or one per image).
+        Returns:
+            B hypothesis sets, camera frame, metres (averaged per image when ``averaging`` is set).
+        """
+        grid5 = self.split_slots(output.detach())  # (B, L, C, S, S)
+        B = grid5.shape[0]
+        b, slot, row, col = self._present(grid5[:, :, 0]).nonzero(as_tuple=True)
+        feat = grid5.permute(0, 1, 3, 4, 2)[b, slot, row, col].to(torch.float64)  # (N, C)
+        cams = CameraBatch.of(camera, B, output.device).take(b)
+        u, v, z_norm = self._decode_position(feat[:, 2:5], (slot, row, col), cams)
+        t = cams.backproject(u, v, cams.denormalize_depth(z_norm))
+        R = self.euler.decode(feat[:, 5:])
+        p_hat, v_hat = feat[:, 0], feat[:, 1]
+        score = {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[self.score]
+        if B == 0:
+            return []
+        splits = np.cumsum(torch.bincount(b, minlength=B).tolist())[:-1]
+        per_image = zip(
+            *(np.split(x.cpu().numpy(), splits) for x in (R, t, score, v_hat)), strict=True
+        )
+        hyps = [HypothesisSet(*arrays) for arrays in per_image]
+        return [self.averaging(h) for h in hyps] if self.averaging is not None else hyps
+
+    def _present(self, presence: torch.Tensor) -> torch.Tensor:
+        """(B, slots, S, S) presence channel -> bool mask of the cells/slots to decode."""
+        return presence > self.threshold
+
+    @abc.abstractmethod
+    def _decode_position(
+        self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
+    ) -> DecodedPosition:
+        """Position channels (N, 3) of cells (slot, row, col) -> u, v (N,) pixels, normalized
+        depth (N,)."""
+
+    def decode_rotations(self, output: torch.Tensor) -> torch.Tensor:
+        """Per-cell rotations decoded from the angle channels (differentiable, for the loss).
+
+        Args:
+            output: (B, out_channels, S, S).
+        Returns:
+            (B, slots, S, S, 3, 3) rotations, camera frame (φ3 = 0 for revolution objects).
+        """
+        angles = self.split_slots(output)[:, :, 5:].permute(0, 1, 3, 4, 2)  # (B, L, S, S, A)
+        return self.euler.decode(angles)
+
+    # ---- loss weights ------------------------------------------------------------------------
+    def pose_weight(self, visibility: torch.Tensor) -> torch.Tensor:
+        """λ3 of the loss from the ground-truth visibility: 8 v³ (cubic) or v (linear, SI)."""
+        return 8 * visibility**3 if self.pose_weighting == "cubic" else visibility
+
+    def presence_weight(self, target: torch.Tensor) -> torch.Tensor:
+        """(B, slots, S, S) weight of the presence term per cell/slot (ones by default)."""
+        return torch.ones_like(self.split_slots(target)[:, :, 0])
