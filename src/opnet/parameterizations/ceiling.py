@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from opnet.data.preprocess import resize_segmentation, to_network_input
+from opnet.data.preprocess import network_camera, resize_segmentation
 from opnet.datasets.record import SceneRecord
 from opnet.geometry.camera import Camera
 from opnet.metrics.bregier import evaluate_scenes
@@ -146,7 +146,7 @@ def network_ground_truth(
     cameras, items = [], []
     with_segmentation = all(r.segmentation is not None for r in records)
     for record in records:
-        _, camera = to_network_input(record.depth, record.camera, size=size)
+        camera = network_camera(record.camera, size)
         seg = (
             resize_segmentation(record.segmentation, record.camera, size)
             if with_segmentation

@@ -1,0 +1,174 @@
+"""Size and speed measurements of a backbone: parameters, FLOPs, CPU forward and training speed.
+
+FLOPs are measured with :class:`torch.utils.flop_counter.FlopCounterMode`, which counts a
+multiply-add as 2 FLOPs and counts convolutions and matrix products only (batch norm, ReLU,
+pooling and the sigmoid are not counted; they are < 1 % of the total here).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from hydra.utils import get_class
+from omegaconf import OmegaConf
+from torch import nn
+from torch.utils.flop_counter import FlopCounterMode
+
+from opnet.paths import config_dir
+
+
+@dataclass(frozen=True)
+class ModelStats:
+    """One row of the model statistics table.
+
+    Attributes:
+        preset: name of the model preset (``conf/model/<preset>.yaml``).
+        out_grid: output grid side S.
+        parameters: number of trainable parameters.
+        gflops: GFLOPs per image of one forward pass (multiply-add = 2 FLOPs).
+        ms_batch1, ms_batch8: CPU forward milliseconds per image at batch 1 and 8 (None: not timed).
+        train_images_per_s: CPU training throughput at batch 16, forward + backward + Adam step
+            (None: not timed).
+    """
+
+    preset: str
+    out_grid: int
+    parameters: int
+    gflops: float
+    ms_batch1: float | None = None
+    ms_batch8: float | None = None
+    train_images_per_s: float | None = None
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters of ``model``."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+def _input(model: nn.Module, batch: int, in_size: int) -> torch.Tensor:
+    channels = getattr(model, "in_channels", 1)
+    return torch.rand(batch, channels, in_size, in_size, generator=torch.Generator().manual_seed(0))
+
+
+@torch.no_grad()
+def gflops_per_image(model: nn.Module, in_size: int = 128) -> float:
+    """GFLOPs of one forward pass on one (1, C, in_size, in_size) image, measured (2 FLOPs per MAC)."""
+    was_training = model.training
+    model.eval()
+    with FlopCounterMode(display=False) as counter:
+        model(_input(model, 1, in_size))
+    model.train(was_training)
+    return counter.get_total_flops() / 1e9
+
+
+@torch.no_grad()
+def forward_ms_per_image(
+    model: nn.Module, batch: int, in_size: int = 128, repeats: int = 5, warmup: int = 1
+) -> float:
+    """Best-of-``repeats`` CPU forward time per image in milliseconds (eval mode, no grad).
+
+    The minimum (timeit's convention) is the least disturbed by other processes on a shared machine.
+    """
+    was_training = model.training
+    model.eval()
+    x = _input(model, batch, in_size)
+    for _ in range(warmup):
+        model(x)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        model(x)
+        times.append(time.perf_counter() - start)
+    model.train(was_training)
+    return min(times) * 1e3 / batch
+
+
+def train_images_per_s(
+    model: nn.Module, batch: int = 16, in_size: int = 128, steps: int = 5, warmup: int = 1
+) -> float:
+    """CPU training throughput (images/s, best step of ``steps``): forward, squared-L2 loss,
+    backward and an Adam step.
+
+    The model's weights are changed by the measurement; pass a copy to keep them.
+    """
+    model.train()
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
+    x = _input(model, batch, in_size)
+    target = None
+    times = []
+    for step in range(warmup + steps):
+        start = time.perf_counter()
+        y = model(x)
+        target = torch.full_like(y, 0.5) if target is None else target
+        loss = (y - target).square().mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        if step >= warmup:
+            times.append(time.perf_counter() - start)
+    return batch / min(times)
+
+
+def load_model_preset(
+    preset: str, out_channels: int, out_grid: int, conf_dir: Path | None = None
+) -> nn.Module:
+    """Build the backbone of ``conf/model/<preset>.yaml`` for a parameterization's output.
+
+    Raises:
+        ValueError: when the preset file does not exist or carries out_channels / out_grid.
+    """
+    path = (conf_dir or config_dir()) / "model" / f"{preset}.yaml"
+    if not path.is_file():
+        raise ValueError(f"model preset {preset!r}: {path} does not exist")
+    kwargs = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    target = kwargs.pop("_target_")
+    clash = {"out_channels", "out_grid"} & kwargs.keys()
+    if clash:
+        raise ValueError(
+            f"{path}: keys {sorted(clash)} come from the parameterization, remove them"
+        )
+    return get_class(target)(out_channels=out_channels, out_grid=out_grid, **kwargs)
+
+
+def preset_stats(
+    presets: Sequence[str] = ("paper", "small", "tiny"),
+    grids: Sequence[int] = (16, 8, 32),
+    out_channels: int = 8,
+    timing: bool = True,
+    train: bool = False,
+    repeats: int = 5,
+) -> list[ModelStats]:
+    """Statistics rows of every (preset, grid) pair, ``out_channels = 8`` (vanilla) by default.
+
+    Args:
+        presets: names of ``conf/model`` presets.
+        grids: output grid sides.
+        out_channels: channels of the head.
+        timing: also time the CPU forward pass at batch 1 and 8.
+        train: also measure the CPU training throughput at batch 16.
+        repeats: timed repetitions (the best one counts).
+    """
+    rows = []
+    for preset in presets:
+        for grid in grids:
+            torch.manual_seed(0)
+            model = load_model_preset(preset, out_channels, grid)
+            size = model.in_size
+            rows.append(
+                ModelStats(
+                    preset=preset,
+                    out_grid=grid,
+                    parameters=count_parameters(model),
+                    gflops=gflops_per_image(model, size),
+                    ms_batch1=forward_ms_per_image(model, 1, size, repeats) if timing else None,
+                    ms_batch8=forward_ms_per_image(model, 8, size, repeats) if timing else None,
+                    train_images_per_s=train_images_per_s(model, 16, size, repeats)
+                    if train
+                    else None,
+                )
+            )
+    return rows
