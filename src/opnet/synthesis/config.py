@@ -1,0 +1,151 @@
+"""Settings of the synthetic bin-picking scenes: camera, bin, physics (method.md §1, paper §IV).
+
+One flat dataclass so that every value is a Hydra override away (``scene.fov_deg=40``); ``None``
+means "derive it from the object and the number of drops" (see :mod:`opnet.synthesis.layout`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+COLLISION_MODES = ("auto", "convex_hull", "vhacd")
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Camera, bin and physics settings of a generated dataset.
+
+    Camera (the written ``parameter.json``; IPA convention: a crop of a square canvas):
+        resolution: side of the square canvas, pixels (``resolution_big``).
+        width, height: size of the written image, a centred crop of the canvas; None = resolution.
+            ``resolution - width`` and ``resolution - height`` must be even.
+        fov_deg: field of view of the canvas, degrees (``perspectiveAngle``).
+        camera_height: distance from the camera to the bin floor, metres; None = the smallest
+            height at which the whole bin rim fits into the image with ``view_margin`` to spare.
+        view_margin: relative margin around the bin rim when ``camera_height`` is automatic.
+        clip_start, clip_end: clip planes in metres (the depth code spans them); None = derived from
+            the camera height, the bin and the object diameter.
+        camera_jitter_m, camera_jitter_deg: per-cycle uniform jitter of the camera position (each
+            axis, metres) and orientation (random axis, angle up to this many degrees).
+        bin_jitter_m, bin_jitter_deg: per-cycle uniform jitter of the bin position on the ground
+            (x and y, metres) and of its yaw (degrees).
+
+    Bin (a tote of five boxes standing on a ground plane; floor top = bin frame origin, z up):
+        bin_inner: inner side of the square floor, metres; None = from the object and ``drops``.
+        bin_layers: the automatic floor holds ``drops`` parts lying flat in about this many layers.
+        bin_wall_height: inner wall height, metres; None = ``bin_wall_factor`` x object diameter.
+        bin_wall_factor: see ``bin_wall_height``.
+        bin_wall_thickness: metres, walls and floor.
+
+    Physics (pybullet):
+        collision: "convex_hull", "vhacd" (approximate convex decomposition, cached) or "auto"
+            (vhacd when the mesh volume is below ``convexity_threshold`` x its hull volume).
+        convexity_threshold: see ``collision``.
+        vhacd_resolution: voxel budget of the convex decomposition.
+        cache_dir: folder of the decomposition cache; None = $OPNET_CACHE or ~/.cache/opnet.
+        time_step: simulation step, seconds.
+        solver_iterations: constraint solver iterations per step.
+        friction, rolling_friction, restitution: contact parameters of every body.
+        linear_damping, angular_damping: velocity damping of the parts (pybullet's), per second.
+        drop_gap: metres between the pile top and the lowest possible point of a spawned part.
+        settle_linear, settle_angular: a pile is at rest when every part moves slower than these
+            (m/s, rad/s) ...
+        settle_checks: ... at this many consecutive checks, one check every ``check_every`` steps.
+        check_every: see ``settle_checks``.
+        settle_time_cap: simulated seconds after which a drop is recorded even if still moving.
+        max_redrops: attempts per drop when parts leave the bin (the world is restored each time).
+        max_cycle_restarts: whole-cycle restarts (fresh random stream) when a drop exhausts its attempts.
+
+    Rendering:
+        solo_cache_mm, solo_cache_deg: an object's solo pixel count (the visibility denominator) is
+            reused within a cycle while its pose moved less than this since it was counted.
+    """
+
+    resolution: int = 512
+    width: int | None = None
+    height: int | None = None
+    fov_deg: float = 50.0
+    camera_height: float | None = None
+    view_margin: float = 0.08
+    clip_start: float | None = None
+    clip_end: float | None = None
+    camera_jitter_m: float = 0.005
+    camera_jitter_deg: float = 1.0
+    bin_jitter_m: float = 0.01
+    bin_jitter_deg: float = 5.0
+    bin_inner: float | None = None
+    bin_layers: float = 1.5
+    bin_wall_height: float | None = None
+    bin_wall_factor: float = 0.6
+    bin_wall_thickness: float = 0.01
+    collision: str = "auto"
+    convexity_threshold: float = 0.85
+    vhacd_resolution: int = 1_000_000
+    cache_dir: str | None = None
+    time_step: float = 1.0 / 120.0
+    solver_iterations: int = 10
+    friction: float = 0.5
+    rolling_friction: float = 0.002
+    restitution: float = 0.0
+    linear_damping: float = 0.04
+    angular_damping: float = 0.5
+    drop_gap: float = 0.01
+    settle_linear: float = 0.05
+    settle_angular: float = 0.5
+    settle_checks: int = 3
+    check_every: int = 4
+    settle_time_cap: float = 3.0
+    max_redrops: int = 10
+    max_cycle_restarts: int = 3
+    solo_cache_mm: float = 0.3
+    solo_cache_deg: float = 0.3
+
+    def __post_init__(self) -> None:
+        def need(ok: bool, key: str, expected: str) -> None:
+            if not ok:
+                raise ValueError(f"scene config: {key}={getattr(self, key)!r}, expected {expected}")
+
+        need(self.resolution >= 8, "resolution", "an integer >= 8")
+        for key in ("width", "height"):
+            value = getattr(self, key)
+            need(value is None or (0 < value <= self.resolution and (self.resolution - value) % 2 == 0), key,
+                 "None or a size <= resolution with (resolution - size) even (a centred crop)")
+        need(0.0 < self.fov_deg < 170.0, "fov_deg", "degrees in (0, 170)")
+        for key in ("camera_height", "clip_start", "clip_end", "bin_inner", "bin_wall_height"):
+            value = getattr(self, key)
+            need(value is None or (math.isfinite(value) and value > 0), key, "None or a positive number of metres")
+        if self.clip_start is not None and self.clip_end is not None:
+            need(self.clip_start < self.clip_end, "clip_end", f"> clip_start={self.clip_start}")
+        need(self.collision in COLLISION_MODES, "collision", f"one of {COLLISION_MODES}")
+        for key in ("view_margin", "camera_jitter_m", "camera_jitter_deg", "bin_jitter_m", "bin_jitter_deg",
+                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg"):
+            need(math.isfinite(getattr(self, key)) and getattr(self, key) >= 0, key, "a number >= 0")
+        for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
+                    "settle_angular", "settle_time_cap", "convexity_threshold"):
+            need(math.isfinite(getattr(self, key)) and getattr(self, key) > 0, key, "a number > 0")
+        for key in ("vhacd_resolution", "solver_iterations", "settle_checks", "check_every", "max_redrops"):
+            need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
+        need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of the written image, pixels."""
+        return (self.width or self.resolution, self.height or self.resolution)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None) -> SceneConfig:
+        """Build from a mapping (a Hydra ``scene`` node or a plain dict); unknown keys are errors."""
+        values = dict(values or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"scene config: unknown keys {unknown}; expected some of {sorted(known)}")
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (the inverse of :meth:`from_dict`)."""
+        return dataclasses.asdict(self)

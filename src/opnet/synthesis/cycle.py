@@ -1,0 +1,136 @@
+"""One drop cycle in memory: physics, then rendering, then scene records (no disk access).
+
+Random numbers: cycle c of a dataset with seed s draws everything from
+``SeedSequence([s, c])``, split into one stream for the per-cycle jitter and one for the drops, so
+a cycle is the same whichever worker makes it and whatever was made before.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Self
+
+import numpy as np
+
+from opnet.datasets.record import SceneRecord
+from opnet.objects.model import ObjectModel
+from opnet.synthesis.collision import CollisionModel, build_collision_model
+from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout
+from opnet.synthesis.physics import BinSimulator, CycleStats
+from opnet.synthesis.rendering import SceneRenderer
+
+#: the ground plate is this many bin widths wide (it fills the view around the bin)
+GROUND_SCALE = 10.0
+
+
+def cycle_rngs(seed: int, cycle: int) -> tuple[np.random.Generator, np.random.Generator]:
+    """(layout generator, drop generator) of a cycle, from ``SeedSequence([seed, cycle])``."""
+    layout_seq, drop_seq = np.random.SeedSequence([int(seed), int(cycle)]).spawn(2)
+    return np.random.default_rng(layout_seq), np.random.default_rng(drop_seq)
+
+
+def scene_name(cycle: int, n: int) -> str:
+    """Record name of scene ``n`` of ``cycle`` (the IPA reader's naming)."""
+    return f"cycle_{cycle:04d}_{n:03d}"
+
+
+@dataclass
+class CycleResult:
+    """A generated cycle.
+
+    Attributes:
+        cycle: the cycle number.
+        records: ``records[n]`` is the scene with n objects, n = 0 .. drops (internal camera frame).
+        R_cam_bin: (3, 3) float64 bin-to-camera rotation.
+        t_cam_bin: (3,) float64 bin origin (floor top centre) in the camera frame, metres.
+        layout: the cycle's jittered bin and camera poses in the world.
+        stats: physics bookkeeping.
+        solo_renders: solo render passes over the whole cycle (visibility denominators).
+    """
+
+    cycle: int
+    records: list[SceneRecord]
+    R_cam_bin: np.ndarray
+    t_cam_bin: np.ndarray
+    layout: CycleLayout
+    stats: CycleStats
+    solo_renders: int
+
+
+class CycleGenerator:
+    """Makes whole cycles of one part in memory: one pybullet client and one EGL renderer.
+
+    Args:
+        obj: the part (needs a mesh).
+        drops: parts dropped per cycle (scenes 0 .. drops).
+        scene: camera, bin and physics settings; default :class:`SceneConfig()`.
+        cycles: number of cycles of the dataset (only recorded in ``rig.params``).
+        collision: a prepared collision model (default: built here, V-HACD cached on disk).
+    """
+
+    def __init__(
+        self,
+        obj: ObjectModel,
+        drops: int,
+        scene: SceneConfig | None = None,
+        cycles: int = 1,
+        collision: CollisionModel | None = None,
+    ) -> None:
+        if drops < 0:
+            raise ValueError(f"drops must be >= 0, got {drops}")
+        self.obj, self.drops = obj, int(drops)
+        self.scene = scene or SceneConfig()
+        self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
+        assert obj.mesh is not None  # make_rig refuses mesh-less objects
+        self.collision = collision or build_collision_model(obj.mesh, self.scene)
+        self.simulator = BinSimulator(self.rig, self.collision, self.scene)
+        self.renderer = SceneRenderer(
+            obj.mesh,
+            self.rig.camera,
+            self.rig.bin.mesh(),
+            ground_size=GROUND_SCALE * self.rig.bin.outer,
+            ground_depth=self.rig.bin.thickness,
+            solo_cache_mm=self.scene.solo_cache_mm,
+            solo_cache_deg=self.scene.solo_cache_deg,
+        )
+
+    def close(self) -> None:
+        self.simulator.close()
+        self.renderer.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def generate(self, seed: int, cycle: int) -> CycleResult:
+        """Simulate and render cycle ``cycle`` of the dataset with seed ``seed``."""
+        layout_rng, drop_rng = cycle_rngs(seed, cycle)
+        layout = sample_layout(self.rig, self.scene, layout_rng)
+        states = self.simulator.simulate(layout, self.drops, drop_rng)
+        T_cam_world = layout.T_cam_world
+        T_cam_bin = T_cam_world @ layout.T_world_bin
+        self.renderer.begin_cycle(T_cam_bin)
+        records, solo_renders = [], 0
+        for n, T_world_obj in enumerate(states.T_world_obj):
+            T_cam_obj = T_cam_world @ T_world_obj  # (n, 4, 4)
+            out = self.renderer.render(T_cam_obj)
+            solo_renders += out.solo_renders
+            records.append(
+                SceneRecord(
+                    name=scene_name(cycle, n),
+                    depth=out.depth,
+                    camera=self.rig.camera,
+                    segmentation=out.segmentation,
+                    R_cam_obj=T_cam_obj[:, :3, :3].copy(),
+                    t_cam_obj=T_cam_obj[:, :3, 3].copy(),
+                    visibility=out.visibility,
+                    instance_id=np.arange(1, n + 1, dtype=np.int64),
+                    object_name=self.obj.name,
+                )
+            )
+        return CycleResult(cycle, records, T_cam_bin[:3, :3].copy(), T_cam_bin[:3, 3].copy(), layout,
+                           states.stats, solo_renders)
+

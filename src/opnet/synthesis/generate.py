@@ -1,0 +1,224 @@
+"""Generate a synthetic IPA-layout dataset: parallel, resumable, byte-deterministic.
+
+Work is split by whole cycles. Each worker process (``spawn`` start method: pybullet and EGL do
+not survive a fork) owns one :class:`CycleGenerator` (one pybullet client, one EGL context). Every
+cycle draws its random numbers from ``SeedSequence([seed, cycle])`` and starts its physics world
+from scratch, so the files do not depend on the number of workers or on the order of the cycles.
+Files are written atomically and the scene CSVs last, so a killed run leaves complete cycles and
+an incomplete one; re-running deletes and remakes the incomplete cycles and skips the rest, giving
+the same bytes as an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from opnet.objects.model import ObjectModel
+from opnet.synthesis.collision import CollisionModel, build_collision_model
+from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.cycle import CycleGenerator
+from opnet.synthesis.layout import make_rig
+from opnet.synthesis.writer import (
+    clear_cycle,
+    cycle_complete,
+    normalized_object_config,
+    object_config_for,
+    preview_cycles,
+    write_cycle,
+    write_root_files,
+)
+
+
+@dataclass
+class GenerationReport:
+    """What :func:`generate_dataset` did.
+
+    Attributes:
+        out: the dataset folder.
+        cycles: cycles the dataset has; cycles_generated: made by this call; cycles_skipped:
+            already complete.
+        scenes_written: scenes written by this call (``cycles_generated * (drops + 1)``).
+        seconds: wall time of the call; startup_seconds: until the first worker was ready
+            (process start, imports, EGL and pybullet set-up).
+        scenes_per_second: ``scenes_written`` / (``seconds`` - ``startup_seconds``).
+        redrops, unsettled, restarts, physics_steps, solo_renders: totals over generated cycles.
+        per_cycle_seconds: time each generated cycle took (simulate, render, write).
+        worker_busy: per worker process id, (scenes written, seconds spent on them).
+    """
+
+    out: Path
+    cycles: int
+    cycles_generated: int = 0
+    cycles_skipped: int = 0
+    scenes_written: int = 0
+    seconds: float = 0.0
+    startup_seconds: float = 0.0
+    redrops: int = 0
+    unsettled: int = 0
+    restarts: int = 0
+    physics_steps: int = 0
+    solo_renders: int = 0
+    per_cycle_seconds: list[float] = field(default_factory=list)
+    worker_busy: dict[int, tuple[int, float]] = field(default_factory=dict)
+
+    @property
+    def scenes_per_second(self) -> float:
+        busy = self.seconds - self.startup_seconds
+        return self.scenes_written / busy if busy > 0 else 0.0
+
+    @property
+    def steady_scenes_per_second(self) -> float:
+        """Sum over workers of scenes / seconds spent making them (no start-up, no idle tail)."""
+        return sum(n / t for n, t in self.worker_busy.values() if t > 0)
+
+
+@dataclass(frozen=True)
+class _Job:
+    """Everything a worker needs (pickled once per worker)."""
+
+    obj: ObjectModel
+    root: Path
+    drops: int
+    cycles: int
+    seed: int
+    scene: SceneConfig
+    collision: CollisionModel
+    previews: frozenset[int]
+
+
+@dataclass(frozen=True)
+class _CycleDone:
+    cycle: int
+    seconds: float
+    ready_at: float
+    redrops: int
+    unsettled: int
+    restarts: int
+    steps: int
+    solo_renders: int
+    worker: int
+
+
+class _Worker:
+    def __init__(self, job: _Job) -> None:
+        self.job = job
+        self.generator = CycleGenerator(job.obj, job.drops, job.scene, job.cycles, job.collision)
+        self.ready_at = time.time()
+
+    def run(self, cycle: int) -> _CycleDone:
+        start = time.perf_counter()
+        job = self.job
+        result = self.generator.generate(job.seed, cycle)
+        write_cycle(job.root, result, (job.drops,) if cycle in job.previews else ())
+        s = result.stats
+        return _CycleDone(cycle, time.perf_counter() - start, self.ready_at, s.redrops, s.unsettled, s.restarts,
+                          s.steps, result.solo_renders, os.getpid())
+
+
+_WORKER: _Worker | None = None
+
+
+def _init_worker(job: _Job, threads: int) -> None:
+    global _WORKER
+    # llvmpipe (software GL) rasterizes with one thread per CPU in every worker: split the CPUs
+    os.environ.setdefault("LP_NUM_THREADS", str(threads))
+    _WORKER = _Worker(job)
+
+
+def _run_cycle(cycle: int) -> _CycleDone:
+    assert _WORKER is not None, "worker not initialized"
+    return _WORKER.run(cycle)
+
+
+def generate_dataset(
+    obj: ObjectModel,
+    out: Path,
+    cycles: int,
+    drops: int,
+    workers: int = 1,
+    seed: int = 0,
+    scene: SceneConfig | None = None,
+    progress: bool = True,
+    previews: int = 4,
+    object_config: Mapping[str, Any] | None = None,
+) -> GenerationReport:
+    """Generate (or complete) an IPA-layout dataset of ``cycles`` x (``drops`` + 1) scenes.
+
+    Args:
+        obj: the part (needs a mesh).
+        out: dataset folder; created, or completed if it holds a dataset with the same settings.
+        cycles: number of drop cycles (``cycle_0000`` ..).
+        drops: parts per cycle; scenes 000 (empty bin) .. ``drops``. At most 254 (uint8 ids).
+        workers: worker processes; 1 runs in this process.
+        seed: dataset seed; cycle c uses ``SeedSequence([seed, c])``.
+        scene: camera, bin and physics settings (default :class:`SceneConfig()`).
+        progress: show a tqdm bar (scenes).
+        previews: how many cycles (spread evenly) get ``preview/cycle_XXXX_NNN.png`` of their
+            full scene.
+        object_config: the object config to store in ``object.json`` (keys of conf/object/*.yaml);
+            default: the built-in's name, or a copy of the mesh in ``out``.
+    Returns:
+        What was done, with timings.
+    Raises:
+        ValueError: bad arguments, or ``out`` holds a dataset made with other settings.
+    """
+    if cycles < 0 or not 0 <= drops <= 254 or workers < 1:
+        raise ValueError(f"need cycles >= 0, 0 <= drops <= 254 and workers >= 1; got {cycles}, {drops}, {workers}")
+    start, wall_start = time.perf_counter(), time.time()
+    out, scene = Path(out), scene or SceneConfig()
+    rig = make_rig(obj, drops, cycles, scene)
+    config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)
+    write_root_files(out, obj, config, rig.params, scene, seed, drops)
+    todo = [c for c in range(cycles) if not cycle_complete(out, c, drops)]
+    for c in todo:
+        clear_cycle(out, c)
+    report = GenerationReport(out, cycles, cycles_skipped=cycles - len(todo))
+    if todo:
+        assert obj.mesh is not None
+        job = _Job(obj, out, drops, cycles, seed, scene, build_collision_model(obj.mesh, scene),
+                   frozenset(preview_cycles(cycles, previews)))
+        with tqdm(total=len(todo) * (drops + 1), unit="scene", disable=not progress, desc=f"generating {out.name}") as bar:
+            for done in _run(job, todo, min(workers, len(todo))):
+                bar.update(drops + 1)
+                _account(report, done, drops, done.ready_at - wall_start)
+    report.seconds = time.perf_counter() - start
+    report.startup_seconds = min(report.startup_seconds, report.seconds)
+    return report
+
+
+def _run(job: _Job, todo: list[int], workers: int) -> Iterator[_CycleDone]:
+    """Yield finished cycles, in this process (workers == 1) or from a spawn pool."""
+    if workers == 1:
+        worker = _Worker(job)
+        try:
+            for c in todo:
+                yield worker.run(c)
+        finally:
+            worker.generator.close()
+        return
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(job, threads)) as pool:
+        yield from pool.imap_unordered(_run_cycle, todo, chunksize=1)
+
+
+def _account(report: GenerationReport, done: _CycleDone, drops: int, ready_after: float) -> None:
+    first = report.cycles_generated == 0
+    report.cycles_generated += 1
+    report.scenes_written += drops + 1
+    report.redrops += done.redrops
+    report.unsettled += done.unsettled
+    report.restarts += done.restarts
+    report.physics_steps += done.steps
+    report.solo_renders += done.solo_renders
+    report.per_cycle_seconds.append(done.seconds)
+    scenes, seconds = report.worker_busy.get(done.worker, (0, 0.0))
+    report.worker_busy[done.worker] = (scenes + drops + 1, seconds + done.seconds)
+    report.startup_seconds = ready_after if first else min(report.startup_seconds, ready_after)

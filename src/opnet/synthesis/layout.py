@@ -1,0 +1,190 @@
+"""The fixed set-up of a generated dataset: the procedural bin, the camera and the world frame.
+
+World frame: z up, origin at the centre of the top of the (un-jittered) bin floor; the ground plane
+is the plane z = -``bin_wall_thickness`` on which the bin stands. Bin frame: the same, attached to
+the bin (per-cycle jitter moves it on the ground: x, y and yaw). The nominal camera hangs
+``camera_height`` above the world origin looking straight down; in the internal OpenCV camera frame
+(x right, y down, z forward, method.md §1) that is ``R_world_cam = diag(1, -1, -1)``.
+
+Automatic sizes (every one can be set in :class:`SceneConfig`):
+- bin floor side ``L = max(2 D, sqrt(drops * a / layers))``, ``D`` the object diameter and ``a``
+  the product of its two largest extents (the area of the part lying flat): ``drops`` parts lie in
+  about ``bin_layers`` layers, and the longest part fits with room to turn;
+- wall height ``bin_wall_factor * D``;
+- camera height: the smallest at which the outer rim of the walls, grown by ``view_margin``, fits
+  into the smaller image side;
+- clip planes: ``clip_start`` one diameter above the wall tops (parts rarely pile higher than the
+  walls; closer points are written as missing depth), ``clip_end`` past the ground plane at the
+  image corners under the worst camera tilt.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from opnet.datasets.ipa_params import IPAParameters
+from opnet.geometry.camera import Camera
+from opnet.objects.model import ObjectModel
+from opnet.synthesis.config import SceneConfig
+
+#: R_world_cam of the nominal camera: OpenCV axes, looking down (a half-turn about x)
+R_WORLD_CAM_DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+def homogeneous(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation and (3,) translation -> (4, 4) float64 rigid transform."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def inverse_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a (4, 4) rigid transform (exact for the rotation part: R^T)."""
+    R, t = T[:3, :3], T[:3, 3]
+    return homogeneous(R.T, -R.T @ t)
+
+
+def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(3, 3) rotation of ``angle`` radians about the unit vector ``axis`` (Rodrigues)."""
+    x, y, z = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """(3, 3) rotation drawn uniformly on SO(3) (normalized Gaussian quaternion)."""
+    w, x, y, z = (q := rng.standard_normal(4)) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+
+
+@dataclass(frozen=True)
+class BinGeometry:
+    """A tote: a square floor and four walls, in the bin frame (floor top centre = origin, z up).
+
+    Attributes:
+        inner: inner side of the floor, metres.
+        wall_height: height of the walls above the floor top, metres.
+        thickness: thickness of the floor and the walls, metres.
+    """
+
+    inner: float
+    wall_height: float
+    thickness: float
+
+    @property
+    def outer(self) -> float:
+        """Outer side of the bin, metres."""
+        return self.inner + 2.0 * self.thickness
+
+    def boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The five boxes as (half extents (3,), centre (3,)) in the bin frame, metres."""
+        a, h, t = self.inner / 2.0, self.wall_height, self.thickness
+        floor = (np.array([a + t, a + t, t / 2]), np.array([0.0, 0.0, -t / 2]))
+        walls = []
+        for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            half = np.array([t / 2 if sx else a + t, t / 2 if sy else a + t, h / 2])
+            walls.append((half, np.array([sx * (a + t / 2), sy * (a + t / 2), h / 2])))
+        return [floor, *walls]
+
+    def mesh(self) -> trimesh.Trimesh:
+        """The bin as one triangle mesh in the bin frame, metres (for rendering)."""
+        parts = [trimesh.creation.box(extents=2 * half, transform=homogeneous(np.eye(3), c)) for half, c in self.boxes()]
+        return trimesh.util.concatenate(parts)
+
+    def inside(self, points_bin: np.ndarray) -> np.ndarray:
+        """(N, 3) points in the bin frame -> (N,) bool: above the floor and within the walls."""
+        p = np.asarray(points_bin, dtype=np.float64).reshape(-1, 3)
+        a = self.inner / 2.0
+        return (np.abs(p[:, 0]) <= a) & (np.abs(p[:, 1]) <= a) & (p[:, 2] >= -1e-3)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Everything fixed for a dataset: bin, camera intrinsics and nominal camera pose.
+
+    Attributes:
+        bin: the tote.
+        params: the ``parameter.json`` content.
+        camera: the written image's camera (exactly ``params.camera()``).
+        T_world_cam: (4, 4) nominal camera pose, OpenCV camera frame to world, metres.
+        object_radius: metres, max distance of a mesh vertex from the model origin.
+    """
+
+    bin: BinGeometry
+    params: IPAParameters
+    camera: Camera
+    T_world_cam: np.ndarray
+    object_radius: float
+
+
+@dataclass(frozen=True)
+class CycleLayout:
+    """Per-cycle poses (jittered): (4, 4) bin-to-world and OpenCV-camera-to-world transforms."""
+
+    T_world_bin: np.ndarray
+    T_world_cam: np.ndarray
+
+    @property
+    def T_cam_world(self) -> np.ndarray:
+        return inverse_pose(self.T_world_cam)
+
+
+def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig:
+    """The dataset set-up for ``drops`` parts of ``obj`` per cycle (sizes: see the module docstring)."""
+    if obj.mesh is None:
+        raise ValueError(f"object {obj.name!r} has no mesh: the generator needs one to simulate and render")
+    extent = np.sort(obj.extent)
+    D = obj.diameter
+    inner = cfg.bin_inner or max(2.0 * D, math.sqrt(drops * extent[1] * extent[2] / cfg.bin_layers))
+    wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
+    bin_geom = BinGeometry(inner, wall, cfg.bin_wall_thickness)
+
+    width, height = cfg.image_size
+    f = cfg.resolution / (2.0 * math.tan(math.radians(cfg.fov_deg) / 2.0))
+    tan_half_image = (min(width, height) / 2.0) / f
+    h = cfg.camera_height or wall + (bin_geom.outer / 2.0) * (1.0 + cfg.view_margin) / tan_half_image
+    tilt = math.tan(math.radians(cfg.camera_jitter_deg))
+    tan_half_diag = math.hypot(width, height) / 2.0 / f
+    clip_start = cfg.clip_start or max(h - wall - D - cfg.camera_jitter_m, 0.1 * h)
+    clip_end = cfg.clip_end or (h + bin_geom.thickness) * (1.0 + tilt * tan_half_diag) * 1.02 + cfg.camera_jitter_m
+    if clip_start >= clip_end:
+        raise ValueError(f"scene config: clip_start={clip_start} must be below clip_end={clip_end}")
+
+    off_x, off_y = (cfg.resolution - width) // 2, (cfg.resolution - height) // 2
+    params = IPAParameters(
+        perspective_angle=float(cfg.fov_deg),
+        clip_start=float(clip_start),
+        clip_end=float(clip_end),
+        resolution_x=width,
+        resolution_y=height,
+        resolution_big=cfg.resolution,
+        pixel_offset_x=off_x,
+        pixel_offset_y=off_y,
+        number_cycles=int(cycles),
+        shape_drop_limit=int(drops),
+        location=(0.0, 0.0, float(h)),
+        rotation=(0.0, 1.0, 0.0, 0.0),  # w, x, y, z of R_WORLD_CAM_DOWN
+    )
+    radius = float(np.linalg.norm(obj.mesh.vertices, axis=1).max())
+    return Rig(bin_geom, params, params.camera(), homogeneous(R_WORLD_CAM_DOWN, np.array([0.0, 0.0, h])), radius)
+
+
+def sample_layout(rig: Rig, cfg: SceneConfig, rng: np.random.Generator) -> CycleLayout:
+    """Jitter the bin (x, y, yaw) and the camera (position, small tilt) for one cycle."""
+    dx, dy = rng.uniform(-1.0, 1.0, 2) * cfg.bin_jitter_m
+    yaw = math.radians(cfg.bin_jitter_deg) * rng.uniform(-1.0, 1.0)
+    T_world_bin = homogeneous(rotation_about(np.array([0.0, 0.0, 1.0]), yaw), np.array([dx, dy, 0.0]))
+    axis = rng.standard_normal(3)
+    angle = math.radians(cfg.camera_jitter_deg) * rng.uniform(0.0, 1.0)
+    shift = rng.uniform(-1.0, 1.0, 3) * cfg.camera_jitter_m
+    T_jitter = homogeneous(rotation_about(axis, angle), shift)
+    return CycleLayout(T_world_bin, T_jitter @ rig.T_world_cam)

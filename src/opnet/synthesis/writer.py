@@ -1,0 +1,146 @@
+"""Generated datasets on disk: the IPA layout (metric_and_formats.md §4) plus our own root files.
+
+```
+<root>/parameter.json          IPA camera and drop settings (opnet.datasets.ipa_params)
+<root>/object.json             the object config (keys of conf/object/*.yaml): object_from_config rebuilds it
+<root>/poseutils.json          the official Siléane pose-utils of the object (ObjectModel.to_poseutils)
+<root>/generation.json         seed, drops and scene settings: a resumed run must match them
+<root>/gt|p_depth|p_segmentation/cycle_XXXX/...   scenes, via opnet.datasets.ipa.write_ipa_scene
+<root>/preview/cycle_XXXX_NNN.png                 depth | segmentation, for a few scenes
+```
+A cycle is complete when the CSVs of all its scenes 000..drops exist (each scene writes its CSV
+last, and the scenes are written in order). An incomplete cycle is deleted and made again.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from opnet.datasets.atomic import write_text_atomic
+from opnet.datasets.ipa import scene_paths, write_ipa_scene
+from opnet.datasets.ipa_params import IPAParameters, write_parameters
+from opnet.objects.library import BUILTINS, builtin_object
+from opnet.objects.model import ObjectModel
+from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.cycle import CycleResult
+from opnet.synthesis.preview import write_preview
+
+OBJECT_FILE = "object.json"
+POSEUTILS_FILE = "poseutils.json"
+GENERATION_FILE = "generation.json"
+PREVIEW_DIR = "preview"
+MESH_COPY = "object_mesh.ply"
+_SCENE_DIRS = ("gt", "p_depth", "p_segmentation")
+_FORMAT = 1
+
+
+def _json_text(data: Any) -> str:
+    return json.dumps(data, indent=2, sort_keys=True) + "\n"
+
+
+def object_config_for(obj: ObjectModel, root: Path) -> dict[str, Any]:
+    """An object config that rebuilds ``obj``: the built-in's name, or a mesh copy in ``root``."""
+    if obj.name in BUILTINS and obj.mesh is not None and np.array_equal(obj.mesh.vertices, builtin_object(obj.name).mesh.vertices):
+        return {"name": obj.name, "builtin": obj.name}
+    if obj.mesh is None:
+        raise ValueError(f"object {obj.name!r} has no mesh: the generator needs one to simulate and render")
+    path = (root / MESH_COPY).resolve()
+    root.mkdir(parents=True, exist_ok=True)
+    obj.mesh.export(path)
+    return {"name": obj.name, "mesh": str(path), "mesh_scale": 1.0, "symmetry": obj.symmetry.to_spec()}
+
+
+def normalized_object_config(config: Mapping[str, Any]) -> dict[str, Any]:
+    """Plain-data copy of an object config, with a relative mesh path made absolute."""
+    out = json.loads(json.dumps(dict(config), default=lambda o: dict(o) if isinstance(o, Mapping) else list(o)))
+    if out.get("mesh") is not None:
+        out["mesh"] = str(Path(out["mesh"]).expanduser().resolve())
+    return out
+
+
+def write_root_files(
+    root: Path, obj: ObjectModel, object_config: Mapping[str, Any], params: IPAParameters, scene: SceneConfig,
+    seed: int, drops: int,
+) -> None:
+    """Write (or check and rewrite) the dataset's root files before any scene.
+
+    Raises:
+        ValueError: ``root`` already holds a dataset made with another object, seed, number of
+            drops or scene settings (the message names the file and the differing keys).
+    """
+    generation = {"format": _FORMAT, "seed": int(seed), "drops": int(drops), "scene": scene.to_dict(),
+                  "object": dict(object_config)}
+    existing_file = root / GENERATION_FILE
+    if existing_file.exists():
+        try:
+            existing = json.loads(existing_file.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as e:
+            raise ValueError(f"{existing_file}: unreadable ({e}); delete the folder or choose another 'out'") from e
+        differing = sorted(k for k in set(generation) | set(existing) if existing.get(k) != json.loads(_json_text(generation))[k])
+        if differing:
+            raise ValueError(
+                f"{existing_file}: the folder holds a dataset generated with other settings (keys {differing} differ); "
+                f"choose another output folder or delete it"
+            )
+    root.mkdir(parents=True, exist_ok=True)
+    write_parameters(root, params)
+    write_text_atomic(root / OBJECT_FILE, _json_text(dict(object_config)))
+    write_text_atomic(root / POSEUTILS_FILE, _json_text(obj.to_poseutils()))
+    write_text_atomic(existing_file, _json_text(generation))
+    for tmp in root.glob(".*.tmp"):  # left by a run killed while writing a root file
+        tmp.unlink(missing_ok=True)
+
+
+def cycle_complete(root: Path, cycle: int, drops: int) -> bool:
+    """Whether every scene CSV 000..drops of ``cycle`` exists."""
+    return all(scene_paths(root, cycle, n)["csv"].is_file() for n in range(drops + 1))
+
+
+def clear_cycle(root: Path, cycle: int) -> None:
+    """Delete every file of ``cycle`` (scenes, previews, temporary files of a killed run)."""
+    folder = f"cycle_{cycle:04d}"
+    for sub in _SCENE_DIRS:
+        shutil.rmtree(root / sub / folder, ignore_errors=True)
+    preview = root / PREVIEW_DIR
+    if preview.is_dir():
+        for f in [*preview.glob(f"{folder}_*.png"), *preview.glob(f".{folder}_*.tmp")]:
+            f.unlink(missing_ok=True)
+
+
+def preview_path(root: Path, cycle: int, n: int) -> Path:
+    return root / PREVIEW_DIR / f"cycle_{cycle:04d}_{n:03d}.png"
+
+
+def write_cycle(root: Path, result: CycleResult, preview_scenes: tuple[int, ...] = ()) -> None:
+    """Write the previews, then every scene in order (each scene's CSV last)."""
+    for n in preview_scenes:
+        write_preview(preview_path(root, result.cycle, n), result.records[n])
+    for record in result.records:
+        write_ipa_scene(root, result.cycle, record, (result.R_cam_bin, result.t_cam_bin))
+
+
+def preview_cycles(cycles: int, previews: int) -> set[int]:
+    """The cycles whose full scene gets a preview: ``previews`` cycles spread evenly."""
+    if previews <= 0 or cycles <= 0:
+        return set()
+    if previews == 1 or cycles == 1:
+        return {0}
+    k = min(previews, cycles)
+    return {round(i * (cycles - 1) / (k - 1)) for i in range(k)}
+
+
+def read_generation(root: Path) -> dict[str, Any]:
+    """The ``generation.json`` of a generated dataset (seed, drops, scene, object)."""
+    path = Path(root) / GENERATION_FILE
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as e:
+        raise FileNotFoundError(f"{path}: not found (not a dataset made by opnet.synthesis)") from e
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno})") from e

@@ -1,0 +1,109 @@
+"""Scene settings and the dataset set-up: camera representable in parameter.json, bin in view, clip planes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from opnet.datasets.ipa_params import IPAParameters
+from opnet.objects import builtin_object
+from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.cycle import cycle_rngs
+from opnet.synthesis.layout import (
+    BinGeometry,
+    inverse_pose,
+    make_rig,
+    random_rotation,
+    sample_layout,
+)
+
+
+@pytest.mark.parametrize(("resolution", "width", "height"), [(512, None, None), (300, 260, 200)])
+def test_camera_is_exactly_what_parameter_json_describes(resolution: int, width: int | None, height: int | None) -> None:
+    cfg = SceneConfig(resolution=resolution, width=width, height=height, fov_deg=47.5)
+    rig = make_rig(builtin_object("bracket"), 20, 7, cfg)
+    cam, p = rig.camera, rig.params
+    assert (cam.width, cam.height) == cfg.image_size
+    assert cam.fx == cam.fy == pytest.approx(resolution / (2 * math.tan(math.radians(47.5) / 2)), rel=1e-12)
+    # a centred crop of the square canvas: principal point at the canvas centre (pixel-centre convention)
+    assert (cam.cx, cam.cy) == (resolution / 2 - 0.5 - p.pixel_offset_x, resolution / 2 - 0.5 - p.pixel_offset_y)
+    assert cam.cx == (cam.width - 1) / 2 and cam.cy == (cam.height - 1) / 2
+    assert (p.number_cycles, p.shape_drop_limit) == (7, 20)
+    again = IPAParameters.from_camera(cam, 7, 20, resolution_big=resolution).camera()
+    assert again.cx == cam.cx and again.cy == cam.cy and again.fx == pytest.approx(cam.fx, rel=1e-12)
+
+
+def test_the_whole_bin_is_in_view_and_inside_the_clip_planes() -> None:
+    cfg = SceneConfig(resolution=256, camera_jitter_m=0.0, camera_jitter_deg=0.0, bin_jitter_m=0.0, bin_jitter_deg=0.0)
+    rig = make_rig(builtin_object("shaft"), 15, 1, cfg)
+    T_cam_world = inverse_pose(rig.T_world_cam)
+    a, t, h = rig.bin.outer / 2, rig.bin.thickness, rig.bin.wall_height
+    corners = np.array([[sx * a, sy * a, z] for sx in (-1, 1) for sy in (-1, 1) for z in (h, -t)])
+    p = corners @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    uv = rig.camera.project(p)
+    assert (uv >= 0).all() and (uv[:, 0] <= rig.camera.width - 1).all() and (uv[:, 1] <= rig.camera.height - 1).all()
+    # the floor and the wall tops lie between the clip planes, with room for a part above the walls
+    assert rig.camera.clip_start < p[:, 2].min() - 0.5 * builtin_object("shaft").diameter
+    assert p[:, 2].max() < rig.camera.clip_end
+
+
+def test_automatic_bin_grows_with_the_number_of_parts() -> None:
+    obj = builtin_object("bracket")
+    small, large = (make_rig(obj, n, 1, SceneConfig()).bin for n in (2, 60))
+    assert small.inner == pytest.approx(2 * obj.diameter)  # room for one part to turn
+    assert large.inner > small.inner and large.inner ** 2 >= 60 * 0.04 * 0.02 / 1.5
+    assert make_rig(obj, 2, 1, SceneConfig(bin_inner=0.5, bin_wall_height=0.1)).bin == BinGeometry(0.5, 0.1, 0.01)
+
+
+def test_bin_boxes_bound_the_inner_volume() -> None:
+    b = BinGeometry(0.3, 0.1, 0.02)
+    mesh = b.mesh()
+    np.testing.assert_allclose(mesh.bounds, [[-0.17, -0.17, -0.02], [0.17, 0.17, 0.1]])
+    assert b.inside(np.array([[0.0, 0.0, 0.01], [0.149, -0.149, 0.05]])).all()
+    assert not b.inside(np.array([[0.151, 0.0, 0.01], [0.0, 0.0, -0.01]])).any()
+
+
+def test_layout_jitter_is_bounded_and_seeded() -> None:
+    cfg = SceneConfig(camera_jitter_m=0.004, camera_jitter_deg=2.0, bin_jitter_m=0.01, bin_jitter_deg=5.0)
+    rig = make_rig(builtin_object("pin"), 5, 1, cfg)
+    layouts = [sample_layout(rig, cfg, cycle_rngs(3, c)[0]) for c in range(20)]
+    for lay in layouts:
+        assert np.abs(lay.T_world_bin[:2, 3]).max() <= 0.01 and lay.T_world_bin[2, 3] == 0.0
+        yaw = math.degrees(math.atan2(lay.T_world_bin[1, 0], lay.T_world_bin[0, 0]))
+        assert abs(yaw) <= 5.0
+        tilt = math.degrees(math.acos(np.clip(-lay.T_world_cam[2, 2], -1, 1)))  # optical axis vs straight down
+        assert tilt <= 2.0 + 1e-9
+    assert len({round(lay.T_world_bin[0, 3], 12) for lay in layouts}) == 20
+    np.testing.assert_array_equal(sample_layout(rig, cfg, cycle_rngs(3, 4)[0]).T_world_cam, layouts[4].T_world_cam)
+
+
+def test_random_rotations_are_uniform_enough() -> None:
+    rng = np.random.default_rng(0)
+    R = np.stack([random_rotation(rng) for _ in range(4000)])
+    np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    # uniform on SO(3): every column is uniform on the sphere, E[R] = 0 and E[R_zz^2] = 1/3
+    assert np.abs(R.mean(0)).max() < 0.05
+    assert R[:, 2, 2].var() == pytest.approx(1 / 3, abs=0.03)
+
+
+@pytest.mark.parametrize(
+    ("values", "match"),
+    [({"resolution": 4}, "resolution"), ({"collision": "mesh"}, "collision"), ({"fov_deg": 0}, "fov_deg"),
+     ({"clip_start": 2.0, "clip_end": 1.0}, "clip_end"), ({"settle_checks": 0}, "settle_checks"),
+     ({"bin_inner": -1.0}, "bin_inner"), ({"height": 511}, "height")],
+)
+def test_bad_scene_settings_name_the_key(values: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        SceneConfig(**values)
+
+
+def test_object_without_mesh_is_refused() -> None:
+    from opnet.objects.model import ObjectModel
+
+    obj = builtin_object("pin")
+    meshless = ObjectModel(obj.name, obj.symmetry, obj.centroid, obj.covariance, obj.diameter, None)
+    with pytest.raises(ValueError, match="no mesh"):
+        make_rig(meshless, 3, 1, SceneConfig())
