@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from opnet.datasets import open_dataset
+from opnet.datasets import IPADataset, open_dataset
 from opnet.parameterizations.ceiling import dataset_object, run_ceiling_study
 
 
@@ -36,10 +36,15 @@ def main(argv: list[str] | None = None) -> None:
         help="at most this many scenes per dataset, evenly spread",
     )
     parser.add_argument("--object", default=None, help="object of datasets without object.json")
+    parser.add_argument(
+        "--min-objects", type=int, default=0, help="only scenes with at least this many objects (IPA layout)"
+    )
     args = parser.parse_args(argv)
     datasets = []
     for root in args.data:
         dataset = open_dataset(root)
+        if args.min_objects:
+            dataset = IPADataset(root, min_objects=args.min_objects)
         n = len(dataset) if args.max_scenes is None else min(args.max_scenes, len(dataset))
         picks = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int)) if n else []
         datasets.append((dataset_object(root, args.object), [dataset[int(i)] for i in picks]))

@@ -1,0 +1,19 @@
+"""Evaluate a checkpoint: ``python eval.py ckpt=outputs/train/runs/<run>/checkpoints/last.ckpt``."""
+
+import os
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import hydra  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
+
+
+@hydra.main(config_path="conf", config_name="eval", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    from opnet.cli.eval import run
+
+    run(cfg)
+
+
+if __name__ == "__main__":
+    main()

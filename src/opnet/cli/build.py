@@ -1,0 +1,86 @@
+"""Build the run's components from a Hydra config — the only place that instantiates configs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from opnet.losses import MultiTaskLoss
+from opnet.objects.config import object_from_config
+from opnet.objects.model import ObjectModel
+from opnet.parameterizations.base import Parameterization
+from opnet.system import OPNetSystem
+
+
+@dataclass
+class Components:
+    obj: ObjectModel
+    parameterization: Parameterization
+    system: OPNetSystem
+
+
+def absolutize_paths(cfg: DictConfig) -> None:
+    """Make ``paths.root_dir`` absolute so every derived path stored in checkpoints stays valid."""
+    root = cfg.paths.root_dir
+    OmegaConf.update(cfg, "paths.root_dir", str(Path(root).resolve()), force_add=True)
+
+
+def plain(cfg: Any) -> Any:
+    """A resolved plain-Python copy of a config node (or the value itself)."""
+    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+
+
+def run_config(cfg: DictConfig) -> dict[str, Any]:
+    """The parts of the config a checkpoint needs to rebuild the model, resolved."""
+    keys = ("object", "parameterization", "model", "loss", "optim", "data", "seed", "presence_prior_logit")
+    return {k: plain(cfg[k]) for k in keys if k in cfg}
+
+
+def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
+    """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    obj = object_from_config(plain(cfg.object))
+    # _partial_: the object goes in as it is (a dataclass keyword would be turned into a config)
+    parameterization = instantiate(cfg.parameterization, _partial_=True)(obj=obj)
+    backbone = instantiate(cfg.model, out_channels=parameterization.out_channels, out_grid=parameterization.grid_size)
+    presence_prior = cfg.get("presence_prior_logit")
+    if presence_prior is not None and hasattr(backbone, "set_head_bias"):
+        # start every slot's presence near the share of occupied cells (stabilizes early training)
+        slot_channels = [s * parameterization.channels_per_slot for s in range(parameterization.slots)]
+        backbone.set_head_bias(slot_channels, float(presence_prior))
+    loss: MultiTaskLoss = instantiate(cfg.loss)
+    optim = plain(cfg.get("optim", {})) or {}
+    system = OPNetSystem(backbone, parameterization, loss, config=run_config(cfg), **optim)
+    return Components(obj, parameterization, system)
+
+
+def build_datamodule(cfg: DictConfig, obj: ObjectModel, train: bool = True) -> Any:
+    """The DataModule of the config (with the augmentation config for training)."""
+    augmenter = instantiate(cfg.augmentation) if train and cfg.get("augmentation") is not None else None
+    make = instantiate(cfg.data, _partial_=True, _recursive_=False)
+    return make(obj=obj, augmenter=augmenter, object_config=plain(cfg.object))
+
+
+def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
+    """Rebuild a trained system from a checkpoint written by ``train.py``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as e:  # corrupt or foreign file
+        raise ValueError(f"{path}: cannot read checkpoint ({type(e).__name__}: {e})") from e
+    config = ckpt.get("hyper_parameters", {}).get("config")
+    if not config:
+        raise ValueError(f"{path}: checkpoint holds no opnet run config (was it written by train.py?)")
+    cfg = OmegaConf.create(config)
+    system = build_components(cfg).system
+    system.load_state_dict(ckpt["state_dict"])
+    system.eval()
+    return system, cfg

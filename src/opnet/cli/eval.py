@@ -1,0 +1,91 @@
+"""``python eval.py ckpt=<path>``: decode a split, write Siléane-format results, print the AP table."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import cv2
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from opnet.cli.build import build_datamodule, load_checkpoint
+from opnet.data.sample import Batch
+from opnet.datasets.atomic import write_text_atomic
+from opnet.datasets.sileane_json import write_gt_json, write_results_json
+from opnet.metrics.bregier import evaluate_scenes
+from opnet.metrics.records import GroundTruthSet, HypothesisSet
+from opnet.system import OPNetSystem
+from opnet.visualize import draw_models
+
+log = logging.getLogger(__name__)
+
+
+@torch.no_grad()
+def predict_split(system: OPNetSystem, loader: Any) -> dict[str, tuple[GroundTruthSet, HypothesisSet]]:
+    """Decode every scene of a loader: scene name -> (ground truth, hypotheses), camera frame."""
+    system.eval()
+    out: dict[str, tuple[GroundTruthSet, HypothesisSet]] = {}
+    for batch in loader:
+        batch: Batch = batch.to(system.device)
+        hyps = system.predict_poses(batch)
+        for name, gt, h in zip(batch.names, batch.gt_sets, hyps):
+            out[name] = (gt, h)
+    return out
+
+
+def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Path, examples: int = 0) -> dict[str, Any]:
+    """Predict a split, write ``gt/`` and ``results/`` (Siléane JSON), ``summary.json``, ``ap_table.md``.
+
+    Returns the summary dict (ap, map, f1, recall_at_p50, recall_at_p99, per_scene, ...).
+    """
+    datamodule.setup("test")
+    loader = getattr(datamodule, f"{split}_dataloader")()
+    scenes = predict_split(system, loader)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, (gt, hyps) in scenes.items():
+        write_gt_json(out_dir / "gt" / f"{name}.json", gt)
+        write_results_json(out_dir / "results" / f"{name}.json", hyps)
+    summary = evaluate_scenes(scenes, system.parameterization.obj.pose_space, max_occlusion=system.hparams.max_occlusion)
+    result = summary.to_dict()
+    result.update(split=split, scenes=len(scenes), object=system.parameterization.obj.name,
+                  parameterization=type(system.parameterization).__name__)
+    write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
+    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n")
+    if examples:
+        write_examples(system, datamodule.splits[split], scenes, out_dir / "predictions", examples)
+    return result
+
+
+def write_examples(system: OPNetSystem, samples: Any, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], out: Path, n: int) -> list[Path]:
+    """PNGs of the first ``n`` scenes: depth with each estimated object's model projected on it."""
+    mesh = system.parameterization.obj.mesh
+    if mesh is None:
+        return []
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for i in range(min(n, len(samples))):
+        record = samples.record(i)
+        hyps = scenes[record.name][1]
+        confident = HypothesisSet(hyps.R[hyps.score >= 0.5], hyps.t[hyps.score >= 0.5], hyps.score[hyps.score >= 0.5])
+        img = draw_models(record.depth, record.camera, mesh.vertices, mesh.faces, confident)
+        path = out / f"{record.name}.png"
+        cv2.imwrite(str(path), img[..., ::-1])
+        written.append(path)
+    return written
+
+
+def run(cfg: DictConfig) -> dict[str, Any]:
+    """Entry logic of eval.py (see conf/eval.yaml)."""
+    system, run_cfg = load_checkpoint(cfg.ckpt)
+    if cfg.get("data") is not None:  # overrides of the data section (e.g. another dataset root)
+        run_cfg = OmegaConf.merge(run_cfg, {"data": cfg.data})
+    OmegaConf.update(run_cfg, "augmentation", None, force_add=True)
+    datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
+    out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
+    result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)))
+    print((out_dir / "ap_table.md").read_text())
+    print(f"results written to {out_dir}")
+    return result

@@ -1,0 +1,75 @@
+"""``python train.py ...``: fit, test the best checkpoint, write results and example predictions."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from opnet.cli.build import absolutize_paths, build_components, build_datamodule
+from opnet.cli.eval import evaluate_split
+
+log = logging.getLogger(__name__)
+
+
+def resolve_ckpt_path(ckpt_path: str | None, output_dir: Path) -> str | None:
+    """``"last"`` means ``<run dir>/checkpoints/last.ckpt`` (None if it does not exist yet)."""
+    if ckpt_path in (None, "", "null"):
+        return None
+    if ckpt_path == "last":
+        last = output_dir / "checkpoints" / "last.ckpt"
+        if not last.is_file():
+            log.warning("ckpt_path=last but %s does not exist: starting from scratch", last)
+            return None
+        return str(last)
+    if not Path(ckpt_path).is_file():
+        raise FileNotFoundError(f"{ckpt_path}: checkpoint not found")
+    return ckpt_path
+
+
+def build_trainer(cfg: DictConfig) -> L.Trainer:
+    callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c is not None]
+    logger = instantiate(cfg.logger) if cfg.get("logger") is not None else False
+    return instantiate(cfg.trainer, callbacks=callbacks, logger=logger)
+
+
+def run(cfg: DictConfig) -> dict[str, Any]:
+    """Entry logic of train.py. Returns the test summary (empty if ``test=false``)."""
+    absolutize_paths(cfg)
+    L.seed_everything(cfg.seed, workers=True)
+    output_dir = Path(cfg.paths.output_dir)
+    comps = build_components(cfg)
+    datamodule = build_datamodule(cfg, comps.obj, train=True)
+    trainer = build_trainer(cfg)
+    trainer.fit(comps.system, datamodule=datamodule, ckpt_path=resolve_ckpt_path(cfg.get("ckpt_path"), output_dir))
+    result: dict[str, Any] = {}
+    if cfg.get("test", True) and trainer.is_global_zero:
+        best = _best_checkpoint(trainer)
+        system = comps.system
+        if best:
+            from opnet.cli.build import load_checkpoint
+
+            system, _ = load_checkpoint(best)
+        out = output_dir / "test"
+        result = evaluate_split(system, datamodule, "test", out, examples=int(cfg.get("example_predictions", 0)))
+        result["checkpoint"] = best
+        print((out / "ap_table.md").read_text())
+        print(
+            f"\nrun directory : {output_dir}\n"
+            f"checkpoint    : {best}\n"
+            f"tensorboard   : tensorboard --logdir {output_dir}\n"
+            f"test results  : {out}/summary.json, {out}/ap_table.md, {out}/results/\n"
+            f"predictions   : {out}/predictions/"
+        )
+    return result
+
+
+def _best_checkpoint(trainer: L.Trainer) -> str | None:
+    cb = trainer.checkpoint_callback
+    if cb is None:
+        return None
+    return cb.best_model_path or cb.last_model_path or None

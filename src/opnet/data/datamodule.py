@@ -1,0 +1,203 @@
+"""The LightningDataModule: synthetic (generated on first use) or existing IPA / Siléane scenes.
+
+Splits are by cycle for IPA-layout data (scenes of one cycle share objects, so a scene-level split
+would leak), by scene for Siléane data. Training samples get a random OpenCV resize interpolation
+and the depth augmentations (method.md §2); validation and test samples are resized with
+``INTER_AREA`` and not augmented.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from opnet.data.augment import DepthAugmenter
+from opnet.data.sample import Batch, Sample, collate, make_sample, random_interpolation
+from opnet.datasets import open_dataset
+from opnet.datasets.record import SceneRecord
+from opnet.objects.model import ObjectModel
+
+log = logging.getLogger(__name__)
+
+
+class SceneSamples(Dataset):
+    """Samples of some scenes of a dataset (records are read once and kept in memory)."""
+
+    def __init__(
+        self,
+        source: Any,
+        indices: Sequence[int],
+        input_size: int = 128,
+        train: bool = False,
+        augmenter: DepthAugmenter | None = None,
+        random_resize: bool = True,
+    ) -> None:
+        self.source = source
+        self.indices = list(indices)
+        self.input_size = input_size
+        self.train = train
+        self.augmenter = augmenter if train else None
+        self.random_resize = random_resize and train
+        self._records: dict[int, SceneRecord] = {}
+        self._fixed: dict[int, Sample] = {}
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def record(self, i: int) -> SceneRecord:
+        j = self.indices[i]
+        if j not in self._records:
+            self._records[j] = self.source[j]
+        return self._records[j]
+
+    def __getitem__(self, i: int) -> Sample:
+        if not self.train:
+            if i not in self._fixed:
+                self._fixed[i] = make_sample(self.record(i), self.input_size, cv2.INTER_AREA)
+            return self._fixed[i]
+        # torch's global generator is seeded by Lightning (main process and each worker), so the
+        # augmentation stream is reproducible for a seed and differs between epochs
+        rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,))))
+        if not self.random_resize:
+            interp = cv2.INTER_AREA
+        elif self.augmenter is not None:  # the augmentation config names the allowed options
+            interp = self.augmenter.draw_interpolation(rng)
+        else:
+            interp = random_interpolation(rng)
+        return make_sample(self.record(i), self.input_size, interp, self.augmenter, rng)
+
+
+def split_groups(
+    keys: Sequence[Any], val_fraction: float, test_fraction: float, seed: int
+) -> tuple[list[int], list[int], list[int]]:
+    """Split item indices into train / val / test so that items with the same key stay together.
+
+    Returns index lists; every split with a positive fraction gets at least one group when there
+    are at least three groups.
+    """
+    groups = sorted(set(keys))
+    order = np.random.default_rng(seed).permutation(len(groups))
+    n = len(groups)
+    n_test = max(1, round(test_fraction * n)) if test_fraction > 0 and n >= 3 else 0
+    n_val = max(1, round(val_fraction * n)) if val_fraction > 0 and n >= 3 else 0
+    test_g = {groups[k] for k in order[:n_test]}
+    val_g = {groups[k] for k in order[n_test : n_test + n_val]}
+    train, val, test = [], [], []
+    for idx, key in enumerate(keys):
+        (test if key in test_g else val if key in val_g else train).append(idx)
+    return train, val, test
+
+
+class OPNetDataModule(L.LightningDataModule):
+    """Serves depth scenes as network samples.
+
+    Args:
+        obj: the object model the scenes show (used to generate synthetic data).
+        root: dataset folder (IPA layout with parameter.json, or Siléane with camera_params.txt).
+        generate: if given and ``root`` is not a complete dataset yet, generate it first with
+            these settings (cycles, drops, workers, seed, scene: SceneConfig fields).
+        input_size: network input side in pixels.
+        val_fraction, test_fraction: share of cycles (IPA) or scenes (Siléane) per split.
+        include_empty: keep scenes with no object (scene 000 of every cycle).
+        batch_size, num_workers: DataLoader settings.
+        augmenter: sim-to-real augmentation for training, or None.
+        random_interpolation: draw the resize interpolation at random during training.
+        seed: split seed.
+    """
+
+    def __init__(
+        self,
+        obj: ObjectModel,
+        root: str | Path,
+        generate: Mapping[str, Any] | None = None,
+        input_size: int = 128,
+        val_fraction: float = 0.1,
+        test_fraction: float = 0.1,
+        include_empty: bool = False,
+        batch_size: int = 16,
+        num_workers: int = 0,
+        augmenter: DepthAugmenter | None = None,
+        random_interpolation: bool = True,
+        seed: int = 0,
+        object_config: Mapping[str, Any] | None = None,
+    ) -> None:
+        super().__init__()
+        self.obj = obj
+        self.root = Path(root)
+        self.generate = dict(generate) if generate is not None else None
+        self.input_size = input_size
+        self.val_fraction, self.test_fraction = val_fraction, test_fraction
+        self.include_empty = include_empty
+        self.batch_size, self.num_workers = batch_size, num_workers
+        self.augmenter = augmenter
+        self.random_interpolation = random_interpolation
+        self.seed = seed
+        self.object_config = dict(object_config) if object_config is not None else None
+        self.splits: dict[str, SceneSamples] = {}
+
+    def prepare_data(self) -> None:
+        """Generate the synthetic dataset if it is configured and not complete (resumable)."""
+        if self.generate is None:
+            if not self.root.exists():
+                raise FileNotFoundError(f"{self.root}: dataset folder not found (and no 'generate' settings)")
+            return
+        from opnet.synthesis import SceneConfig, generate_dataset
+
+        g = dict(self.generate)
+        scene = SceneConfig.from_dict(dict(g.pop("scene", None) or {}))
+        log.info("preparing synthetic dataset at %s", self.root)
+        generate_dataset(self.obj, self.root, scene=scene, object_config=self.object_config, **g)
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.splits:
+            return
+        source = open_dataset(self.root)
+        keys, keep = self._scene_keys(source)
+        tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, self.test_fraction, self.seed)
+        pick = lambda idx: [keep[i] for i in idx]  # noqa: E731
+        common = dict(input_size=self.input_size)
+        self.splits = {
+            "train": SceneSamples(source, pick(tr), train=True, augmenter=self.augmenter,
+                                  random_resize=self.random_interpolation, **common),
+            "val": SceneSamples(source, pick(va), **common),
+            "test": SceneSamples(source, pick(te), **common),
+        }
+        log.info("dataset %s: %s", self.root, {k: len(v) for k, v in self.splits.items()})
+
+    def _scene_keys(self, source: Any) -> tuple[list[Any], list[int]]:
+        """Group key per scene (cycle for IPA, scene name otherwise) and the scenes to keep."""
+        scenes = source.scenes() if hasattr(source, "scenes") else list(range(len(source)))
+        keys, keep = [], []
+        for i, s in enumerate(scenes):
+            is_ipa = isinstance(s, tuple)
+            keys.append(s[0] if is_ipa else s)
+            if self.include_empty or not is_ipa or s[1] > 0:
+                keep.append(i)
+        return keys, keep
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        ds = self.splits[split]
+        return DataLoader(
+            ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
+            collate_fn=collate, persistent_workers=self.num_workers > 0, drop_last=False,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+    def transfer_batch_to_device(self, batch: Any, device: torch.device, dataloader_idx: int) -> Any:
+        return batch.to(device) if isinstance(batch, Batch) else super().transfer_batch_to_device(batch, device, dataloader_idx)

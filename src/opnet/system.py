@@ -1,0 +1,142 @@
+"""The single LightningModule: DenseNet-BC backbone + output parameterization + multi-task loss.
+
+Training encodes the ground truth with the parameterization (vectorized, on the model's device)
+and optimizes the paper's loss; validation and test decode the output into pose hypotheses and
+score them with the Brégier average precision (metric_and_formats.md §2).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import lightning as L
+import torch
+from torch import nn
+
+from opnet.data.sample import Batch
+from opnet.losses import MultiTaskLoss
+from opnet.metrics.records import HypothesisSet
+from opnet.metrics.torchmetric import PoseAP
+from opnet.parameterizations.base import Parameterization
+from opnet.metrics.plot import pr_curve_figure
+from opnet.visualize import draw_positions
+
+
+class OPNetSystem(L.LightningModule):
+    """Backbone, parameterization and loss, with the optimizer and the AP metric.
+
+    Args:
+        backbone: maps (B, 1, S, S) normalized depth to (B, C, G, G), C = parameterization.out_channels.
+        parameterization: encoder/decoder of the output tensor.
+        loss: the multi-task loss.
+        lr, weight_decay: AdamW settings.
+        scheduler: "cosine" (after a linear warm-up of ``warmup_steps``) or "none".
+        max_occlusion: occlusion rate up to which instances must be found (0.5).
+        log_images: how many validation images per epoch to draw to TensorBoard.
+        config: the resolved run configuration, stored in checkpoints to rebuild the system.
+    """
+
+    def __init__(
+        self,
+        backbone: nn.Module,
+        parameterization: Parameterization,
+        loss: MultiTaskLoss,
+        lr: float = 2e-3,
+        weight_decay: float = 1e-4,
+        scheduler: str = "cosine",
+        warmup_steps: int = 100,
+        max_occlusion: float = 0.5,
+        log_images: int = 4,
+        config: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["backbone", "parameterization", "loss"])
+        self.backbone = backbone
+        self.parameterization = parameterization
+        self.loss = loss
+        space = parameterization.obj.pose_space
+        self.val_ap = PoseAP(space, max_occlusion=max_occlusion)
+        self.test_ap = PoseAP(space, max_occlusion=max_occlusion)
+        self._val_images: list[torch.Tensor] = []
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """(B, 1, S, S) normalized depth -> (B, C, G, G) parameterization output."""
+        return self.backbone(images)
+
+    def predict_poses(self, batch: Batch) -> list[HypothesisSet]:
+        """Pose hypotheses per image, camera frame, metres."""
+        return self.parameterization.decode(self(batch.images), batch.cameras)
+
+    # ---- training ---------------------------------------------------------------------------
+    def _losses(self, batch: Batch, output: torch.Tensor) -> dict[str, torch.Tensor]:
+        target = self.parameterization.encode(batch.gt, batch.cameras)
+        return self.loss(output, target, self.parameterization)
+
+    def training_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
+        losses = self._losses(batch, self(batch.images))
+        self.log_dict({f"train/{k}": v for k, v in losses.items()}, batch_size=len(batch), prog_bar=False)
+        self.log("train/loss", losses["total"], batch_size=len(batch), prog_bar=True, logger=False)
+        return losses["total"]
+
+    # ---- evaluation --------------------------------------------------------------------------
+    def _eval_step(self, batch: Batch, metric: PoseAP, stage: str) -> list[HypothesisSet]:
+        output = self(batch.images)
+        losses = self._losses(batch, output)
+        self.log_dict({f"{stage}/{k}": v for k, v in losses.items()}, batch_size=len(batch))
+        hyps = self.parameterization.decode(output, batch.cameras)
+        metric.update(hyps, batch.gt_sets)
+        return hyps
+
+    def validation_step(self, batch: Batch, batch_idx: int) -> None:
+        hyps = self._eval_step(batch, self.val_ap, "val")
+        if len(self._val_images) < self.hparams.log_images:
+            for k in range(min(len(batch), self.hparams.log_images - len(self._val_images))):
+                img = draw_positions(batch.images[k, 0].cpu().numpy(), batch.cameras[k], batch.gt_sets[k], hyps[k])
+                self._val_images.append(torch.from_numpy(img).permute(2, 0, 1))
+
+    def on_validation_epoch_end(self) -> None:
+        self._log_metric(self.val_ap, "val")
+        tb = self._tensorboard()
+        if tb is not None and self._val_images:
+            tb.add_images("val/positions", torch.stack(self._val_images), self.global_step)
+        self._val_images = []
+
+    def test_step(self, batch: Batch, batch_idx: int) -> None:
+        self._eval_step(batch, self.test_ap, "test")
+
+    def on_test_epoch_end(self) -> None:
+        self._log_metric(self.test_ap, "test")
+
+    def _log_metric(self, metric: PoseAP, stage: str) -> None:
+        values = metric.compute()
+        self.log_dict({f"{stage}/{k}": v for k, v in values.items() if k != "ap"})
+        self.log(f"{stage}/ap", values["ap"], prog_bar=True)
+        tb = self._tensorboard()
+        curve = getattr(metric, "last_curve", None)
+        if tb is not None and curve is not None:
+            tb.add_figure(f"{stage}/pr_curve", pr_curve_figure(curve[0], curve[1], f"{stage} AP {float(values['ap']):.4f}"), self.global_step)
+        metric.reset()
+
+    def _tensorboard(self) -> Any:
+        exp = getattr(self.logger, "experiment", None) if self.logger is not None else None
+        return exp if exp is not None and hasattr(exp, "add_images") else None
+
+    # ---- optimization ------------------------------------------------------------------------
+    def configure_optimizers(self) -> Any:
+        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        if self.hparams.scheduler == "none":
+            return opt
+        if self.hparams.scheduler != "cosine":
+            raise ValueError(f"scheduler must be 'cosine' or 'none', got {self.hparams.scheduler!r}")
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        warm = min(self.hparams.warmup_steps, total // 2)
+
+        def factor(step: int) -> float:
+            if step < warm:
+                return (step + 1) / warm
+            progress = (step - warm) / max(1, total - warm)
+            return 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
+
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, factor)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}

@@ -1,0 +1,79 @@
+"""Every config composes, and every group option instantiates what it names."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from opnet.cli.build import build_components
+from opnet.paths import config_dir
+
+CONF = config_dir()
+PARAMETERIZATIONS = sorted(p.stem for p in (CONF / "parameterization").glob("*.yaml"))
+BUILTIN_OBJECTS = ["bracket", "zbracket", "shaft", "pin"]
+
+
+def _compose(name: str, overrides: list[str]) -> OmegaConf:
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name=name, overrides=overrides, return_hydra_config=False)
+
+
+def test_all_six_parameterizations_are_configured() -> None:
+    assert set(PARAMETERIZATIONS) == {"vanilla", "eve", "ap", "z", "mp", "si"}
+
+
+@pytest.mark.parametrize("parameterization", PARAMETERIZATIONS)
+def test_train_config_builds_every_parameterization(parameterization: str) -> None:
+    cfg = _compose("train", [f"parameterization={parameterization}", "model=tiny", "paths.root_dir=/tmp/opnet"])
+    comps = build_components(cfg)
+    p = comps.parameterization
+    # the network's output grid and channels follow the parameterization
+    assert p.grid_size == cfg.parameterization.grid
+    head_out = [m for m in comps.system.backbone.modules() if hasattr(m, "out_channels")][-1].out_channels
+    assert head_out == p.out_channels
+
+
+@pytest.mark.parametrize("obj", BUILTIN_OBJECTS)
+def test_train_config_every_builtin_object(obj: str) -> None:
+    cfg = _compose("train", [f"object={obj}", "paths.root_dir=/tmp/opnet"])
+    assert build_components(cfg).obj.name == obj
+
+
+@pytest.mark.parametrize("group", ["model", "loss", "augmentation"])
+def test_group_options_instantiate(group: str) -> None:
+    for option in sorted((CONF / group).glob("*.yaml")):
+        cfg = OmegaConf.load(option)
+        if group == "model":
+            assert instantiate(cfg, out_channels=8, out_grid=16) is not None
+        elif cfg is not None and len(cfg):
+            instantiate(cfg)
+
+
+@pytest.mark.parametrize("experiment", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
+def test_experiments_compose(experiment: str) -> None:
+    cfg = _compose("train", [f"experiment={experiment}", "paths.root_dir=/tmp/opnet"])
+    assert cfg.task_name == experiment
+    assert cfg.data.generate is not None
+
+
+@pytest.mark.parametrize("trainer", ["cpu", "gpu", "ddp"])
+def test_trainer_configs_compose(trainer: str) -> None:
+    cfg = _compose("train", [f"trainer={trainer}", "paths.root_dir=/tmp/opnet"])
+    assert cfg.trainer._target_ == "lightning.pytorch.Trainer"
+
+
+@pytest.mark.parametrize("name", ["eval", "predict", "generate"])
+def test_entry_configs_compose(name: str) -> None:
+    if not (CONF / f"{name}.yaml").exists():
+        pytest.skip(f"conf/{name}.yaml not present")
+    cfg = _compose(name, ["paths.root_dir=/tmp/opnet"] + (["ckpt=x"] if name in ("eval", "predict") else []))
+    assert cfg is not None
+
+
+def test_slurm_launcher_config_names_submitit() -> None:
+    text = (CONF / "hydra" / "launcher" / "slurm.yaml").read_text()
+    assert "submitit_slurm" in text and "gpus_per_node" in text

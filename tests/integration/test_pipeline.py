@@ -1,0 +1,200 @@
+"""Train / eval / predict end to end on a tiny generated dataset (CPU, a few steps each)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig, OmegaConf
+
+from opnet.cli import eval as eval_cli
+from opnet.cli import predict as predict_cli
+from opnet.cli import train as train_cli
+from opnet.objects import builtin_object
+from opnet.paths import REPO_ROOT, config_dir
+from opnet.synthesis import SceneConfig, generate_dataset
+
+PARAMETERIZATIONS = sorted(p.stem for p in (config_dir() / "parameterization").glob("*.yaml"))
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("data") / "zbracket_tiny"
+    generate_dataset(builtin_object("zbracket"), root, cycles=4, drops=4, workers=1, seed=0,
+                     scene=SceneConfig(resolution=128), progress=False, previews=0,
+                     object_config={"name": "zbracket", "builtin": "zbracket"})
+    return root
+
+
+def _cfg(name: str, overrides: list[str]) -> DictConfig:
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        return compose(config_name=name, overrides=overrides)
+
+
+def _train_cfg(data: Path, out: Path, extra: list[str]) -> DictConfig:
+    cfg = _cfg("train", [
+        "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
+        "data.val_fraction=0.25", "data.test_fraction=0.25", "logger=tensorboard",
+        "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
+        "trainer.enable_progress_bar=false", "example_predictions=1", *extra,
+    ])
+    OmegaConf.update(cfg, "paths.output_dir", str(out), force_add=True)
+    return cfg
+
+
+@pytest.mark.parametrize("parameterization", PARAMETERIZATIONS)
+def test_train_eval_predict_each_parameterization(parameterization: str, tiny_dataset: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    result = train_cli.run(_train_cfg(tiny_dataset, out, [f"parameterization={parameterization}"]))
+    assert 0.0 <= result["ap"] <= 1.0 and result["scenes"] > 0
+    last = out / "checkpoints" / "last.ckpt"
+    assert last.is_file()
+    assert any((out / "tensorboard").rglob("events.out.tfevents*"))
+    assert list((out / "test" / "predictions").glob("*.png"))
+    # eval.py on the checkpoint: Siléane-format results per scene and the summary
+    ev = eval_cli.run(_cfg("eval", [f"ckpt={last}", f"out={tmp_path / 'eval'}"]))
+    results = sorted((tmp_path / "eval" / "results").glob("*.json"))
+    assert len(results) == ev["scenes"] and set(json.loads((tmp_path / "eval" / "summary.json").read_text())) >= {"ap", "map", "per_scene"}
+    # predict.py on one depth PNG of the IPA folder
+    png = sorted((tiny_dataset / "p_depth").rglob("*.png"))[-1]
+    failed = predict_cli.run(_cfg("predict", [f"ckpt={last}", f"input={png}", f"out={tmp_path / 'pred'}"]))
+    assert failed == 0
+    doc = json.loads((tmp_path / "pred" / f"{png.stem}.json").read_text())
+    assert isinstance(doc["poses"], list)
+    assert (tmp_path / "pred" / f"{png.stem}.png").is_file()
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("ckpt_run")
+    train_cli.run(_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "test=false"]))
+    return out / "checkpoints" / "last.ckpt"
+
+
+def _npy_cfg(ckpt: Path, inp: Path, out: Path, width: int, height: int) -> DictConfig:
+    f = 0.9 * width
+    return _cfg("predict", [f"ckpt={ckpt}", f"input={inp}", f"out={out}", f"camera.fx={f}", f"camera.fy={f}",
+                            f"camera.cx={(width - 1) / 2}", f"camera.cy={(height - 1) / 2}",
+                            "camera.clip_start=0.5", "camera.clip_end=1.5"])
+
+
+@pytest.mark.parametrize("case", ["nan_holes", "zero_holes", "odd_size", "all_missing"])
+def test_predict_handles_imperfect_depth(case: str, checkpoint: Path, tmp_path: Path) -> None:
+    h, w = (97, 211) if case == "odd_size" else (128, 128)
+    depth = np.full((h, w), 1.2, np.float32)
+    depth[h // 3 : h // 2, w // 3 : w // 2] = 1.0
+    if case == "nan_holes":
+        depth[::7, ::5] = np.nan
+    if case == "zero_holes":
+        depth[10:40, 10:40] = 0.0
+    if case == "all_missing":
+        depth[:] = np.nan
+    path = tmp_path / f"{case}.npy"
+    np.save(path, depth)
+    failed = predict_cli.run(_npy_cfg(checkpoint, path, tmp_path / "out", w, h))
+    assert failed == 0
+    doc = json.loads((tmp_path / "out" / f"{case}.json").read_text())
+    for pose in doc["poses"]:
+        assert np.isfinite(pose["R"]).all() and np.isfinite(pose["t"]).all()
+
+
+@pytest.mark.parametrize(
+    ("case", "message"),
+    [("int_dtype", "expected float depth"), ("three_d", "2-D depth array"), ("size_mismatch", "camera.width"),
+     ("eight_bit_png", "8-bit"), ("corrupt_png", "corrupt")],
+)
+def test_predict_bad_input_gives_clear_error(case: str, message: str, checkpoint: Path, tmp_path: Path,
+                                             tiny_dataset: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    if case in ("eight_bit_png", "corrupt_png"):
+        folder = tmp_path / "ipa"
+        (folder / "p_depth" / "cycle_0000").mkdir(parents=True)
+        (folder / "parameter.json").write_bytes((tiny_dataset / "parameter.json").read_bytes())
+        path = folder / "p_depth" / "cycle_0000" / "001_depth_uint16.png"
+        if case == "eight_bit_png":
+            cv2.imwrite(str(path), np.zeros((128, 128), np.uint8))
+        else:
+            path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 10)
+        cfg = _cfg("predict", [f"ckpt={checkpoint}", f"input={path}", f"out={tmp_path / 'out'}"])
+    else:
+        arr = {"int_dtype": np.ones((64, 64), np.int32), "three_d": np.ones((64, 64, 3), np.float32),
+               "size_mismatch": np.ones((64, 80), np.float32)}[case]
+        path = tmp_path / f"{case}.npy"
+        np.save(path, arr)
+        cfg = _npy_cfg(checkpoint, path, tmp_path / "out", 64, 64)
+        if case == "size_mismatch":
+            OmegaConf.update(cfg, "camera.width", 64)
+    failed = predict_cli.run(cfg)
+    assert failed == 1
+    err = capsys.readouterr().out
+    assert path.name in err and message.lower() in err.lower()
+
+
+def test_predict_cli_reports_errors_without_traceback(checkpoint: Path, tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "predict.py"), f"ckpt={tmp_path / 'missing.ckpt'}", f"input={tmp_path}",
+         f"out={tmp_path / 'o'}", f"hydra.run.dir={tmp_path / 'h'}"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 2
+    assert "missing.ckpt" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_resume_after_kill_continues_from_last_checkpoint(tiny_dataset: Path, tmp_path: Path) -> None:
+    run_dir = tmp_path / "resume"
+    args = [sys.executable, str(REPO_ROOT / "train.py"), "model=tiny", "object=zbracket", f"data.root={tiny_dataset}",
+            "data.generate=null", "data.batch_size=4", "+trainer.limit_train_batches=3", "+trainer.limit_val_batches=1",
+            "trainer.enable_progress_bar=false", "test=false", f"hydra.run.dir={run_dir}"]
+    last = run_dir / "checkpoints" / "last.ckpt"
+    proc = subprocess.Popen([*args, "trainer.max_epochs=50"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        if last.is_file() and torch.load(last, map_location="cpu", weights_only=False)["epoch"] >= 1:
+            break
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed = torch.load(last, map_location="cpu", weights_only=False)
+    killed_epoch = killed["epoch"]
+    assert 1 <= killed_epoch < 49
+    steps_per_epoch = killed["global_step"] // (killed_epoch + 1)
+    done = subprocess.run([*args, f"trainer.max_epochs={killed_epoch + 2}", "ckpt_path=last"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "Restoring states from the checkpoint" in done.stdout + done.stderr
+    final = torch.load(last, map_location="cpu", weights_only=False)
+    # continued from the killed run's last epoch: exactly one more epoch, steps accumulate
+    assert final["epoch"] == killed_epoch + 1
+    assert final["global_step"] == steps_per_epoch * (killed_epoch + 2)
+    # the optimizer state came along: AdamW's step count continued rather than restarting
+    adam_step = next(iter(final["optimizer_states"][0]["state"].values()))["step"]
+    assert int(adam_step) == final["global_step"]
+
+
+@pytest.mark.slow
+def test_ddp_two_cpu_processes(tiny_dataset: Path, tmp_path: Path) -> None:
+    """trainer=ddp with 2 gloo processes on CPU trains, validates (AP gathered) and checkpoints."""
+    run_dir = tmp_path / "ddp"
+    proc = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "train.py"), "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2",
+         "model=tiny", "object=zbracket", f"data.root={tiny_dataset}", "data.generate=null", "data.batch_size=2",
+         "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=2",
+         "trainer.enable_progress_bar=false", "test=false", f"hydra.run.dir={run_dir}"],
+        capture_output=True, text=True, timeout=400, env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    log = proc.stdout + proc.stderr
+    assert "distributed_backend=gloo" in log and "All distributed processes registered" in log
+    ckpt = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert ckpt["global_step"] == 2 and "val/ap" in str(ckpt["callbacks"])

@@ -1,0 +1,20 @@
+"""Train OP-Net: ``python train.py parameterization=eve object=shaft`` (see conf/train.yaml)."""
+
+import os
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import hydra  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
+
+
+@hydra.main(config_path="conf", config_name="train", version_base="1.3")
+def main(cfg: DictConfig) -> float | None:
+    from opnet.cli.train import run
+
+    result = run(cfg)
+    return result.get("ap")  # the value an optimizing sweeper would maximize
+
+
+if __name__ == "__main__":
+    main()
