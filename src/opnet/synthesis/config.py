@@ -26,7 +26,8 @@ class SceneConfig:
         fov_deg: field of view of the canvas, degrees (``perspectiveAngle``).
         camera_height: distance from the camera to the bin floor, metres; None = the smallest
             height at which the whole bin rim fits into the image with ``view_margin`` to spare.
-        view_margin: relative margin around the bin rim when ``camera_height`` is automatic.
+        view_margin: relative margin around the bin rim when ``camera_height`` is automatic;
+            negative values cut the rim off (parts at the walls partly out of view).
         clip_start, clip_end: clip planes in metres (the depth code spans them); None = derived from
             the camera height, the bin and the object diameter.
         camera_jitter_m, camera_jitter_deg: per-cycle uniform jitter of the camera position (each
@@ -121,7 +122,10 @@ class SceneConfig:
         if self.clip_start is not None and self.clip_end is not None:
             need(self.clip_start < self.clip_end, "clip_end", f"> clip_start={self.clip_start}")
         need(self.collision in COLLISION_MODES, "collision", f"one of {COLLISION_MODES}")
-        for key in ("view_margin", "camera_jitter_m", "camera_jitter_deg", "bin_jitter_m", "bin_jitter_deg",
+        # a negative margin brings the camera closer than the rim: parts at the walls leave the view,
+        # as on real cells where the camera sees only the middle of the bin
+        need(math.isfinite(self.view_margin) and self.view_margin > -0.9, "view_margin", "a number > -0.9")
+        for key in ("camera_jitter_m", "camera_jitter_deg", "bin_jitter_m", "bin_jitter_deg",
                     "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) >= 0, key, "a number >= 0")
         for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
