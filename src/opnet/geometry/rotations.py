@@ -91,19 +91,18 @@ def matrix_to_euler(R: torch.Tensor, convention: str = DEFAULT_EULER) -> torch.T
     k = 3 - i - j  # the axis not among the first two
     # parity +1 when (i, j, k) is a cyclic permutation of (0, 1, 2)
     s = 1.0 if (j - i) % 3 == 1 else -1.0
+    # the middle angle from atan2 of (sin, cos): acos/asin lose precision near gimbal lock
     if proper:
-        cos_b = R[..., i, i].clamp(-1.0, 1.0)
-        b = torch.acos(cos_b)
-        sin_b = torch.sin(b)
+        sin_b = torch.hypot(R[..., i, j], R[..., i, k])
+        b = torch.atan2(sin_b, R[..., i, i])
         a = torch.atan2(R[..., j, i], -s * R[..., k, i])
         c = torch.atan2(R[..., i, j], s * R[..., i, k])
     else:
         k = k_or_i
-        sin_b = (s * R[..., i, k]).clamp(-1.0, 1.0)
-        b = torch.asin(sin_b)
+        sin_b = torch.hypot(R[..., i, i], R[..., i, j])  # cos(b): degenerate when it vanishes
+        b = torch.atan2(s * R[..., i, k], sin_b)
         a = torch.atan2(-s * R[..., j, k], R[..., k, k])
         c = torch.atan2(-s * R[..., i, j], R[..., i, i])
-        sin_b = torch.cos(b)  # the degenerate case is cos(b) = 0 for Tait-Bryan
     # Gimbal lock: with c = 0, R = R_i(a) R_j(b), so R e_j = R_i(a) e_j.
     locked = sin_b.abs() < _GIMBAL_EPS
     if bool(locked.any()):
