@@ -28,7 +28,7 @@ PAPER_ORDER = ["vanilla", "eve", "ap", "z", "mp", "si"]
 def collect(multirun: Path) -> list[dict[str, object]]:
     """One row per finished arm: parameterization, object, ap, map, f1, run dir."""
     rows = []
-    for hydra_yaml in sorted(multirun.glob("*/.hydra/hydra.yaml")):
+    for hydra_yaml in sorted(multirun.rglob(".hydra/hydra.yaml")):
         run = hydra_yaml.parent.parent
         choices = yaml.safe_load(hydra_yaml.read_text())["hydra"]["runtime"]["choices"]
         summary = run / "test" / "summary.json"
@@ -37,7 +37,7 @@ def collect(multirun: Path) -> list[dict[str, object]]:
             continue
         s = json.loads(summary.read_text())
         rows.append({"parameterization": choices.get("parameterization"), "object": choices.get("object"),
-                     "ap": s["ap"], "map": s["map"], "f1": s["f1"], "run": run.name})
+                     "ap": s["ap"], "map": s["map"], "f1": s["f1"], "run": str(run.relative_to(multirun))})
     return rows
 
 

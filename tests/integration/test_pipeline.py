@@ -198,3 +198,34 @@ def test_ddp_two_cpu_processes(tiny_dataset: Path, tmp_path: Path) -> None:
     assert "distributed_backend=gloo" in log and "All distributed processes registered" in log
     ckpt = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert ckpt["global_step"] == 2 and "val/ap" in str(ckpt["callbacks"])
+
+
+def test_dataset_of_another_object_is_refused(tiny_dataset: Path, tmp_path: Path) -> None:
+    cfg = _train_cfg(tiny_dataset, tmp_path / "run", ["object=shaft"])
+    with pytest.raises(ValueError, match=r"object.json: the dataset shows object 'zbracket'.*'shaft'"):
+        train_cli.run(cfg)
+
+
+@pytest.mark.slow
+def test_sweep_and_compare_runs(tiny_dataset: Path, tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    proc = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "train.py"), "-m", "parameterization=vanilla,eve", "model=tiny",
+         "object=zbracket", f"data.root={tiny_dataset}", "data.generate=null", "data.batch_size=4",
+         "data.val_fraction=0.25", "data.test_fraction=0.25", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
+         "trainer.enable_progress_bar=false", "example_predictions=0", f"hydra.sweep.dir={sweep}"],
+        capture_output=True, text=True, timeout=400,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    arms = sorted(p.name for p in sweep.iterdir() if p.is_dir())
+    assert arms == ["0_vanilla_zbracket_tiny", "1_eve_zbracket_tiny"]
+    cmp = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "compare_runs.py"), str(sweep)],
+                         capture_output=True, text=True, timeout=120)
+    assert cmp.returncode == 0, cmp.stderr
+    rows = (sweep / "comparison.csv").read_text().splitlines()
+    assert rows[0].startswith("parameterization,object,ap") and len(rows) == 3
+    expected = {arm: json.loads((sweep / arm / "test" / "summary.json").read_text())["ap"] for arm in arms}
+    for line in rows[1:]:
+        param, obj, ap = line.split(",")[:3]
+        assert float(ap) == pytest.approx(expected[f"{'0' if param == 'vanilla' else '1'}_{param}_{obj}_tiny"], abs=1e-6)
+    assert (sweep / "comparison.png").stat().st_size > 1000 and "| vanilla |" in (sweep / "comparison.md").read_text()

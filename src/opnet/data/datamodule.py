@@ -8,6 +8,7 @@ and the depth augmentations (method.md §2); validation and test samples are res
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -159,6 +160,7 @@ class OPNetDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.splits:
             return
+        self._check_object()
         source = open_dataset(self.root)
         keys, keep = self._scene_keys(source)
         tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, self.test_fraction, self.seed)
@@ -171,6 +173,21 @@ class OPNetDataModule(L.LightningDataModule):
             "test": SceneSamples(source, pick(te), **common),
         }
         log.info("dataset %s: %s", self.root, {k: len(v) for k, v in self.splits.items()})
+
+    def _check_object(self) -> None:
+        """Refuse a dataset made of another part (its ``object.json`` names the object)."""
+        path = self.root / "object.json"
+        if not path.is_file():
+            return
+        try:
+            name = json.loads(path.read_text()).get("name")
+        except (OSError, ValueError, AttributeError) as e:
+            raise ValueError(f"{path}: cannot read the dataset's object ({e})") from e
+        if name is not None and name != self.obj.name:
+            raise ValueError(
+                f"{path}: the dataset shows object {name!r} but the run is configured for "
+                f"{self.obj.name!r}; set object={name} or point data.root at a dataset of {self.obj.name!r}"
+            )
 
     def _scene_keys(self, source: Any) -> tuple[list[Any], list[int]]:
         """Group key per scene (cycle for IPA, scene name otherwise) and the scenes to keep."""
