@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from scipy.spatial import cKDTree
 
 from opnet.geometry import Symmetry, axis_angle_rotation
 from opnet.objects import ObjectModel, builtin_names, builtin_object, load_object, object_from_config

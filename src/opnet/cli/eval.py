@@ -82,7 +82,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     system, run_cfg = load_checkpoint(cfg.ckpt)
     if cfg.get("data") is not None:  # overrides of the data section (e.g. another dataset root)
         run_cfg = OmegaConf.merge(run_cfg, {"data": cfg.data})
-    OmegaConf.update(run_cfg, "augmentation", None, force_add=True)
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
     out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)))

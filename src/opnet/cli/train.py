@@ -10,7 +10,7 @@ import lightning as L
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from opnet.cli.build import absolutize_paths, build_components, build_datamodule
+from opnet.cli.build import absolutize_paths, build_components, build_datamodule, load_checkpoint
 from opnet.cli.eval import evaluate_split
 
 log = logging.getLogger(__name__)
@@ -51,8 +51,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         best = _best_checkpoint(trainer)
         system = comps.system
         if best:
-            from opnet.cli.build import load_checkpoint
-
             system, _ = load_checkpoint(best)
         out = output_dir / "test"
         result = evaluate_split(system, datamodule, "test", out, examples=int(cfg.get("example_predictions", 0)))
