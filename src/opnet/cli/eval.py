@@ -59,8 +59,11 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
     return result
 
 
-def write_examples(system: OPNetSystem, samples: Any, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], out: Path, n: int) -> list[Path]:
-    """PNGs of the first ``n`` scenes: depth with each estimated object's model projected on it."""
+def write_examples(
+    system: OPNetSystem, samples: Any, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], out: Path, n: int,
+    min_score: float = 0.5,
+) -> list[Path]:
+    """PNGs of the first ``n`` scenes: depth with each estimated object's model (score >= min_score) on it."""
     mesh = system.parameterization.obj.mesh
     if mesh is None:
         return []
@@ -68,8 +71,7 @@ def write_examples(system: OPNetSystem, samples: Any, scenes: dict[str, tuple[Gr
     written = []
     for i in range(min(n, len(samples))):
         record = samples.record(i)
-        hyps = scenes[record.name][1]
-        confident = HypothesisSet(hyps.R[hyps.score >= 0.5], hyps.t[hyps.score >= 0.5], hyps.score[hyps.score >= 0.5])
+        confident = scenes[record.name][1].above(min_score)
         img = draw_models(record.depth, record.camera, mesh.vertices, mesh.faces, confident)
         path = out / f"{record.name}.png"
         cv2.imwrite(str(path), img[..., ::-1])

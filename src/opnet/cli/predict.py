@@ -120,10 +120,8 @@ def write_prediction(out: Path, image: DepthImage, hyps: HypothesisSet, system: 
            "object": system.parameterization.obj.name, "poses": poses}
     write_text_atomic(out / f"{stem}.json", json.dumps(doc, indent=1))
     mesh = system.parameterization.obj.mesh
-    keep = hyps.score >= min_score
-    shown = HypothesisSet(hyps.R[keep], hyps.t[keep], hyps.score[keep])
     if mesh is not None:
-        img = draw_models(image.depth, image.camera, mesh.vertices, mesh.faces, shown)
+        img = draw_models(image.depth, image.camera, mesh.vertices, mesh.faces, hyps.above(min_score))
         ok, buf = cv2.imencode(".png", img[..., ::-1])
         if ok:
             (out / f"{stem}.png").write_bytes(buf.tobytes())
@@ -141,7 +139,7 @@ def run(cfg: DictConfig) -> int:
             image = load_depth_image(path, camera_cfg)
             hyps = predict_image(system, image)
             write_prediction(out, image, hyps, system, float(cfg.min_score))
-            print(f"{path}: {int((hyps.score >= cfg.min_score).sum())} objects (score >= {cfg.min_score}), {len(hyps)} hypotheses")
+            print(f"{path}: {len(hyps.above(cfg.min_score))} objects (score >= {cfg.min_score}), {len(hyps)} hypotheses")
         except (ValueError, FileNotFoundError) as e:
             failed += 1
             print(f"error: {e}")

@@ -69,6 +69,12 @@ class HypothesisSet:
     def __len__(self) -> int:
         return len(self.t)
 
+    def above(self, min_score: float) -> HypothesisSet:
+        """The hypotheses whose score is at least ``min_score``."""
+        keep = self.score >= min_score
+        vis = None if self.visibility is None else self.visibility[keep]
+        return HypothesisSet(self.R[keep], self.t[keep], self.score[keep], vis)
+
     @classmethod
     def empty(cls) -> HypothesisSet:
         return cls(np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0))
