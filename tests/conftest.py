@@ -9,7 +9,15 @@ import pytest
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+from hypothesis import settings  # noqa: E402
+
 from opnet.paths import shared_dir  # noqa: E402
+
+# Property tests draw the same examples on every run (CI must not turn red by the luck of a draw);
+# HYPOTHESIS_PROFILE=explore draws new ones when hunting for counter-examples.
+settings.register_profile("deterministic", derandomize=True, print_blob=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 
 @pytest.fixture(scope="session")

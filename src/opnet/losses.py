@@ -1,23 +1,42 @@
-"""The multi-task loss of OP-Net (method.md §5, paper "Loss Function").
+"""The multi-task loss of OP-Net (method.md §5, paper "Loss Function"), and its balanced variant.
 
-``L = Σ_cells,slots ( λ1 L_p w_p + [ λ2 L_v + λ3 (L_pos + λ4 L_ori) ] p )``, summed over cells and
-slots and averaged over the batch, with ``λ3 = 8 v³`` (``v`` for SI) and ``p``, ``v`` the
-ground-truth presence and visibility; ``w_p`` is the parameterization's presence weight (1 except
-for MP's optional conditional presence). All terms are squared L2. The orientation term is either
-the paper's squared L2 on the normalized Euler channels (``euler_l2``) or the symmetry-aware
-squared Brégier rotation distance ``min_g ||(R̂ - R g) Λ||²_F / δ²`` on the rotation decoded from
-the predicted channels (``sym_rotation``; revolution objects:
-``λ² min_g ||R̂ e_z - R g e_z||² / δ²``).
+``L = Σ_cells,slots ( λ1 L_p w_p + [ λ2 L_v + λ_pose λ3 (L_pos + λ4 L_ori) ] p )``, summed over
+cells and slots and averaged over the batch, with ``λ3 = 8 v³`` (``v`` for SI) and ``p``, ``v``
+the ground-truth presence and visibility; ``w_p`` is the parameterization's presence weight (1
+except for MP's optional conditional presence). ``L_p`` and ``L_v`` are squared L2.
+
+Position term ``L_pos`` (``position``):
+- ``channels`` (paper): squared L2 on the x, y, z channels. Their units differ between
+  parameterizations: a δ-sized error costs ~0.12 per axis with vanilla's cell-relative offsets but
+  ~1.7e-4 with the enlarged-image positions of EVE / AP / SI, so those barely learn position.
+- ``metric``: ``||t̂ - t||² / δ²`` with both origins decoded from the channels through the
+  parameterization's own decoder and the image's camera (differentiable). The same units for every
+  parameterization, and the units of the metric: an error of δ costs 1.
+
+Orientation term ``L_ori`` (``orientation``):
+- ``euler_l2`` (paper; alias ``channel_l2``): squared L2 on the orientation channels.
+- ``sym_rotation``: the squared Brégier rotation distance ``min_g ||(R̂ - R g) Λ||²_F / δ²`` of the
+  rotations decoded from the channels (revolution objects: ``λ² min_g ||R̂ e_z - R g e_z||² / δ²``).
+  With ``position=metric`` the pose term is then exactly the squared Brégier pose distance in units
+  of δ (the evaluation's threshold), its two parts balanced by construction (λ4 = 1).
+
+``loss=paper`` (``channels`` + ``euler_l2``, λ_pose = 1) is the paper's loss, computed densely over
+every cell exactly as before; the other combinations gather the occupied cells first.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import nn
 
+from opnet.geometry.camera import Camera
 from opnet.parameterizations.base import Parameterization
+from opnet.parameterizations.positions import CameraBatch
 
-ORIENTATION_LOSSES = ("euler_l2", "sym_rotation")
+ORIENTATION_LOSSES = ("euler_l2", "channel_l2", "sym_rotation")
+POSITION_LOSSES = ("channels", "metric")
 
 
 class MultiTaskLoss(nn.Module):
@@ -27,7 +46,10 @@ class MultiTaskLoss(nn.Module):
         lambda_p: λ1, weight of the presence term.
         lambda_v: λ2, weight of the visibility term.
         lambda_ori: λ4, weight of the orientation term relative to the position term.
-        orientation: "euler_l2" (paper) or "sym_rotation" (symmetry-aware rotation distance).
+        orientation: "euler_l2" (paper), "channel_l2" (the same for any rotation codec) or
+            "sym_rotation" (symmetry-aware rotation distance / δ²).
+        position: "channels" (paper) or "metric" (origin distance / δ, squared).
+        lambda_pose: factor on λ3 (the weight of position and orientation together); 1 in the paper.
     """
 
     def __init__(
@@ -36,21 +58,44 @@ class MultiTaskLoss(nn.Module):
         lambda_v: float = 0.25,
         lambda_ori: float = 1.0,
         orientation: str = "euler_l2",
+        position: str = "channels",
+        lambda_pose: float = 1.0,
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
             raise ValueError(
-                f"loss orientation must be one of {ORIENTATION_LOSSES}, got {orientation!r}"
+                f"loss.orientation must be one of {ORIENTATION_LOSSES}, got {orientation!r}"
             )
+        if position not in POSITION_LOSSES:
+            raise ValueError(f"loss.position must be one of {POSITION_LOSSES}, got {position!r}")
+        for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
+                           ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose)):  # fmt: skip
+            if not float(value) >= 0:
+                raise ValueError(f"loss.{key} must be >= 0, got {value}")
         self.lambda_p, self.lambda_v, self.lambda_ori = (
             float(lambda_p),
             float(lambda_v),
             float(lambda_ori),
         )
+        self.lambda_pose = float(lambda_pose)
         self.orientation = orientation
+        self.position = position
+
+    @property
+    def is_paper(self) -> bool:
+        """The paper's dense channel-space formulation (``loss=paper``)."""
+        return (
+            self.position == "channels"
+            and self.orientation in ("euler_l2", "channel_l2")
+            and self.lambda_pose == 1.0
+        )
 
     def forward(
-        self, output: torch.Tensor, target: torch.Tensor, parameterization: Parameterization
+        self,
+        output: torch.Tensor,
+        target: torch.Tensor,
+        parameterization: Parameterization,
+        cameras: Camera | Sequence[Camera] | None = None,
     ) -> dict[str, torch.Tensor]:
         """Loss terms of a batch.
 
@@ -58,6 +103,7 @@ class MultiTaskLoss(nn.Module):
             output: (B, C, S, S) network output in [0, 1].
             target: (B, C, S, S) the parameterization's encoded ground truth.
             parameterization: the one that produced ``target``.
+            cameras: the network-input camera(s) of the batch (needed by ``position=metric``).
         Returns:
             scalars "presence", "visibility", "position", "orientation" (each already weighted) and
             their sum "total"; sums over cells and slots, means over the batch.
@@ -70,32 +116,57 @@ class MultiTaskLoss(nn.Module):
         tgt = parameterization.split_slots(target)
         batch = output.shape[0]
         p, v = tgt[:, :, 0], tgt[:, :, 1]  # (B, L, S, S)
-        pose_weight = parameterization.pose_weight(v) * p
         terms = {
             "presence": self.lambda_p
             * (parameterization.presence_weight(target) * (out[:, :, 0] - p) ** 2),
             "visibility": self.lambda_v * p * (out[:, :, 1] - v) ** 2,
-            "position": pose_weight * ((out[:, :, 2:5] - tgt[:, :, 2:5]) ** 2).sum(2),
-            "orientation": self.lambda_ori
-            * pose_weight
-            * self._orientation_error(output, target, parameterization),
         }
+        if self.is_paper:
+            pose_weight = parameterization.pose_weight(v) * p
+            terms["position"] = pose_weight * ((out[:, :, 2:5] - tgt[:, :, 2:5]) ** 2).sum(2)
+            terms["orientation"] = (
+                self.lambda_ori * pose_weight * ((out[:, :, 5:] - tgt[:, :, 5:]) ** 2).sum(2)
+            )
+        else:
+            terms.update(self._pose_terms(out, tgt, parameterization, cameras))
         losses = {name: term.sum() / batch for name, term in terms.items()}
         losses["total"] = sum(losses.values())  # type: ignore[assignment]
         return losses
 
-    def _orientation_error(
-        self, output: torch.Tensor, target: torch.Tensor, parameterization: Parameterization
-    ) -> torch.Tensor:
-        """(B, L, S, S) orientation error of every cell/slot."""
-        if self.orientation == "euler_l2":
-            out, tgt = parameterization.split_slots(output), parameterization.split_slots(target)
-            return ((out[:, :, 5:] - tgt[:, :, 5:]) ** 2).sum(2)
-        return symmetric_rotation_error(
-            parameterization.decode_rotations(output),
-            parameterization.decode_rotations(target).detach(),
-            parameterization,
-        )
+    def _pose_terms(
+        self,
+        out: torch.Tensor,
+        tgt: torch.Tensor,
+        parameterization: Parameterization,
+        cameras: Camera | Sequence[Camera] | None,
+    ) -> dict[str, torch.Tensor]:
+        """Position and orientation terms (P,) of the occupied cells/slots only."""
+        b, slot, row, col = torch.nonzero(tgt[:, :, 0] > 0, as_tuple=True)
+        o = out.permute(0, 1, 3, 4, 2)[b, slot, row, col]  # (P, C)
+        t = tgt.permute(0, 1, 3, 4, 2)[b, slot, row, col]
+        weight = self.lambda_pose * parameterization.pose_weight(t[:, 1])  # (P,)
+        delta = parameterization.obj.delta
+        if self.position == "metric":
+            if cameras is None:
+                raise ValueError("loss.position=metric needs the cameras of the batch")
+            cams = CameraBatch.of(cameras, out.shape[0], out.device).take(b)
+            cells = (slot, row, col)
+            t_hat = parameterization.decode_translations(o[:, 2:5], cells, cams)
+            t_gt = parameterization.decode_translations(t[:, 2:5], cells, cams)
+            position = (((t_hat - t_gt) / delta) ** 2).sum(-1).to(o.dtype)
+        else:
+            position = ((o[:, 2:5] - t[:, 2:5]) ** 2).sum(-1)
+        if self.orientation == "sym_rotation":
+            rotation = parameterization.rotation
+            orientation = symmetric_rotation_error(
+                rotation.decode(o[:, 5:]), rotation.decode(t[:, 5:]).detach(), parameterization
+            )
+        else:
+            orientation = ((o[:, 5:] - t[:, 5:]) ** 2).sum(-1)
+        return {
+            "position": weight * position,
+            "orientation": self.lambda_ori * weight * orientation,
+        }
 
 
 def symmetric_rotation_error(

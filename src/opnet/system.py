@@ -16,6 +16,7 @@ from torch import nn
 
 from opnet.data.sample import Batch
 from opnet.losses import MultiTaskLoss
+from opnet.metrics.diagnostics import MISS_REASONS
 from opnet.metrics.records import HypothesisSet
 from opnet.metrics.torchmetric import PoseAP
 from opnet.parameterizations.base import Parameterization
@@ -55,9 +56,9 @@ class OPNetSystem(L.LightningModule):
         self.backbone = backbone
         self.parameterization = parameterization
         self.loss = loss
-        space = parameterization.obj.pose_space
-        self.val_ap = PoseAP(space, max_occlusion=max_occlusion)
-        self.test_ap = PoseAP(space, max_occlusion=max_occlusion)
+        space, diameter = parameterization.obj.pose_space, parameterization.obj.diameter
+        self.val_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
+        self.test_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
         self._val_images: list[torch.Tensor] = []
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
@@ -71,7 +72,7 @@ class OPNetSystem(L.LightningModule):
     # ---- training ---------------------------------------------------------------------------
     def _losses(self, batch: Batch, output: torch.Tensor) -> dict[str, torch.Tensor]:
         target = self.parameterization.encode(batch.gt, batch.cameras)
-        return self.loss(output, target, self.parameterization)
+        return self.loss(output, target, self.parameterization, batch.cameras)
 
     def training_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
         losses = self._losses(batch, self(batch.images))
@@ -112,6 +113,14 @@ class OPNetSystem(L.LightningModule):
         values = metric.compute()
         self.log_dict({f"{stage}/{k}": v for k, v in values.items() if k != "ap"})
         self.log(f"{stage}/ap", values["ap"], prog_bar=True)
+        diag = metric.last_diagnostics
+        if diag is not None:  # why instances are missed, as fractions of the instances to find
+            n = max(diag.to_find, 1)
+            fractions = {k: getattr(diag, k) / n for k in ("matched", *MISS_REASONS)}
+            fractions["confident_false_positives"] = diag.confident_false_positives / n
+            fractions["duplicates"] = diag.duplicates / n
+            errors = {k: getattr(diag, k) for k in ("t_err_mm_p50", "r_err_deg_p50")}
+            self.log_dict({f"{stage}_diag/{k}": float(v) for k, v in {**fractions, **errors}.items()})
         tb = self._tensorboard()
         curve = getattr(metric, "last_curve", None)
         if tb is not None and curve is not None:

@@ -229,3 +229,23 @@ def test_sweep_and_compare_runs(tiny_dataset: Path, tmp_path: Path) -> None:
         param, obj, ap = line.split(",")[:3]
         assert float(ap) == pytest.approx(expected[f"{'0' if param == 'vanilla' else '1'}_{param}_{obj}_tiny"], abs=1e-6)
     assert (sweep / "comparison.png").stat().st_size > 1000 and "| vanilla |" in (sweep / "comparison.md").read_text()
+
+
+def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path, tmp_path: Path) -> None:
+    """data.test_root scores another dataset; the learning curve records minutes, val and test AP;
+    the test summary carries the error diagnostics."""
+    other = tmp_path / "other_seed"
+    generate_dataset(builtin_object("zbracket"), other, cycles=1, drops=3, workers=1, seed=5,
+                     scene=SceneConfig(resolution=128), progress=False, previews=0,
+                     object_config={"name": "zbracket", "builtin": "zbracket"})  # fmt: skip
+    out = tmp_path / "run"
+    result = train_cli.run(_train_cfg(tiny_dataset, out, [f"data.test_root={other}", "trainer.max_epochs=2",
+                                                          "callbacks.learning_curve.test_every=1"]))  # fmt: skip
+    assert result["scenes"] == 3  # scenes 1..3 of the other dataset's only cycle
+    assert set(result["diagnostics"]) >= {"matched", "no_hypothesis", "position", "orientation", "conflict"}
+    assert result["diagnostics"]["to_find"] <= 6
+    rows = (out / "learning_curve.csv").read_text().splitlines()
+    assert rows[0] == "epoch,step,train_minutes,images,val_ap,test_ap" and len(rows) == 3
+    minutes = [float(r.split(",")[2]) for r in rows[1:]]
+    assert 0 < minutes[0] < minutes[1] and all(r.split(",")[5] != "" for r in rows[1:])
+    assert "Error diagnostics" in (out / "test" / "ap_table.md").read_text()

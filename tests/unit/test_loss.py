@@ -14,6 +14,8 @@ from opnet.geometry import Camera, axis_angle_rotation, quaternion_to_matrix
 from opnet.losses import MultiTaskLoss, symmetric_rotation_error
 from opnet.objects import builtin_object
 from opnet.parameterizations import GroundTruthBatch, SIParameterization, VanillaParameterization
+from opnet.parameterizations.positions import CameraBatch
+from opnet.parameterizations.rotation import SixDCodec
 from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
@@ -44,12 +46,12 @@ def test_zero_on_perfect_output_positive_otherwise_with_gradients(config: Path, 
     loss_fn = hydra.utils.instantiate(OmegaConf.load(loss_config))
     for obj in (ZBRACKET, SHAFT):
         param, target = setup(config, obj)
-        perfect = loss_fn(target.clone(), target, param)
+        perfect = loss_fn(target.clone(), target, param, CAMERA)
         assert set(perfect) == {*TERMS, "total"}
         for name, value in perfect.items():
             assert value.item() == pytest.approx(0.0, abs=1e-9), name
         output = noisy(target)
-        losses = loss_fn(output, target, param)
+        losses = loss_fn(output, target, param, CAMERA)
         assert losses["total"].item() == pytest.approx(
             sum(losses[t].item() for t in TERMS), rel=1e-6
         )
@@ -123,3 +125,98 @@ def test_loss_rejects_mismatched_shapes():
         MultiTaskLoss()(torch.zeros(1, 8, 16, 16), torch.zeros(1, 8, 8, 8), param)
     with pytest.raises(ValueError, match="orientation"):
         MultiTaskLoss(orientation="quaternion")
+
+
+# The paper loss on a fixed batch, computed by the loss module as it was before the balanced loss
+# and the rotation codecs existed (commit a0883b9): loss=paper rotation=euler_zyz must keep
+# reproducing these numbers bit for bit (float32, CPU).
+PAPER_GOLDEN = {
+    ("bracket", "VanillaParameterization"): (8.818309783935547, 1.0127575397491455, 39.35331344604492, 42.595428466796875, 91.7798080444336),
+    ("bracket", "APParameterization"): (8.789928436279297, 1.9071294069290161, 53.92830276489258, 67.40260314941406, 132.0279541015625),
+    ("bracket", "SIParameterization"): (33.84329605102539, 2.1777448654174805, 9.689290046691895, 10.619112968444824, 56.329444885253906),
+    ("bracket", "MPParameterization"): (6.283738613128662, 0.6722303032875061, 42.857635498046875, 39.65400314331055, 89.46760559082031),
+    ("zbracket", "VanillaParameterization"): (8.818309783935547, 0.9927641749382019, 39.687076568603516, 45.30318069458008, 94.80133056640625),
+    ("zbracket", "APParameterization"): (8.745503425598145, 1.7640089988708496, 50.172603607177734, 73.21153259277344, 133.89364624023438),
+    ("zbracket", "SIParameterization"): (33.84664535522461, 1.769718050956726, 8.671120643615723, 9.621466636657715, 53.90895080566406),
+    ("zbracket", "MPParameterization"): (6.283738613128662, 0.6550322771072388, 46.35783004760742, 33.762237548828125, 87.058837890625),
+    ("shaft", "VanillaParameterization"): (8.282137870788574, 0.8762833476066589, 41.2180061340332, 25.47248649597168, 75.84891510009766),
+    ("shaft", "APParameterization"): (8.259443283081055, 1.9272557497024536, 73.32058715820312, 54.78849411010742, 138.2957763671875),
+    ("shaft", "SIParameterization"): (33.093448638916016, 2.6621017456054688, 12.776150703430176, 9.672176361083984, 58.20387649536133),
+    ("shaft", "MPParameterization"): (6.259529113769531, 0.6917054057121277, 38.42360305786133, 33.33476638793945, 78.70960235595703),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PAPER_GOLDEN), ids=lambda c: f"{c[0]}-{c[1]}")
+def test_paper_loss_reproduces_the_previous_values_exactly(case):
+    import opnet.parameterizations as P
+
+    obj = builtin_object(case[0])
+    param = getattr(P, case[1])(obj)  # rotation None: the Euler Z-Y-Z codec of the paper
+    euler = hydra.utils.instantiate(OmegaConf.load(config_dir() / "rotation" / "euler_zyz.yaml"), _partial_=True)
+    with_codec = getattr(P, case[1])(obj, rotation=euler(symmetry=obj.symmetry))
+    gt = random_scene_batch(obj, CAMERA, 3, 15, torch.Generator().manual_seed(7))
+    paper = hydra.utils.instantiate(OmegaConf.load(config_dir() / "loss" / "paper.yaml"))
+    for p in (param, with_codec):
+        target = p.encode(gt, CAMERA)
+        out = torch.rand(target.shape, generator=torch.Generator().manual_seed(11))
+        losses = paper(out, target, p, CAMERA)
+        got = tuple(float(losses[k]) for k in (*TERMS, "total"))
+        assert got == PAPER_GOLDEN[case]
+
+
+def test_balanced_position_is_the_origin_error_in_units_of_delta():
+    """loss=balanced: an origin decoded delta away costs exactly the pose weight, whatever the
+    parameterization's position encoding (vanilla cell offsets or enlarged-image positions)."""
+    loss_fn = hydra.utils.instantiate(OmegaConf.load(config_dir() / "loss" / "balanced.yaml"))
+    for config in PARAM_CONFIGS:
+        param, target = setup(config, ZBRACKET)
+        target = target[:1]
+        grid = param.split_slots(target)
+        b, slot, row, col = torch.nonzero(grid[:, :, 0] > 0, as_tuple=True)
+        cams = CameraBatch.of(CAMERA, 1).take(b)
+        pos = grid.permute(0, 1, 3, 4, 2)[b, slot, row, col][:, 2:5].clone().requires_grad_(True)
+        t = param.decode_translations(pos, (slot, row, col), cams)
+        # one Gauss-Newton step on the depth channel moves each origin by about delta along z
+        (dz,) = torch.autograd.grad(t[:, 2].sum(), pos)
+        moved = pos.detach().clone()
+        moved[:, 2] += ZBRACKET.delta / dz[:, 2]
+        output = target.clone()
+        param.split_slots(output).permute(0, 1, 3, 4, 2)[b, slot, row, col, 2:5] = moved.float()
+        moved_t = param.decode_translations(moved, (slot, row, col), cams)
+        shift = (moved_t - t.detach()).norm(dim=-1)
+        weight = param.pose_weight(grid[:, :, 1][b, slot, row, col])
+        expected = float((weight * (shift / ZBRACKET.delta) ** 2).sum())
+        got = float(loss_fn(output, target, param, CAMERA)["position"])
+        assert got == pytest.approx(expected, rel=1e-4), config.stem
+        depth_shift = (moved_t - t.detach())[:, 2]
+        torch.testing.assert_close(depth_shift, torch.full_like(depth_shift, ZBRACKET.delta), rtol=1e-3, atol=0)
+
+
+def test_balanced_loss_needs_the_cameras_and_checks_its_settings():
+    loss_fn = hydra.utils.instantiate(OmegaConf.load(config_dir() / "loss" / "balanced.yaml"))
+    param, target = setup(PARAM_CONFIGS[0], ZBRACKET)
+    with pytest.raises(ValueError, match="cameras"):
+        loss_fn(target, target, param)
+    with pytest.raises(ValueError, match="loss.position"):
+        MultiTaskLoss(position="pixels")
+    with pytest.raises(ValueError, match="loss.lambda_pose"):
+        MultiTaskLoss(lambda_pose=-1)
+
+
+@pytest.mark.parametrize("name", ["bracket", "zbracket", "shaft", "pin"])
+def test_sym_rotation_with_r6d_is_zero_for_symmetric_equivalents(name: str):
+    obj = builtin_object(name)
+    param = VanillaParameterization(obj, rotation=SixDCodec(obj.symmetry))
+    gen = torch.Generator().manual_seed(5)
+    R = quaternion_to_matrix(torch.randn(50, 4, generator=gen, dtype=torch.float64))
+    G = torch.as_tensor(obj.symmetry.group())
+    spin = axis_angle_rotation("Z", torch.rand(50, generator=gen, dtype=torch.float64) * 6.28)
+    if obj.symmetry.is_revolution:
+        equivalent = R @ spin @ G[torch.randint(len(G), (50,), generator=gen)]
+    else:
+        equivalent = R @ G[torch.randint(len(G), (50,), generator=gen)]
+    codec = param.rotation
+    decoded = codec.decode(codec.encode(equivalent))
+    assert symmetric_rotation_error(decoded, R, param).abs().max() < 1e-12
+    wrong = codec.decode(codec.encode(R @ axis_angle_rotation("X", torch.tensor(0.3, dtype=torch.float64))))
+    assert (symmetric_rotation_error(wrong, R, param) > 1e-3).all()

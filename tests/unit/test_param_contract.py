@@ -12,21 +12,28 @@ from omegaconf import OmegaConf
 
 from opnet.geometry import Camera
 from opnet.objects import builtin_object
-from opnet.parameterizations import GroundTruthBatch, Parameterization
+from opnet.parameterizations import GroundTruthBatch, Parameterization, VanillaParameterization
+from opnet.parameterizations.euler_codec import EulerCodec
+from opnet.parameterizations.rotation import SixDCodec
 from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 CAMERA = Camera.from_fov(60.0, 128, 128, 0.5, 1.5)
 CONFIGS = sorted((config_dir() / "parameterization").glob("*.yaml"))
+ROTATIONS = sorted((config_dir() / "rotation").glob("*.yaml"))
 OBJECTS = ("bracket", "zbracket", "shaft", "pin")
 _OBJECT_CACHE: dict[str, object] = {}
 
 
-def make(config: Path, name: str, **overrides: object) -> Parameterization:
+def make(config: Path, name: str, rotation: Path | None = None, **overrides: object) -> Parameterization:
     if name not in _OBJECT_CACHE:
         _OBJECT_CACHE[name] = builtin_object(name)
+    obj = _OBJECT_CACHE[name]
+    codec = None
+    if rotation is not None:
+        codec = hydra.utils.instantiate(OmegaConf.load(rotation), _partial_=True)(symmetry=obj.symmetry)
     cfg = OmegaConf.merge(OmegaConf.load(config), overrides)
-    return hydra.utils.instantiate(cfg, obj=_OBJECT_CACHE[name])
+    return hydra.utils.instantiate(cfg, obj=obj, rotation=codec)
 
 
 def scenes(
@@ -62,10 +69,11 @@ def test_every_config_is_covered():
     assert {c.stem for c in CONFIGS} >= {"vanilla", "eve", "ap", "z", "mp", "si"}
 
 
+@pytest.mark.parametrize("rotation", ROTATIONS, ids=lambda p: p.stem)
 @pytest.mark.parametrize("name", OBJECTS)
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
-def test_perfect_output_recovers_every_assigned_instance(config: Path, name: str):
-    param = make(config, name)
+def test_perfect_output_recovers_every_assigned_instance(config: Path, name: str, rotation: Path):
+    param = make(config, name, rotation)
     gt = scenes(name, batch_size=3, seed=1)
     target = param.encode(gt, CAMERA)
     assert target.shape == (3, param.out_channels, param.grid_size, param.grid_size)
@@ -143,6 +151,10 @@ def test_channel_layout_and_out_channels(config: Path):
         presence = [i for i, n in enumerate(layout) if n.split("[")[0] == "p"]
         assert presence == [slot * per_slot for slot in range(param.slots)]
         assert ("phi3" in layout[per_slot - 1]) is (per_slot == 8)
+    for name, per_slot in (("bracket", 11), ("shaft", 8)):
+        param = make(config, name, config_dir() / "rotation" / "r6d.yaml")
+        assert param.channels_per_slot == per_slot
+        assert len(param.channel_layout()) == param.out_channels == param.slots * per_slot
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
@@ -181,3 +193,22 @@ def test_rotations_for_the_loss_are_differentiable_and_match_decode():
     assert {tuple(np.round(r.ravel(), 5)) for r in decoded} == {
         tuple(np.round(r.ravel(), 5)) for r in hyps.R
     }
+
+
+
+@pytest.mark.parametrize("name", ["zbracket", "shaft", "pin"])
+def test_a_convention_whose_third_axis_is_not_the_symmetry_axis_is_refused(name: str):
+    with pytest.raises(ValueError, match=r"rotation.convention='ZYX'.*symmetry"):
+        EulerCodec(builtin_object(name).symmetry, "ZYX")
+    EulerCodec(builtin_object("bracket").symmetry, "ZYX")  # fine without symmetry
+
+
+def test_an_unknown_convention_names_the_key():
+    with pytest.raises(ValueError, match="rotation.convention"):
+        EulerCodec(builtin_object("bracket").symmetry, "ZZY")
+
+
+def test_a_codec_of_another_symmetry_is_refused():
+    shaft = builtin_object("shaft")
+    with pytest.raises(ValueError, match="another symmetry"):
+        VanillaParameterization(builtin_object("bracket"), rotation=SixDCodec(shaft.symmetry))

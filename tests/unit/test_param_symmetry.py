@@ -84,7 +84,9 @@ def test_revolution_equivalents_encode_identically(q, spin, flip, rotoreflection
     if rotoreflection:  # the axis is chosen to point away from the camera
         assert float(axis[2]) >= -0.05
         expected = expected if float(axis @ expected) > 0 else -expected
-    torch.testing.assert_close(axis, expected, atol=1e-7, rtol=0)  # acos near ±1: ~1e-8
+    # below |sin φ2| = 1e-7 the encoder snaps to gimbal lock (φ2 = 0 or π): axis components move by
+    # up to 2.0e-7 (measured over 200,000 draws with tilts of 1e-9 to 1e-6 rad)
+    torch.testing.assert_close(axis, expected, atol=3e-7, rtol=0)
 
 
 @pytest.mark.parametrize("k", [2, 4])
@@ -109,7 +111,7 @@ def test_cyclic_gimbal_lock_equivalents_encode_identically(k):
 
 
 def test_symmetric_object_needs_z_as_third_axis():
-    with pytest.raises(ValueError, match="third axis is Z"):
+    with pytest.raises(ValueError, match="rotation.convention.*third axis must be Z"):
         EulerCodec(Symmetry("cyclic", order=2), "ZYX")
 
 

@@ -37,7 +37,7 @@ def plain(cfg: Any) -> Any:
 
 def run_config(cfg: DictConfig) -> dict[str, Any]:
     """The parts of the config a checkpoint needs to rebuild the model, resolved."""
-    keys = ("object", "parameterization", "model", "loss", "optim", "data", "seed", "presence_prior_logit")
+    keys = ("object", "rotation", "parameterization", "model", "loss", "optim", "data", "seed", "presence_prior_logit")
     return {k: plain(cfg[k]) for k in keys if k in cfg}
 
 
@@ -47,7 +47,10 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
         cfg = OmegaConf.create(cfg)
     obj = object_from_config(plain(cfg.object))
     # _partial_: the object goes in as it is (a dataclass keyword would be turned into a config)
-    parameterization = instantiate(cfg.parameterization, _partial_=True)(obj=obj)
+    rotation = None
+    if cfg.get("rotation") is not None:  # checkpoints of before conf/rotation: the Euler default
+        rotation = instantiate(cfg.rotation, _partial_=True)(symmetry=obj.symmetry)
+    parameterization = instantiate(cfg.parameterization, _partial_=True)(obj=obj, rotation=rotation)
     backbone = instantiate(cfg.model, out_channels=parameterization.out_channels, out_grid=parameterization.grid_size)
     presence_prior = cfg.get("presence_prior_logit")
     if presence_prior is not None and hasattr(backbone, "set_head_bias"):

@@ -16,6 +16,7 @@ from opnet.data.sample import Batch
 from opnet.datasets.atomic import write_text_atomic
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.metrics.bregier import evaluate_scenes
+from opnet.metrics.diagnostics import diagnose
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -48,12 +49,15 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
     for name, (gt, hyps) in scenes.items():
         write_gt_json(out_dir / "gt" / f"{name}.json", gt)
         write_results_json(out_dir / "results" / f"{name}.json", hyps)
-    summary = evaluate_scenes(scenes, system.parameterization.obj.pose_space, max_occlusion=system.hparams.max_occlusion)
+    obj = system.parameterization.obj
+    summary = evaluate_scenes(scenes, obj.pose_space, max_occlusion=system.hparams.max_occlusion)
+    diagnostics = diagnose(scenes, obj.pose_space, obj.diameter, max_occlusion=system.hparams.max_occlusion)
     result = summary.to_dict()
+    result["diagnostics"] = diagnostics.to_dict()
     result.update(split=split, scenes=len(scenes), object=system.parameterization.obj.name,
                   parameterization=type(system.parameterization).__name__)
     write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
-    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n")
+    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n")
     if examples:
         write_examples(system, datamodule.splits[split], scenes, out_dir / "predictions", examples)
     return result

@@ -21,6 +21,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from opnet.data.augment import DepthAugmenter
+from opnet.data.cache import build_scene_cache, default_cache_dir
 from opnet.data.sample import Batch, Sample, collate, make_sample, random_interpolation
 from opnet.datasets import open_dataset
 from opnet.datasets.record import SceneRecord
@@ -30,7 +31,12 @@ log = logging.getLogger(__name__)
 
 
 class SceneSamples(Dataset):
-    """Samples of some scenes of a dataset (records are read once and kept in memory)."""
+    """Samples of some scenes of a dataset.
+
+    Training samples are made anew at every access (random interpolation and augmentation);
+    validation and test samples are deterministic and kept once made (network resolution only).
+    Scene records are read from the source at every access: nothing grows with the dataset.
+    """
 
     def __init__(
         self,
@@ -47,17 +53,13 @@ class SceneSamples(Dataset):
         self.train = train
         self.augmenter = augmenter if train else None
         self.random_resize = random_resize and train
-        self._records: dict[int, SceneRecord] = {}
         self._fixed: dict[int, Sample] = {}
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def record(self, i: int) -> SceneRecord:
-        j = self.indices[i]
-        if j not in self._records:
-            self._records[j] = self.source[j]
-        return self._records[j]
+        return self.source[self.indices[i]]
 
     def __getitem__(self, i: int) -> Sample:
         if not self.train:
@@ -112,6 +114,13 @@ class OPNetDataModule(L.LightningDataModule):
         augmenter: sim-to-real augmentation for training, or None.
         random_interpolation: draw the resize interpolation at random during training.
         seed: split seed.
+        cache: read the scenes from a scene cache (:mod:`opnet.data.cache`: built once, after
+            generation; bounded memory, fast reads) instead of the dataset files.
+        cache_size: side of the cached canvas in pixels; None = twice ``input_size``.
+        cache_dir: where the cache lives; None = ``<root>/cache_s<size>``.
+        cache_workers: processes that build the cache.
+        test_root: a separate dataset whose scenes (all of them) form the test split; the
+            ``test_fraction`` of ``root`` is then not held out.
     """
 
     def __init__(
@@ -129,6 +138,11 @@ class OPNetDataModule(L.LightningDataModule):
         random_interpolation: bool = True,
         seed: int = 0,
         object_config: Mapping[str, Any] | None = None,
+        cache: bool = True,
+        cache_size: int | None = None,
+        cache_dir: str | Path | None = None,
+        cache_workers: int = 1,
+        test_root: str | Path | None = None,
     ) -> None:
         super().__init__()
         self.obj = obj
@@ -142,28 +156,48 @@ class OPNetDataModule(L.LightningDataModule):
         self.random_interpolation = random_interpolation
         self.seed = seed
         self.object_config = dict(object_config) if object_config is not None else None
+        self.cache = bool(cache)
+        self.cache_size = int(cache_size) if cache_size is not None else 2 * int(input_size)
+        self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir(self.root, self.cache_size)
+        self.cache_workers = int(cache_workers)
+        self.test_root = Path(test_root) if test_root not in (None, "") else None
         self.splits: dict[str, SceneSamples] = {}
 
     def prepare_data(self) -> None:
-        """Generate the synthetic dataset if it is configured and not complete (resumable)."""
+        """Generate the synthetic dataset if it is configured and not complete (resumable), then
+        build (or complete) its scene cache."""
         if self.generate is None:
             if not self.root.exists():
                 raise FileNotFoundError(f"{self.root}: dataset folder not found (and no 'generate' settings)")
-            return
-        from opnet.synthesis import SceneConfig, generate_dataset
+        else:
+            from opnet.synthesis import SceneConfig, generate_dataset
 
-        g = dict(self.generate)
-        scene = SceneConfig.from_dict(dict(g.pop("scene", None) or {}))
-        log.info("preparing synthetic dataset at %s", self.root)
-        generate_dataset(self.obj, self.root, scene=scene, object_config=self.object_config, **g)
+            g = dict(self.generate)
+            scene = SceneConfig.from_dict(dict(g.pop("scene", None) or {}))
+            log.info("preparing synthetic dataset at %s", self.root)
+            generate_dataset(self.obj, self.root, scene=scene, object_config=self.object_config, **g)
+        if self.cache:
+            self._open_source()
+
+        if self.cache and self.test_root is not None:
+            self._open_source(self.test_root)
+
+    def _open_source(self, root: Path | None = None) -> Any:
+        """A dataset, or its scene cache (built or completed first when it is not up to date)."""
+        source = open_dataset(root or self.root)
+        if not self.cache:
+            return source
+        cache_dir = self.cache_dir if root is None else default_cache_dir(root, self.cache_size)
+        return build_scene_cache(source, cache_dir, self.cache_size, workers=self.cache_workers)
 
     def setup(self, stage: str | None = None) -> None:
         if self.splits:
             return
         self._check_object()
-        source = open_dataset(self.root)
+        source = self._open_source()
         keys, keep = self._scene_keys(source)
-        tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, self.test_fraction, self.seed)
+        test_fraction = 0.0 if self.test_root is not None else self.test_fraction
+        tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, test_fraction, self.seed)
         pick = lambda idx: [keep[i] for i in idx]  # noqa: E731
         common = dict(input_size=self.input_size)
         self.splits = {
@@ -172,6 +206,9 @@ class OPNetDataModule(L.LightningDataModule):
             "val": SceneSamples(source, pick(va), **common),
             "test": SceneSamples(source, pick(te), **common),
         }
+        if self.test_root is not None:  # a held-out dataset of its own (other seed, other generator)
+            test_source = self._open_source(self.test_root)
+            self.splits["test"] = SceneSamples(test_source, self._scene_keys(test_source)[1], **common)
         log.info("dataset %s: %s", self.root, {k: len(v) for k, v in self.splits.items()})
 
     def _check_object(self) -> None:

@@ -197,6 +197,54 @@ def rotation_angle(R: torch.Tensor) -> torch.Tensor:
     return torch.acos(((tr - 1) / 2).clamp(-1.0, 1.0))
 
 
+@numpy_compatible
+def rotation_from_6d(z_raw: torch.Tensor, x_raw: torch.Tensor) -> torch.Tensor:
+    """Rotation from two unnormalized 3-vectors by Gram-Schmidt (Zhou et al., CVPR 2019).
+
+    The z column comes first (it is exact: ``z = z_raw / |z_raw|``), so that the symmetry axis of
+    a symmetric object (its model z-axis, method.md §1) never depends on the x column. Continuous
+    and differentiable wherever ``z_raw`` and ``x_raw`` are not parallel.
+
+    Args:
+        z_raw, x_raw: (..., 3) unnormalized third and first columns.
+    Returns:
+        (..., 3, 3) proper rotations ``[x, z × x, z]``.
+    """
+    eps = torch.finfo(z_raw.dtype).eps
+    z = z_raw / z_raw.norm(dim=-1, keepdim=True).clamp_min(eps)
+    x = x_raw - (x_raw * z).sum(-1, keepdim=True) * z
+    x = x / x.norm(dim=-1, keepdim=True).clamp_min(eps)
+    y = torch.linalg.cross(z, x, dim=-1)
+    return torch.stack((x, y, z), dim=-1)
+
+
+@numpy_compatible
+def rotation_from_axis(axis: torch.Tensor) -> torch.Tensor:
+    """The spin-free rotation ``Rz(a) Ry(b)`` whose z column is the normalized ``axis``.
+
+    The representative of a revolution object's pose with the third Z-Y-Z angle 0 (what the
+    parameterizations decode). Finite gradients everywhere (the z column is the normalized axis;
+    along the optical axis, where ``a`` is undefined, ``a = 0``).
+
+    Args:
+        axis: (..., 3) unnormalized axis.
+    Returns:
+        (..., 3, 3) proper rotations.
+    """
+    eps = torch.finfo(axis.dtype).eps
+    z = axis / axis.norm(dim=-1, keepdim=True).clamp_min(eps)
+    rho2 = z[..., 0] ** 2 + z[..., 1] ** 2
+    on_axis = rho2 < eps**2
+    rho = torch.sqrt(rho2.clamp_min(eps**2))
+    cos_a = torch.where(on_axis, torch.ones_like(rho), z[..., 0] / rho)
+    sin_a = torch.where(on_axis, torch.zeros_like(rho), z[..., 1] / rho)
+    sin_b = torch.where(on_axis, torch.zeros_like(rho), rho)
+    cos_b = z[..., 2]
+    x = torch.stack((cos_b * cos_a, cos_b * sin_a, -sin_b), -1)
+    y = torch.stack((-sin_a, cos_a, torch.zeros_like(sin_a)), -1)
+    return torch.stack((x, y, z), dim=-1)
+
+
 def wrap_angle(angle: torch.Tensor, period: float = 2 * math.pi) -> torch.Tensor:
     """Map angles to [0, period)."""
     return torch.remainder(angle, period)

@@ -26,6 +26,7 @@ from torchmetrics.utilities import dim_zero_cat
 
 from opnet.geometry.distance import PoseSpace
 from opnet.metrics.bregier import evaluate_scenes
+from opnet.metrics.diagnostics import ErrorDiagnostics, diagnose
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.metrics.report import EvaluationSummary
 
@@ -40,6 +41,8 @@ class PoseAP(Metric):
         space: the object's pose space (distance and threshold δ).
         max_occlusion, min_occlusion: instances to find have an occlusion rate in this range.
         max_nb_results: keep only the k best hypotheses per scene (-1: all).
+        diameter: the object's diameter in metres; when given, ``compute()`` also fills
+            ``last_diagnostics`` (:func:`opnet.metrics.diagnostics.diagnose`).
     """
 
     is_differentiable = False
@@ -52,6 +55,7 @@ class PoseAP(Metric):
         max_occlusion: float = 0.5,
         min_occlusion: float = -0.1,
         max_nb_results: int = -1,
+        diameter: float | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(**kwargs)
@@ -59,7 +63,9 @@ class PoseAP(Metric):
         self.max_occlusion = max_occlusion
         self.min_occlusion = min_occlusion
         self.max_nb_results = max_nb_results
+        self.diameter = diameter
         self.last_summary: EvaluationSummary | None = None
+        self.last_diagnostics: ErrorDiagnostics | None = None
         for name in ("gt_rows", "gt_counts", "hyp_rows", "hyp_counts"):
             self.add_state(name, default=[], dist_reduce_fx="cat")
 
@@ -81,13 +87,15 @@ class PoseAP(Metric):
         All NaN when no scene was added.
         """
         gts, hyps = self._scenes()
-        summary = None
+        summary, diagnostics = None, None
         if gts:
             scenes = {f"scene_{i:05d}": pair for i, pair in enumerate(zip(gts, hyps, strict=True))}
             summary = evaluate_scenes(
                 scenes, self.space, self.max_occlusion, self.min_occlusion, self.max_nb_results
             )
-        self.last_summary = summary
+            if self.diameter is not None:
+                diagnostics = diagnose(scenes, self.space, self.diameter, self.max_occlusion, self.min_occlusion)
+        self.last_summary, self.last_diagnostics = summary, diagnostics
         values = {k: float("nan") if summary is None else getattr(summary, k) for k in METRIC_KEYS}
         return {k: torch.tensor(v, dtype=torch.float64, device=self.device) for k, v in values.items()}
 

@@ -12,6 +12,8 @@ Channel layout (slot-major): ``channel = slot * channels_per_slot + c`` with c i
 from __future__ import annotations
 
 import abc
+import copy
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -25,6 +27,7 @@ from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import Candidates, resolve
 from opnet.parameterizations.averaging import PoseAveraging
 from opnet.parameterizations.euler_codec import EulerCodec
+from opnet.parameterizations.rotation import RotationCodec
 from opnet.parameterizations.positions import (
     CameraBatch,
     CellIndex,
@@ -35,7 +38,7 @@ from opnet.parameterizations.positions import (
 
 SCORES = ("p", "p*v", "v")
 POSE_WEIGHTINGS = ("cubic", "linear")
-CHANNEL_NAMES = ("p", "v", "x", "y", "z", "phi1", "phi2", "phi3")
+POSE_CHANNEL_NAMES = ("p", "v", "x", "y", "z")
 
 
 @dataclass
@@ -150,7 +153,10 @@ class Parameterization(abc.ABC):
     Args:
         obj: the object model (symmetry, diameter, pose space).
         grid: output grid size S (the network outputs (B, out_channels, S, S)).
-        euler: Euler convention of the orientation channels (method.md §3).
+        rotation: the orientation channels (conf/rotation/); None: the paper's Euler angles in
+            the convention ``euler``.
+        euler: Euler convention of the orientation channels when ``rotation`` is None
+            (method.md §3).
         threshold: presence threshold τ of a hypothesis (method.md §6).
         score: hypothesis score: "p" (p̂), "p*v" (p̂ v̂) or "v" (v̂).
         averaging: cluster and average the hypotheses of each image (method.md §6).
@@ -158,11 +164,14 @@ class Parameterization(abc.ABC):
         averaging_min_samples: DBSCAN core-point threshold.
         averaging_score: cluster score, "max", "sum" or "mean".
         slots: slots per cell (Z: depth slabs, MP: poses per cell).
+        min_visibility: decode only cells whose predicted visibility is at least this (0: all, the
+            paper); instances more than half occluded need not be found (the metric ignores them)
+            but their poses are the least trained, so gating them removes false positives.
 
     Attributes:
         grid_size, slots, channels_per_slot (8, or 7 for revolution objects), out_channels,
-        pose_weighting ("cubic": λ3 = 8 v³, "linear": λ3 = v), needs_segmentation, euler (the
-        angle codec).
+        pose_weighting ("cubic": λ3 = 8 v³, "linear": λ3 = v), needs_segmentation, rotation (the
+        orientation codec).
     """
 
     pose_weighting: str = "cubic"
@@ -172,6 +181,7 @@ class Parameterization(abc.ABC):
         self,
         obj: ObjectModel,
         grid: int,
+        rotation: RotationCodec | None = None,
         euler: str = "ZYZ",
         threshold: float = 0.1,
         score: str = "p",
@@ -180,6 +190,7 @@ class Parameterization(abc.ABC):
         averaging_min_samples: int = 1,
         averaging_score: str = "max",
         slots: int = 1,
+        min_visibility: float = 0.0,
     ) -> None:
         if int(grid) != grid or grid < 1:
             raise ValueError(f"parameterization grid must be a positive integer, got {grid!r}")
@@ -187,6 +198,8 @@ class Parameterization(abc.ABC):
             raise ValueError(f"parameterization slots must be a positive integer, got {slots!r}")
         if not 0 <= threshold < 1:
             raise ValueError(f"parameterization threshold must lie in [0, 1), got {threshold}")
+        if not 0 <= min_visibility < 1:
+            raise ValueError(f"parameterization.min_visibility must lie in [0, 1), got {min_visibility}")
         if score not in SCORES:
             raise ValueError(f"parameterization score must be one of {SCORES}, got {score!r}")
         assert self.pose_weighting in POSE_WEIGHTINGS
@@ -195,8 +208,14 @@ class Parameterization(abc.ABC):
         self.slots = int(slots)
         self.threshold = float(threshold)
         self.score = score
-        self.euler = EulerCodec(obj.symmetry, euler)
-        self.channels_per_slot = 5 + self.euler.num_angles
+        self.min_visibility = float(min_visibility)
+        self.rotation = rotation if rotation is not None else EulerCodec(obj.symmetry, euler)
+        if self.rotation.revolution != obj.symmetry.is_revolution:
+            raise ValueError(
+                f"rotation codec {self.rotation.name!r} was built for another symmetry than "
+                f"object {obj.name!r}'s ({obj.symmetry.kind})"
+            )
+        self.channels_per_slot = 5 + self.rotation.num_channels
         self.averaging = (
             PoseAveraging(obj.pose_space, averaging_eps, averaging_min_samples, averaging_score)
             if averaging
@@ -210,7 +229,7 @@ class Parameterization(abc.ABC):
 
     def channel_layout(self) -> list[str]:
         """Name of every output channel, e.g. "p", "phi2" (one slot) or "p[1]" (several slots)."""
-        names = CHANNEL_NAMES[: self.channels_per_slot]
+        names = POSE_CHANNEL_NAMES + tuple(self.rotation.channel_names)
         if self.slots == 1:
             return list(names)
         return [f"{name}[{slot}]" for slot in range(self.slots) for name in names]
@@ -237,7 +256,7 @@ class Parameterization(abc.ABC):
             (B, out_channels, S, S) float32 in [0, 1]; cells without an object are all zero.
         """
         winners = self._assign(gt, camera)
-        angles = self.euler.encode(gt.R_cam_obj[winners.index])  # (W, num_angles)
+        angles = self.rotation.encode(gt.R_cam_obj[winners.index])  # (W, rotation channels)
         ones = torch.ones_like(winners.priority)[:, None]
         values = torch.cat(
             (ones, gt.visibility[winners.index, None].double(), winners.position, angles), 1
@@ -282,12 +301,14 @@ class Parameterization(abc.ABC):
         """
         grid5 = self.split_slots(output.detach())  # (B, L, C, S, S)
         B = grid5.shape[0]
-        b, slot, row, col = self._present(grid5[:, :, 0]).nonzero(as_tuple=True)
+        present = self._present(grid5[:, :, 0])
+        if self.min_visibility > 0:  # heavily occluded parts need not be found and are poorly posed
+            present = present & (grid5[:, :, 1] >= self.min_visibility)
+        b, slot, row, col = present.nonzero(as_tuple=True)
         feat = grid5.permute(0, 1, 3, 4, 2)[b, slot, row, col].to(torch.float64)  # (N, C)
         cams = CameraBatch.of(camera, B, output.device).take(b)
-        u, v, z_norm = self._decode_position(feat[:, 2:5], (slot, row, col), cams)
-        t = cams.backproject(u, v, cams.denormalize_depth(z_norm))
-        R = self.euler.decode(feat[:, 5:])
+        t = self.decode_translations(feat[:, 2:5], (slot, row, col), cams)
+        R = self.rotation.decode(feat[:, 5:])
         p_hat, v_hat = feat[:, 0], feat[:, 1]
         score = {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[self.score]
         if B == 0:
@@ -299,9 +320,48 @@ class Parameterization(abc.ABC):
         hyps = [HypothesisSet(*arrays) for arrays in per_image]
         return [self.averaging(h) for h in hyps] if self.averaging is not None else hyps
 
+    def with_decoding(self, **settings: Any) -> Parameterization:
+        """A copy with other decoding settings (the encoding is unchanged), for tuning on data.
+
+        Keys: ``threshold``, ``score``, ``min_visibility``, and ``averaging`` (False, or a dict of
+        ``eps``, ``min_samples``, ``cluster_score``, overriding the current ones).
+        """
+        new = copy.copy(self)
+        averaging = settings.pop("averaging", None)
+        for key, value in settings.items():
+            if key not in ("threshold", "score", "min_visibility"):
+                raise ValueError(f"with_decoding: unknown setting {key!r}")
+            setattr(new, key, value)
+        if new.score not in SCORES:
+            raise ValueError(f"parameterization score must be one of {SCORES}, got {new.score!r}")
+        if averaging is False:
+            new.averaging = None
+        elif averaging is not None:
+            unknown = set(averaging) - {"eps", "min_samples", "cluster_score"}
+            if unknown:
+                raise ValueError(f"with_decoding: unknown averaging settings {sorted(unknown)}")
+            base = self.averaging or PoseAveraging(self.obj.pose_space)
+            new.averaging = dataclasses.replace(base, **dict(averaging))
+        return new
+
     def _present(self, presence: torch.Tensor) -> torch.Tensor:
         """(B, slots, S, S) presence channel -> bool mask of the cells/slots to decode."""
         return presence > self.threshold
+
+    def decode_translations(
+        self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
+    ) -> torch.Tensor:
+        """Object origins from the position channels of some cells (differentiable, for the loss).
+
+        Args:
+            position: (N, 3) the x, y, z channels of the cells.
+            cells: (slot, row, col) of each, (N,) long.
+            cams: the camera of each (N rows).
+        Returns:
+            (N, 3) float64 metres, camera frame.
+        """
+        u, v, z_norm = self._decode_position(position, cells, cams)
+        return cams.backproject(u, v, cams.denormalize_depth(z_norm))
 
     @abc.abstractmethod
     def _decode_position(
@@ -316,10 +376,10 @@ class Parameterization(abc.ABC):
         Args:
             output: (B, out_channels, S, S).
         Returns:
-            (B, slots, S, S, 3, 3) rotations, camera frame (φ3 = 0 for revolution objects).
+            (B, slots, S, S, 3, 3) rotations, camera frame (spin-free for revolution objects).
         """
         angles = self.split_slots(output)[:, :, 5:].permute(0, 1, 3, 4, 2)  # (B, L, S, S, A)
-        return self.euler.decode(angles)
+        return self.rotation.decode(angles)
 
     # ---- loss weights ------------------------------------------------------------------------
     def pose_weight(self, visibility: torch.Tensor) -> torch.Tensor:

@@ -18,37 +18,44 @@ import torch
 
 from opnet.geometry.rotations import euler_to_matrix, matrix_to_euler
 from opnet.geometry.symmetry import Symmetry
-
-# generic direction used to pick one of several symmetric z-axes (almost the camera's viewing axis)
-_AXIS_PREFERENCE = (0.0123, 0.0321, 1.0)
+from opnet.parameterizations.rotation import AXIS_PREFERENCE, RotationCodec
 # |sin φ2| below this counts as gimbal lock (same tolerance as matrix_to_euler)
 _GIMBAL_EPS = 1e-7
 
 
-class EulerCodec:
-    """Rotation <-> normalized Euler channels of one object.
+class EulerCodec(RotationCodec):
+    """Rotation <-> normalized Euler channels of one object (the paper's orientation channels).
+
+    Args:
+        symmetry: the object's symmetry.
+        convention: intrinsic Euler convention (``rotation.convention``), e.g. "ZYZ" (default,
+            method.md §3); the third axis must be Z for symmetric objects.
 
     Attributes:
-        convention: e.g. "ZYZ"; the third axis must be Z for symmetric objects.
+        convention: e.g. "ZYZ".
         num_angles: 3, or 2 for revolution objects (φ3 dropped).
         period3: period of φ3 in radians (2π / k), None for revolution objects.
     """
 
     def __init__(self, symmetry: Symmetry, convention: str = "ZYZ") -> None:
-        conv = convention.upper()
-        euler_to_matrix(
-            torch.zeros(3, dtype=torch.float64), conv
-        )  # validates the convention string
+        conv = str(convention).upper()
+        try:
+            euler_to_matrix(torch.zeros(3, dtype=torch.float64), conv)  # validates the string
+        except ValueError as e:
+            raise ValueError(f"rotation.convention: {e}") from None
         if symmetry.kind != "none" and conv[2] != "Z":
             raise ValueError(
-                f"euler: an object with {symmetry.kind} symmetry needs a convention whose "
-                "third axis is Z "
-                f"(the symmetry axis), e.g. 'ZYZ'; got {convention!r}"
+                f"rotation.convention={convention!r} does not fit an object with {symmetry.kind} "
+                "symmetry: its third axis must be Z (the symmetry axis), e.g. 'ZYZ' "
+                "(or use rotation=r6d)"
             )
+        self.name = f"euler_{conv.lower()}"
         self.convention = conv
         self.proper = conv[0] == conv[2]
         self.revolution = symmetry.is_revolution
         self.num_angles = 2 if self.revolution else 3
+        self.num_channels = self.num_angles
+        self.channel_names = ("phi1", "phi2", "phi3")[: self.num_angles]
         self.period3 = symmetry.euler3_period
         group = torch.as_tensor(symmetry.group(), dtype=torch.float64)  # (K, 3, 3)
         moves_axis = (
@@ -99,7 +106,7 @@ class EulerCodec:
         if self._axis_group is None:
             return R
         G = self._axis_group.to(R.device)
-        pref = torch.tensor(_AXIS_PREFERENCE, dtype=R.dtype, device=R.device)
+        pref = torch.tensor(AXIS_PREFERENCE, dtype=R.dtype, device=R.device)
         axes = torch.einsum("mij,kj->mki", R, G[:, :, 2])  # (M, K, 3): R g e_z
         best = (axes @ pref).argmax(-1)  # (M,)
         return R @ G[best]

@@ -1,0 +1,236 @@
+"""The learning benchmark: per object, generate data, train within a fixed CPU budget, report the
+held-out test AP with error diagnostics and the learning curve (AP against minutes of training).
+
+    python scripts/bench_learning.py                                   # the four objects, 30 min each
+    python scripts/bench_learning.py --objects bunny --minutes 10 --config paper
+    python scripts/bench_learning.py --objects zbracket --steps 4000   # a fixed step budget
+
+Per object: a training set (``--train-cycles`` cycles of ``--drops`` drops, seed 0, 256 x 256) and
+a test set of other cycles from another seed (seed 1) are generated (or completed) under
+``--data-dir``; ``train.py`` then runs with ``data=ipa`` on the training set (10 % of its cycles
+for validation and model selection) and ``data.test_root`` on the test set. The step budget is
+``--minutes`` of training at the throughput measured on this machine for this configuration
+(a short calibration run) unless ``--steps`` is given; the steps used are recorded, so that a
+run can be repeated exactly with ``--steps``. The learning curve scores the test split at every
+validation (reported only; the model is selected on validation AP).
+
+Writes, under ``--out`` (default ``results/learning``): ``learning.csv`` (one row per final
+model: object, config, parameterization, rotation, loss, steps, train_minutes, ap, map, f1 and
+the diagnostics), ``curves.csv`` (object, config, train_minutes, val_ap, test_ap),
+``curves.png`` and ``README.md`` (the tables). Runs go to ``--runs-dir``. Rows of earlier
+invocations (other objects or configs) are kept; a re-run replaces its own rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+REPO = Path(__file__).resolve().parents[1]
+OBJECTS = ("bunny", "ring_screw", "gear_shaft", "zbracket")
+#: named configurations (Hydra overrides of train.py)
+CONFIGS: dict[str, list[str]] = {
+    "paper": ["parameterization=vanilla", "rotation=euler_zyz", "loss=paper"],
+    "default": [],
+}
+#: per-object overrides of a configuration (the measured best parameterization of each object)
+OBJECT_OVERRIDES: dict[str, dict[str, list[str]]] = {}
+TARGETS = {"bunny": 0.6, "ring_screw": 0.6, "gear_shaft": 0.8, "zbracket": 0.5}
+ROW_FIELDS = (
+    "object", "config", "parameterization", "rotation", "loss", "model", "steps", "train_minutes", "images",
+    "ap", "map", "f1", "target", "found", "no_hypothesis", "position", "orientation", "conflict",
+    "confident_fp_per_scene", "duplicates_per_scene", "t_err_mm_p50", "r_err_deg_p50", "run",
+)  # fmt: skip
+CURVE_FIELDS = ("object", "config", "epoch", "step", "train_minutes", "val_ap", "test_ap")
+
+
+def generate(obj: str, out: Path, cycles: int, drops: int, seed: int) -> None:
+    """Generate (or complete) a dataset with ``generate.py`` (resumable, deterministic)."""
+    cmd = [sys.executable, str(REPO / "generate.py"), f"object={obj}", f"cycles={cycles}", f"drops={drops}",
+           "workers=2", f"seed={seed}", "scene.resolution=256", f"out={out}", "progress=false", "previews=2"]  # fmt: skip
+    print(f"[{obj}] data: {out} ({cycles} cycles x {drops} drops, seed {seed})", flush=True)
+    subprocess.run(cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL)
+
+
+def calibrate_steps(overrides: list[str], minutes: float) -> int:
+    """Optimizer steps that fill ``minutes`` of training at the measured images/s."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    from bench_train import measure  # noqa: PLC0415
+
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import config_dir
+
+    ips = measure(overrides, steps=40, warmup=10)
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        batch = int(compose("train", overrides=overrides).data.batch_size)
+    steps = int(minutes * 60 * ips / batch)
+    print(f"  calibration: {ips:.1f} images/s -> {steps} steps for {minutes:g} min", flush=True)
+    return steps
+
+
+def train(overrides: list[str], run_dir: Path, steps: int) -> None:
+    cmd = [sys.executable, str(REPO / "train.py"), *overrides, f"trainer.max_steps={steps}",
+           "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
+           "callbacks.learning_curve.test_every=1", f"hydra.run.dir={run_dir}"]  # fmt: skip
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / "bench_stdout.log", "w") as log:
+        subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+
+
+def choice(cfg: dict[str, Any], group: str) -> str:
+    return str(cfg.get(group, ""))
+
+
+def summarize(obj: str, config: str, run_dir: Path, steps: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The result row and curve rows of a finished run."""
+    import yaml
+
+    summary = json.loads((run_dir / "test" / "summary.json").read_text())
+    choices = yaml.safe_load((run_dir / ".hydra" / "hydra.yaml").read_text())["hydra"]["runtime"]["choices"]
+    curve = list(csv.DictReader((run_dir / "learning_curve.csv").open()))
+    d = summary["diagnostics"]
+    n, scenes = max(d["to_find"], 1), max(summary["num_scenes"], 1)
+    row = {
+        "object": obj, "config": config, "parameterization": choices.get("parameterization"),
+        "rotation": choices.get("rotation"), "loss": choices.get("loss"), "model": choices.get("model"),
+        "steps": steps, "train_minutes": float(curve[-1]["train_minutes"]) if curve else float("nan"),
+        "images": int(curve[-1]["images"]) if curve else 0,
+        "ap": summary["ap"], "map": summary["map"], "f1": summary["f1"], "target": TARGETS.get(obj, ""),
+        "found": d["matched"] / n, "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n,
+        "orientation": d["orientation"] / n, "conflict": d["conflict"] / n,
+        "confident_fp_per_scene": d["confident_false_positives"] / scenes,
+        "duplicates_per_scene": d["duplicates"] / scenes,
+        "t_err_mm_p50": d["t_err_mm_p50"], "r_err_deg_p50": d["r_err_deg_p50"],
+        "run": os.path.relpath(run_dir, REPO),
+    }  # fmt: skip
+    curves = [{"object": obj, "config": config, **{k: r[k] for k in CURVE_FIELDS[2:]}} for r in curve]
+    return row, curves
+
+
+def merge_csv(path: Path, fields: tuple[str, ...], new: list[dict[str, Any]], key: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Rows of ``path`` whose key is not among the new rows', then the new rows; written back."""
+    old = list(csv.DictReader(path.open())) if path.is_file() else []
+    keys = {tuple(str(r[k]) for k in key) for r in new}
+    rows = [r for r in old if tuple(str(r[k]) for k in key) not in keys] + new
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(buf.getvalue())
+    return rows
+
+
+def fmt(value: Any, kind: str = "f3") -> str:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return {"f3": f"{v:.3f}", "f1": f"{v:.1f}", "pct": f"{100 * v:.1f}", "int": f"{int(v)}"}[kind]
+
+
+def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:
+    rows = sorted(rows, key=lambda r: (OBJECTS.index(r["object"]) if r["object"] in OBJECTS else 99, -float(r["ap"])))
+    lines = [
+        "# Learning benchmark", "",
+        "Held-out test AP (Brégier, max occlusion 0.5) of models trained on this 2-core CPU within a fixed "
+        "budget, on synthetic scenes of other cycles and another seed than the training data. Best configuration "
+        "per object first. Diagnostics: share of the instances to find that were found, or missed for want of any "
+        "hypothesis near them, a position error > δ, an orientation error > δ, or a matching conflict; confident "
+        "false positives (score ≥ 0.5) and duplicates per scene; median errors of the matched pairs.", "",
+        f"Command: `{command}`", "",
+        "| object | config | parameterization | rotation | loss | steps | train min | **test AP** | target | MAP "
+        "| F1 | found % | no hyp % | position % | orientation % | conflict % | conf. FP/scene | dup/scene "
+        "| t p50 mm | r p50 ° |",
+        "|" + "---|" * 20,
+    ]  # fmt: skip
+    for r in rows:
+        lines.append(
+            f"| {r['object']} | {r['config']} | {r['parameterization']} | {r['rotation']} | {r['loss']} | "
+            f"{fmt(r['steps'], 'int')} | {fmt(r['train_minutes'], 'f1')} | **{fmt(r['ap'])}** | {r['target']} | "
+            f"{fmt(r['map'])} | {fmt(r['f1'])} | {fmt(r['found'], 'pct')} | {fmt(r['no_hypothesis'], 'pct')} | "
+            f"{fmt(r['position'], 'pct')} | {fmt(r['orientation'], 'pct')} | {fmt(r['conflict'], 'pct')} | "
+            f"{fmt(r['confident_fp_per_scene'], 'f1')} | {fmt(r['duplicates_per_scene'], 'f1')} | "
+            f"{fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} |"
+        )
+    lines += ["", "Learning curves (test AP against minutes of training): `curves.png`, `curves.csv`.", ""]
+    (out / "README.md").write_text("\n".join(lines))
+
+
+def plot_curves(out: Path, curves: list[dict[str, Any]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for c in curves:
+        groups.setdefault((c["object"], c["config"]), []).append(c)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for (obj, config), pts in sorted(groups.items()):
+        pts = [p for p in pts if p["test_ap"] not in ("", None)]
+        ax.plot([float(p["train_minutes"]) for p in pts], [float(p["test_ap"]) for p in pts], marker="o",
+                ms=3, label=f"{obj} ({config})")  # fmt: skip
+    ax.set_xlabel("minutes of training (2 CPU cores)")
+    ax.set_ylabel("test AP")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "curves.png", dpi=120)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--objects", nargs="+", default=list(OBJECTS))
+    parser.add_argument("--config", default="default", choices=list(CONFIGS))
+    parser.add_argument("--minutes", type=float, default=30.0)
+    parser.add_argument("--steps", type=int, default=None, help="fixed step budget (skips the calibration)")
+    parser.add_argument("--train-cycles", type=int, default=400)
+    parser.add_argument("--test-cycles", type=int, default=25)
+    parser.add_argument("--drops", type=int, default=20)
+    parser.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "learning")
+    parser.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "learning")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "learning")
+    parser.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
+    args = parser.parse_args(argv)
+    command = "python scripts/bench_learning.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    rows, curves = [], []
+    for obj in args.objects:
+        train_root = args.data_dir / f"{obj}_train_c{args.train_cycles}_d{args.drops}_s0"
+        test_root = args.data_dir / f"{obj}_test_c{args.test_cycles}_d{args.drops}_s1"
+        generate(obj, train_root, args.train_cycles, args.drops, 0)
+        generate(obj, test_root, args.test_cycles, args.drops, 1)
+        overrides = [f"object={obj}", "data=ipa", f"data.root={train_root}", f"data.test_root={test_root}",
+                     *CONFIGS[args.config], *OBJECT_OVERRIDES.get(args.config, {}).get(obj, []), *args.extra]  # fmt: skip
+        steps = args.steps or calibrate_steps(overrides, args.minutes)
+        run_dir = args.runs_dir / f"{obj}_{args.config}"
+        start = time.time()
+        print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
+        train(overrides, run_dir, steps)
+        row, curve = summarize(obj, args.config, run_dir, steps)
+        print(f"[{obj}] test AP {row['ap']:.4f} after {row['train_minutes']:.1f} training minutes "
+              f"({(time.time() - start) / 60:.1f} min wall)", flush=True)  # fmt: skip
+        rows.append(row)
+        curves += curve
+    all_rows = merge_csv(args.out / "learning.csv", ROW_FIELDS, rows, ("object", "config"))
+    all_curves = merge_csv(args.out / "curves.csv", CURVE_FIELDS, curves, ("object", "config"))
+    write_readme(args.out, all_rows, command)
+    plot_curves(args.out, all_curves)
+    print((args.out / "README.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,309 @@
+"""A dataset's scenes at network scale, in flat binary shards read with ``pread`` (bounded memory).
+
+Reading an IPA or Siléane scene means decoding two PNGs and a CSV at the capture resolution, and
+keeping the decoded records in memory made a training process grow with the dataset (6,600 scenes
+at 256² took 3.8 GB). The cache stores each scene once, already cropped to the square canvas of
+:func:`opnet.data.preprocess.square_canvas` and resized (NaN-aware ``INTER_AREA``) to ``size``
+pixels, by default twice the network input, so the random resize interpolation of the sim-to-real
+recipe (method.md §2) still has pixels to interpolate:
+
+``<root>/cache_s<size>/``
+    ``cache.json``          version, size, scene count, the source's scene keys (fingerprint)
+    ``shard_NNNNN.depth``   raw uint16 (n, size, size): ``z = clip_start + code (clip_end -
+                            clip_start) / 65534``, 65535 = missing depth
+    ``shard_NNNNN.seg``     raw uint8 or uint16 (n, size, size) instance ids, nearest resize
+    ``shard_NNNNN.npz``     cameras (n, 8), ground truth (flat, with per-scene counts), names;
+                            written last: a shard is complete when its ``.npz`` exists
+
+An image that does not fill its square canvas (not square, or an off-centre principal point, as
+Siléane's) keeps the padding as missing depth, which the network input's fill then interpolates
+(reading the files directly replicates the image border there instead).
+
+Readers fetch one scene's pixels with ``os.pread`` (no memory map, so nothing accumulates in the
+process's resident memory over an epoch; DataLoader workers share nothing but the page cache) and
+keep only the small ground-truth arrays. Building is resumable (complete shards are kept) and
+deterministic; files are written atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from opnet.data.preprocess import network_camera, resize_segmentation, _depth_canvas, _resize_weighted, square_canvas
+from opnet.datasets.atomic import write_bytes_atomic, write_text_atomic
+from opnet.datasets.record import SceneRecord
+from opnet.geometry.camera import Camera
+
+log = logging.getLogger(__name__)
+
+CACHE_VERSION = 1
+MISSING = 65535
+_CODE_MAX = 65534
+_CAMERA_FIELDS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
+
+
+def scene_keys(source: Any) -> list[Any]:
+    """The source's scene keys: (cycle, objects) for IPA layouts, scene names otherwise."""
+    if hasattr(source, "scenes"):
+        return [tuple(k) if isinstance(k, (tuple, list)) else k for k in source.scenes()]
+    return list(range(len(source)))
+
+
+def _fingerprint(keys: Sequence[Any]) -> str:
+    return hashlib.sha256(json.dumps([list(k) if isinstance(k, tuple) else k for k in keys]).encode()).hexdigest()[:16]
+
+
+def encode_depth(depth: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) float metres (NaN = missing) -> uint16 codes between the clip planes."""
+    z = (depth - camera.clip_start) / (camera.clip_end - camera.clip_start)
+    code = np.rint(np.clip(np.nan_to_num(z, nan=0.0), 0.0, 1.0) * _CODE_MAX).astype(np.uint16)
+    code[~np.isfinite(depth) | (depth <= 0)] = MISSING
+    return code
+
+
+def decode_depth(code: np.ndarray, camera: Camera) -> np.ndarray:
+    """Inverse of :func:`encode_depth`: float32 metres, NaN where missing."""
+    scale = np.float32((camera.clip_end - camera.clip_start) / _CODE_MAX)
+    depth = np.float32(camera.clip_start) + code.astype(np.float32) * scale
+    depth[code == MISSING] = np.nan
+    return depth
+
+
+def canvas_record(record: SceneRecord, size: int) -> SceneRecord:
+    """The record on its square canvas resized to ``size`` (what the cache stores, before coding)."""
+    x0, y0, side = square_canvas(record.camera)
+    values, weight = _depth_canvas(record.depth, x0, y0, side)
+    depth = _resize_weighted(values, weight, size, cv2.INTER_AREA)
+    camera = network_camera(record.camera, size)
+    seg = None
+    if record.segmentation is not None:
+        seg = resize_segmentation(record.segmentation, record.camera, size)
+    return SceneRecord(
+        record.name, depth, camera, seg, record.R_cam_obj, record.t_cam_obj, record.visibility,
+        record.instance_id, record.object_name,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CacheInfo:
+    """The ``cache.json`` of a cache folder."""
+
+    size: int
+    num_scenes: int
+    shard_scenes: int
+    fingerprint: str
+    keys: list[Any]
+
+    @property
+    def num_shards(self) -> int:
+        return -(-self.num_scenes // self.shard_scenes)
+
+    def to_json(self) -> str:
+        keys = [list(k) if isinstance(k, tuple) else k for k in self.keys]
+        return json.dumps({"version": CACHE_VERSION, "size": self.size, "num_scenes": self.num_scenes,
+                           "shard_scenes": self.shard_scenes, "fingerprint": self.fingerprint,
+                           "keys": keys})  # fmt: skip
+
+    @classmethod
+    def read(cls, path: Path) -> CacheInfo | None:
+        """The info of a cache folder, None if absent, unreadable or of another version."""
+        try:
+            raw = json.loads((path / "cache.json").read_text())
+            if raw.get("version") != CACHE_VERSION:
+                return None
+            keys = [tuple(k) if isinstance(k, list) else k for k in raw["keys"]]
+            return cls(int(raw["size"]), int(raw["num_scenes"]), int(raw["shard_scenes"]), str(raw["fingerprint"]), keys)
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+
+def default_cache_dir(root: str | Path, size: int) -> Path:
+    return Path(root) / f"cache_s{size}"
+
+
+def _shard_stem(path: Path, shard: int) -> Path:
+    return path / f"shard_{shard:05d}"
+
+
+def _write_shard(source: Any, path: Path, shard: int, info: CacheInfo) -> None:
+    start = shard * info.shard_scenes
+    indices = range(start, min(start + info.shard_scenes, info.num_scenes))
+    depth = np.empty((len(indices), info.size, info.size), np.uint16)
+    segs: list[np.ndarray] = []
+    cams, counts, names = [], [], []
+    R, t, vis, ids = [], [], [], []
+    for k, i in enumerate(indices):
+        rec = canvas_record(source[i], info.size)
+        depth[k] = encode_depth(rec.depth, rec.camera)
+        segs.append(np.zeros((info.size, info.size), np.int64) if rec.segmentation is None else rec.segmentation)
+        cams.append([getattr(rec.camera, f) for f in _CAMERA_FIELDS])
+        counts.append(rec.num_objects)
+        names.append(rec.name)
+        R.append(rec.R_cam_obj.reshape(-1, 9))
+        t.append(rec.t_cam_obj.reshape(-1, 3))
+        vis.append(rec.visibility)
+        ids.append(rec.instance_id)
+    seg = np.stack(segs)
+    if seg.min() < 0 or seg.max() > np.iinfo(np.uint16).max:
+        raise ValueError(f"{path}: instance ids outside [0, 65535] cannot be cached")
+    seg = seg.astype(np.uint8 if seg.max() <= 255 else np.uint16)
+    stem = _shard_stem(path, shard)
+    write_bytes_atomic(stem.with_suffix(".depth"), depth.tobytes())
+    write_bytes_atomic(stem.with_suffix(".seg"), seg.tobytes())
+    buf = io.BytesIO()
+    np.savez(
+        buf, cameras=np.asarray(cams, np.float64), counts=np.asarray(counts, np.int64),
+        R=np.concatenate(R).astype(np.float64), t=np.concatenate(t).astype(np.float64),
+        visibility=np.concatenate(vis).astype(np.float64), instance_id=np.concatenate(ids).astype(np.int64),
+        names=np.asarray(names), object_names=np.asarray([source[indices[0]].object_name] if len(indices) else [""]),
+        seg_dtype=np.asarray(seg.dtype.str),
+    )  # fmt: skip
+    write_bytes_atomic(stem.with_suffix(".npz"), buf.getvalue())
+
+
+def _build_shards(args: tuple[Any, Path, list[int], CacheInfo]) -> int:
+    source, path, shards, info = args
+    for shard in shards:
+        _write_shard(source, path, shard, info)
+    return len(shards)
+
+
+def build_scene_cache(
+    source: Any, path: str | Path, size: int = 256, shard_scenes: int = 512, workers: int = 1
+) -> SceneCache:
+    """Write (or complete) the cache of a dataset and open it.
+
+    Args:
+        source: a dataset (``__len__``, ``__getitem__`` -> :class:`SceneRecord`, ``scenes()``).
+        path: the cache folder (created).
+        size: side of the cached square canvas in pixels.
+        shard_scenes: scenes per shard file.
+        workers: processes that build shards in parallel (the source must be picklable).
+    Returns:
+        The opened cache. A folder holding a cache of other settings or of another scene list is
+        rebuilt from scratch.
+    """
+    path = Path(path)
+    if size < 1 or shard_scenes < 1:
+        raise ValueError(f"scene cache: size={size} and shard_scenes={shard_scenes} must be positive")
+    keys = scene_keys(source)
+    info = CacheInfo(int(size), len(keys), int(shard_scenes), _fingerprint(keys), keys)
+    old = CacheInfo.read(path)
+    if old is not None and (old.size, old.num_scenes, old.shard_scenes, old.fingerprint) != (
+        info.size, info.num_scenes, info.shard_scenes, info.fingerprint
+    ):
+        log.info("%s: cache of other settings or scenes; rebuilding", path)
+        for f in path.glob("shard_*"):
+            f.unlink()
+    path.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path / "cache.json", info.to_json())
+    todo = [s for s in range(info.num_shards) if not _shard_stem(path, s).with_suffix(".npz").is_file()]
+    if todo:
+        log.info("%s: caching %d scenes at %d px (%d shards)", path, info.num_scenes, size, len(todo))
+        workers = max(1, min(int(workers), len(todo)))
+        if workers == 1:
+            _build_shards((source, path, todo, info))
+        else:
+            import multiprocessing as mp
+
+            jobs = [(source, path, todo[w::workers], info) for w in range(workers)]
+            with mp.get_context("spawn").Pool(workers) as pool:
+                pool.map(_build_shards, jobs)
+    return SceneCache(path)
+
+
+class SceneCache:
+    """Read-only access to a cache folder written by :func:`build_scene_cache`.
+
+    Behaves like the source dataset: ``len``, ``cache[i]`` -> :class:`SceneRecord` (at the cached
+    resolution, on the square canvas), ``scenes()`` (the source's keys), ``scene_name(i)``.
+    Safe to use from several processes (files are opened per process, on first use).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        info = CacheInfo.read(self.path)
+        if info is None:
+            raise FileNotFoundError(f"{self.path}: no scene cache (cache.json missing or of another version)")
+        self.info = info
+        missing = [s for s in range(info.num_shards) if not _shard_stem(self.path, s).with_suffix(".npz").is_file()]
+        if missing:
+            raise FileNotFoundError(f"{self.path}: scene cache incomplete, shards {missing[:5]} missing")
+        self._gt: dict[int, dict[str, np.ndarray]] = {}
+        self._files: dict[tuple[int, str], int] = {}
+        self._pid = os.getpid()
+
+    def __len__(self) -> int:
+        return self.info.num_scenes
+
+    def scenes(self) -> list[Any]:
+        return list(self.info.keys)
+
+    def scene_name(self, i: int) -> str:
+        shard, k = divmod(i, self.info.shard_scenes)
+        return str(self._shard_gt(shard)["names"][k])
+
+    def _shard_gt(self, shard: int) -> dict[str, np.ndarray]:
+        if shard not in self._gt:
+            path = _shard_stem(self.path, shard).with_suffix(".npz")
+            try:
+                with np.load(path) as z:
+                    gt = {k: z[k] for k in z.files}
+            except (OSError, ValueError) as e:
+                raise ValueError(f"{path}: unreadable scene-cache shard ({e}); delete the cache folder") from e
+            gt["offsets"] = np.concatenate(([0], np.cumsum(gt["counts"])))
+            self._gt[shard] = gt
+        return self._gt[shard]
+
+    def _read(self, shard: int, kind: str, k: int, dtype: np.dtype) -> np.ndarray:
+        if self._pid != os.getpid():  # forked into a DataLoader worker: open our own files
+            self._files, self._pid = {}, os.getpid()
+        key = (shard, kind)
+        if key not in self._files:
+            self._files[key] = os.open(_shard_stem(self.path, shard).with_suffix(f".{kind}"), os.O_RDONLY)
+        n = self.info.size * self.info.size
+        data = os.pread(self._files[key], n * dtype.itemsize, k * n * dtype.itemsize)
+        if len(data) != n * dtype.itemsize:
+            raise ValueError(f"{self.path}: shard {shard} .{kind} is truncated; delete the cache folder")
+        return np.frombuffer(data, dtype=dtype).reshape(self.info.size, self.info.size)
+
+    def __getitem__(self, i: int) -> SceneRecord:
+        if not 0 <= i < len(self):
+            raise IndexError(f"scene {i} outside the cache's {len(self)} scenes")
+        shard, k = divmod(i, self.info.shard_scenes)
+        gt = self._shard_gt(shard)
+        c = [float(x) for x in gt["cameras"][k]]
+        camera = Camera(c[0], c[1], c[2], c[3], int(c[4]), int(c[5]), c[6], c[7])
+        depth = decode_depth(self._read(shard, "depth", k, np.dtype(np.uint16)), camera)
+        seg = self._read(shard, "seg", k, np.dtype(str(gt["seg_dtype"]))).astype(np.int32)
+        a, b = gt["offsets"][k], gt["offsets"][k + 1]
+        return SceneRecord(
+            str(gt["names"][k]), depth, camera, seg, gt["R"][a:b].reshape(-1, 3, 3), gt["t"][a:b],
+            gt["visibility"][a:b], gt["instance_id"][a:b], str(gt["object_names"][0]),
+        )  # fmt: skip
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_files"] = {}
+        return state
+
+    def __del__(self) -> None:
+        for fd in getattr(self, "_files", {}).values():
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+__all__ = ["SceneCache", "build_scene_cache", "canvas_record", "decode_depth", "default_cache_dir", "encode_depth"]

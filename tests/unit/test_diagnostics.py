@@ -1,0 +1,76 @@
+"""Error diagnostics: each miss reason, duplicates and false positives, error percentiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from opnet.geometry import axis_angle_rotation, quaternion_to_matrix
+from opnet.metrics.diagnostics import diagnose, rotation_errors_deg
+from opnet.metrics.records import GroundTruthSet, HypothesisSet
+from opnet.objects import builtin_object
+
+
+def scene(seed: int = 0):
+    obj = builtin_object("bracket")
+    rng = np.random.default_rng(seed)
+    R = quaternion_to_matrix(torch.randn(6, 4, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)).numpy()
+    t = rng.uniform(-0.3, 0.3, (6, 3)) + [0, 0, 1]
+    # instance 5 is 90 % occluded: it need not be found
+    return obj, GroundTruthSet(R, t, np.array([0, 0, 0, 0, 0, 0.9]))
+
+
+def test_every_miss_reason_duplicates_and_false_positives():
+    obj, gt = scene()
+    d = obj.delta
+    R, t = gt.R.copy(), gt.t.copy()
+    t[1, 0] += 2 * d  # instance 1: position off by 2 delta
+    R[2] = R[2] @ axis_angle_rotation("X", torch.tensor(1.0, dtype=torch.float64)).numpy()  # 2: rotated
+    keep = [0, 1, 2, 4]  # 3: no hypothesis at all
+    hyps = HypothesisSet(
+        np.concatenate([R[keep], gt.R[4:5], gt.R[0:1]]),
+        np.concatenate([t[keep], gt.t[4:5] + 0.3 * d, gt.t[0:1] + [1.0, 0, 0]]),  # duplicate of 4, far FP
+        np.array([0.9, 0.8, 0.7, 0.6, 0.55, 0.3]),
+    )
+    diag = diagnose({"s": (gt, hyps)}, obj.pose_space, obj.diameter)
+    assert (diag.to_find, diag.matched) == (5, 2)
+    assert (diag.no_hypothesis, diag.position, diag.orientation, diag.conflict) == (1, 1, 1, 0)
+    assert (diag.hypotheses, diag.duplicates, diag.false_positives) == (6, 1, 3)
+    assert (diag.confident_duplicates, diag.confident_false_positives) == (1, 2)  # score >= 0.5
+    assert diag.t_err_mm_p50 == pytest.approx(0.0, abs=1e-9) and diag.r_err_deg_p50 < 1e-5
+    assert "2 of 5 instances found" in diag.table()
+
+
+def test_conflict_and_error_percentiles():
+    obj, gt = scene(1)
+    # two instances half a delta apart, one hypothesis 0.2 delta from the first: it is the nearest
+    # hypothesis of both, but it can only be matched to its own nearest instance
+    R = np.stack([gt.R[0], gt.R[0]])
+    gt = GroundTruthSet(R, np.array([[0, 0, 1.0], [0.5 * obj.delta, 0, 1.0]]), np.zeros(2))
+    hyps = HypothesisSet(R[:1], gt.t[:1] + [0.2 * obj.delta, 0, 0], np.array([0.9]))
+    diag = diagnose({"s": (gt, hyps)}, obj.pose_space, obj.diameter)
+    assert diag.matched == 1 and diag.conflict == 1
+    assert diag.t_err_mm_p50 == pytest.approx(200 * obj.delta, rel=1e-9)  # 0.2 delta, in mm
+
+
+def test_rotation_errors_are_symmetry_aware():
+    shaft, zbracket = builtin_object("shaft"), builtin_object("zbracket")
+    R = quaternion_to_matrix(torch.randn(5, 4, generator=torch.Generator().manual_seed(2), dtype=torch.float64)).numpy()
+    spin = axis_angle_rotation("Z", torch.tensor(1.2, dtype=torch.float64)).numpy()
+    half = axis_angle_rotation("Z", torch.tensor(np.pi, dtype=torch.float64)).numpy()
+    tilt = axis_angle_rotation("X", torch.tensor(np.radians(10.0), dtype=torch.float64)).numpy()
+    np.testing.assert_allclose(rotation_errors_deg(R @ spin, R, shaft.pose_space), 0, atol=1e-6)
+    np.testing.assert_allclose(rotation_errors_deg(R @ half, R, zbracket.pose_space), 0, atol=1e-6)
+    np.testing.assert_allclose(rotation_errors_deg(R @ tilt, R, zbracket.pose_space), 10.0, rtol=1e-9)
+    np.testing.assert_allclose(rotation_errors_deg(R @ tilt, R, shaft.pose_space), 10.0, rtol=1e-9)
+
+
+def test_empty_scenes():
+    obj, gt = scene()
+    empty = HypothesisSet.empty()
+    diag = diagnose({"a": (gt, empty), "b": (GroundTruthSet(np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0)),
+                                              HypothesisSet(gt.R[:2], gt.t[:2], np.array([0.9, 0.1])))},
+                    obj.pose_space, obj.diameter)  # fmt: skip
+    assert diag.no_hypothesis == 5 and diag.false_positives == 2 and diag.confident_false_positives == 1
+    assert np.isnan(diag.t_err_mm_p50)
