@@ -149,3 +149,37 @@ def test_augmentation_configs_instantiate(name: str) -> None:
     assert out.shape == (128, 128) and np.isfinite(out).all()
     if name == "none":
         np.testing.assert_array_equal(out, _scene())
+
+
+def test_random_view_keeps_image_and_camera_consistent() -> None:
+    """Zoom window and clip planes: a raised block appears where the new camera projects it, with
+    the depth the new clip planes give; the scene's own pixels are not changed."""
+    import cv2
+
+    from opnet.data.sample import make_sample
+    from opnet.datasets.record import SceneRecord
+    from opnet.geometry import Camera
+
+    cam = Camera.from_fov(50.0, 256, 256, 0.5, 1.5)
+    depth = np.full((256, 256), 1.2, np.float32)
+    depth[100:140, 150:190] = 0.9  # a block: its centre pixel (169.5, 119.5) at 0.9 m
+    centre = np.array([(169.5 - cam.cx) * 0.9 / cam.fx, (119.5 - cam.cy) * 0.9 / cam.fy, 0.9])
+    record = SceneRecord("s", depth, cam, R_cam_obj=np.eye(3)[None], t_cam_obj=centre[None],
+                         visibility=np.ones(1), instance_id=np.ones(1, np.int64))  # fmt: skip
+    views = DepthAugmenter(**ONLY, p_zoom=1.0, p_clip=1.0, zoom=(0.5, 0.8), clip_margin=(0.1, 0.5))
+    plain = make_sample(record, 128, cv2.INTER_AREA)
+    seen = 0
+    for seed in range(5):
+        s = make_sample(record, 128, cv2.INTER_AREA, views, np.random.default_rng(seed))
+        c = s.camera
+        assert c != plain.camera and c.fx > plain.camera.fx * 1.2  # zoomed in
+        assert c.clip_start <= 0.9 - 0.1 - 1e-9 and c.clip_end >= 1.2 + 0.1 - 1e-9
+        u, v = c.fx * centre[0] / centre[2] + c.cx, c.fy * centre[1] / centre[2] + c.cy
+        expected = (0.9 - c.clip_start) / (c.clip_end - c.clip_start)
+        if 3 <= u < 125 and 3 <= v < 125:
+            assert s.image[0, int(round(v)), int(round(u))] == pytest.approx(expected, abs=1e-4)
+            seen += 1
+        np.testing.assert_allclose(s.t_cam_obj, centre[None], rtol=1e-6)
+    assert seen >= 2
+    with pytest.raises(ValueError, match="zoom"):
+        DepthAugmenter(zoom=(0.5, 1.5))

@@ -69,3 +69,23 @@ def test_sample_rejects_bad_depth(bad: str) -> None:
     rec.depth = rec.depth.astype(np.int32) if bad == "int" else np.stack([rec.depth] * 2, -1)
     with pytest.raises(ValueError):
         make_sample(rec)
+
+
+def test_a_checkpoint_that_would_run_code_is_refused(tmp_path) -> None:
+    """Model files are exchanged between users: loading one must never execute code."""
+    import os as _os
+
+    import torch
+
+    from opnet.cli.build import load_checkpoint
+
+    marker = tmp_path / "pwned"
+
+    class Evil:
+        def __reduce__(self):
+            return (_os.system, (f"touch {marker}",))
+
+    torch.save({"hyper_parameters": {"config": {"object": {}}}, "payload": Evil()}, tmp_path / "evil.ckpt")
+    with pytest.raises(ValueError, match="refused"):
+        load_checkpoint(tmp_path / "evil.ckpt")
+    assert not marker.exists()

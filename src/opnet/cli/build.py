@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -76,7 +77,14 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+        # weights_only: a checkpoint is data (tensors, numbers, strings, containers); a pickle that
+        # would construct other objects, i.e. run code, is refused
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as e:
+        raise ValueError(
+            f"{path}: refused: the checkpoint holds objects other than tensors and plain data "
+            "(loading it could run arbitrary code); opnet checkpoints never do"
+        ) from e
     except Exception as e:  # corrupt or foreign file
         raise ValueError(f"{path}: cannot read checkpoint ({type(e).__name__}: {e})") from e
     config = ckpt.get("hyper_parameters", {}).get("config")

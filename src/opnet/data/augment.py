@@ -19,13 +19,15 @@ the output is a deterministic function of the image and the generator state.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import albumentations as A
 import cv2
 import numpy as np
 
-from opnet.data.preprocess import RESIZE_INTERPOLATIONS, fill_missing_depth
+from opnet.data.preprocess import RESIZE_INTERPOLATIONS, fill_missing_depth, square_canvas
+from opnet.geometry.camera import Camera
 
 Range = tuple[float, float]
 
@@ -70,6 +72,15 @@ class DepthAugmenter:
         fill_value: value of an image whose pixels were all dropped (1 = far clip plane).
         resize_interpolations: names (keys of ``RESIZE_INTERPOLATIONS``) that
             :meth:`draw_interpolation` chooses from.
+        p_zoom: probability of a random zoom (:meth:`view`): the network input shows a random
+            square window of the canvas, ``zoom`` times its side, at a random position, as a
+            camera closer to the bin or with a longer focal length would.
+        zoom: range of the window side relative to the canvas side, in (0, 1].
+        p_clip: probability of random clip planes (:meth:`view`): the near plane is drawn
+            between the nearest valid depth and ``clip_margin`` x the clip range in front of it,
+            the far plane likewise behind the farthest valid depth, so the normalized depth
+            contrast varies as it does between sensors and set-ups.
+        clip_margin: range of those margins, as fractions of the scene's clip range.
     """
 
     def __init__(
@@ -89,6 +100,10 @@ class DepthAugmenter:
         edge_threshold: float = 0.04,
         fill_value: float = 1.0,
         resize_interpolations: Sequence[str] = tuple(RESIZE_INTERPOLATIONS),
+        p_zoom: float = 0.0,
+        zoom: Sequence[float] = (0.6, 1.0),
+        p_clip: float = 0.0,
+        clip_margin: Sequence[float] = (0.0, 0.6),
     ):
         self.p_elastic = _probability("p_elastic", p_elastic)
         self.p_blur = _probability("p_blur", p_blur)
@@ -120,6 +135,12 @@ class DepthAugmenter:
                 f"non-empty list of {list(RESIZE_INTERPOLATIONS)}"
             )
         self.resize_interpolations = tuple(str(n) for n in resize_interpolations)
+        self.p_zoom = _probability("p_zoom", p_zoom)
+        self.p_clip = _probability("p_clip", p_clip)
+        self.zoom = _range("zoom", zoom, low=1e-3)
+        if self.zoom[1] > 1.0:
+            raise ValueError(f"DepthAugmenter: zoom={tuple(zoom)}, expected a range within (0, 1]")
+        self.clip_margin = _range("clip_margin", clip_margin)
         border = cv2.BORDER_REFLECT_101  # a constant border would add depth 0 (the near plane)
         self._elastic = A.ElasticTransform(
             alpha=self.elastic_alpha[0], sigma=float(elastic_sigma), approximate=True,
@@ -128,6 +149,33 @@ class DepthAugmenter:
         self._gaussian_blur = A.GaussianBlur(blur_limit=0, sigma_limit=self.blur_sigma, p=1.0)
         self._motion_blur = A.MotionBlur(blur_limit=size, p=1.0)
         self._noise = A.GaussNoise(std_range=self.noise_std, p=1.0)
+
+    def view(
+        self, depth: np.ndarray, camera: Camera, rng: np.random.Generator
+    ) -> tuple[Camera, tuple[int, int, int] | None]:
+        """Random viewing conditions of a scene before it becomes the network input.
+
+        Args:
+            depth: (H, W) metres, NaN = missing (only read: its valid depth range).
+            camera: the scene's camera.
+            rng: the generator all draws come from.
+        Returns:
+            ``(camera, canvas)``: the camera with (maybe) other clip planes, and the square window
+            ``(x0, y0, side)`` to resize to the network input (None: the usual canvas).
+        """
+        canvas = None
+        if self.p_zoom > 0 and rng.random() < self.p_zoom:
+            x0, y0, side = square_canvas(camera)
+            window = max(1, round(side * rng.uniform(*self.zoom)))
+            canvas = (x0 + int(rng.integers(side - window + 1)), y0 + int(rng.integers(side - window + 1)), window)
+        if self.p_clip > 0 and rng.random() < self.p_clip:
+            valid = depth[np.isfinite(depth) & (depth > 0)]
+            if len(valid):
+                span = camera.clip_end - camera.clip_start
+                near = float(valid.min()) - rng.uniform(*self.clip_margin) * span
+                far = float(valid.max()) + rng.uniform(*self.clip_margin) * span
+                camera = dataclasses.replace(camera, clip_start=max(near, 1e-3), clip_end=far)
+        return camera, canvas
 
     def draw_interpolation(self, rng: np.random.Generator) -> int:
         """An OpenCV resize flag drawn uniformly from ``resize_interpolations``."""

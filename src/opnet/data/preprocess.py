@@ -252,6 +252,7 @@ def to_network_input(
     size: int = 128,
     interpolation: int = cv2.INTER_AREA,
     fit: str = "pad",
+    canvas: tuple[int, int, int] | None = None,
 ) -> tuple[np.ndarray, Camera]:
     """Turn a depth image into the network input and its camera (method.md §2).
 
@@ -262,6 +263,8 @@ def to_network_input(
         size: side of the square network input (128 in the paper).
         interpolation: OpenCV resize flag, e.g. a value of :data:`RESIZE_INTERPOLATIONS`.
         fit: square canvas rule, ``"pad"`` or ``"crop"`` (see :func:`square_canvas`).
+        canvas: ``(x0, y0, side)`` to use instead of the rule (e.g. a random zoom window of the
+            training augmentation; its centre need not be the principal point).
 
     Returns:
         ``(image, camera_in)``: image (size, size) float32 normalized depth in [0, 1], no NaN (an
@@ -279,7 +282,7 @@ def to_network_input(
     if size < 1:
         raise ValueError(f"to_network_input: size={size}, expected a positive input side")
     _check_matches_camera(depth, camera, "depth")
-    x0, y0, side = square_canvas(camera, fit)
+    x0, y0, side = canvas if canvas is not None else square_canvas(camera, fit)
     values, weight = _depth_canvas(depth, x0, y0, side)
     normalized = camera.normalize_depth(_resize_weighted(values, weight, size, interpolation))
     rows, cols = _image_window(camera, x0, y0, side, size)
@@ -289,7 +292,7 @@ def to_network_input(
         inner = fill_missing_depth(normalized[rows, cols], fill_value=1.0)
         borders = (rows.start, size - rows.stop, cols.start, size - cols.stop)
         image = cv2.copyMakeBorder(inner, *borders, cv2.BORDER_REPLICATE)
-    return np.clip(image, 0.0, 1.0), network_camera(camera, size, fit)
+    return np.clip(image, 0.0, 1.0), camera.cropped(x0, y0, side, side).resized(size, size)
 
 
 def network_camera(camera: Camera, size: int = 128, fit: str = "pad") -> Camera:
@@ -312,7 +315,11 @@ def _image_window(camera: Camera, x0: int, y0: int, side: int, size: int) -> tup
 
 
 def resize_segmentation(
-    segmentation: np.ndarray, camera: Camera, size: int, fit: str = "pad"
+    segmentation: np.ndarray,
+    camera: Camera,
+    size: int,
+    fit: str = "pad",
+    canvas: tuple[int, int, int] | None = None,
 ) -> np.ndarray:
     """Instance segmentation through the same canvas as :func:`to_network_input`, nearest resize.
 
@@ -321,6 +328,7 @@ def resize_segmentation(
         camera: the camera of the image.
         size: output side (e.g. 32 for the SI grid, 128 for the network input).
         fit: square canvas rule (see :func:`square_canvas`).
+        canvas: ``(x0, y0, side)`` instead of the rule (as in :func:`to_network_input`).
 
     Returns:
         (size, size) array of the input's integer dtype; padding is background (0). Each output
@@ -333,7 +341,7 @@ def resize_segmentation(
     if not np.issubdtype(segmentation.dtype, np.integer):
         raise ValueError(f"segmentation: expected an integer dtype, got {segmentation.dtype}")
     _check_matches_camera(segmentation, camera, "segmentation")
-    x0, y0, side = square_canvas(camera, fit)
+    x0, y0, side = canvas if canvas is not None else square_canvas(camera, fit)
     canvas = _canvas(segmentation, x0, y0, side)
     index = np.minimum(((np.arange(size) + 0.5) * side / size).astype(np.int64), side - 1)
     return canvas[np.ix_(index, index)]

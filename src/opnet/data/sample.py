@@ -66,16 +66,24 @@ def make_sample(
     augmenter: DepthAugmenter | None = None,
     rng: np.random.Generator | None = None,
 ) -> Sample:
-    """Preprocess one scene: crop to the canvas, resize, fill missing depth, normalize, augment."""
-    image, camera = to_network_input(record.depth, record.camera, size=size, interpolation=interpolation)
+    """Preprocess one scene: crop to the canvas, resize, fill missing depth, normalize, augment.
+
+    With an augmenter, its random view (zoom window, clip planes) comes first and the sample's
+    camera is the camera of that view, so the targets stay consistent with the image.
+    """
+    camera, canvas = record.camera, None
     if augmenter is not None:
-        image = augmenter(image, rng if rng is not None else np.random.default_rng())
+        rng = rng if rng is not None else np.random.default_rng()
+        camera, canvas = augmenter.view(record.depth, record.camera, rng)
+    image, net_camera = to_network_input(record.depth, camera, size=size, interpolation=interpolation, canvas=canvas)
+    if augmenter is not None:
+        image = augmenter(image, rng)
     seg = None
     if record.segmentation is not None:
-        seg = resize_segmentation(record.segmentation, record.camera, size).astype(np.int64)
+        seg = resize_segmentation(record.segmentation, camera, size, canvas=canvas).astype(np.int64)
     return Sample(
         image=image[None].astype(np.float32),
-        camera=camera,
+        camera=net_camera,
         R_cam_obj=record.R_cam_obj.astype(np.float32),
         t_cam_obj=record.t_cam_obj.astype(np.float32),
         visibility=np.clip(record.visibility, 0.0, 1.0).astype(np.float32),

@@ -22,7 +22,7 @@ import torch
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import ORIGIN_PRIORITY, Candidates, flat_cell
 from opnet.parameterizations.base import GroundTruthBatch, Parameterization
-from opnet.parameterizations.positions import EnlargedImagePosition, ObjectProjection, cell_position
+from opnet.parameterizations.positions import MultiCellPosition, ObjectProjection, cell_position
 
 
 def default_reference_points(obj: ObjectModel) -> np.ndarray:
@@ -50,7 +50,7 @@ def default_reference_points(obj: ObjectModel) -> np.ndarray:
     return np.array(points)
 
 
-class APParameterization(EnlargedImagePosition, Parameterization):
+class APParameterization(MultiCellPosition, Parameterization):
     """Vanilla grid plus the cells of additional reference points.
 
     Args:
@@ -59,6 +59,7 @@ class APParameterization(EnlargedImagePosition, Parameterization):
         points: (P, 3) additional points in the object frame, metres; None for the defaults of
             :func:`default_reference_points`.
         averaging: cluster and average the hypotheses (default on).
+        position: "enlarged" (paper) or "cell_offset" (:class:`MultiCellPosition`).
         **kwargs: the common settings of :class:`Parameterization`.
     """
 
@@ -68,8 +69,10 @@ class APParameterization(EnlargedImagePosition, Parameterization):
         grid: int = 16,
         points: Sequence[Sequence[float]] | None = None,
         averaging: bool = True,
+        position: str = "enlarged",
         **kwargs: Any,
     ) -> None:
+        self._set_position_mode(position)
         super().__init__(obj, grid, averaging=averaging, **kwargs)
         pts = (
             default_reference_points(obj)
@@ -84,7 +87,6 @@ class APParameterization(EnlargedImagePosition, Parameterization):
 
     def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         M, P = len(gt), len(self.points)
-        position, representable = proj.enlarged(self.obj.diameter)
         pts = self.points.to(gt.R_cam_obj.device)
         world = (
             torch.einsum("mij,pj->mpi", gt.R_cam_obj.double(), pts) + gt.t_cam_obj.double()[:, None]
@@ -96,7 +98,8 @@ class APParameterization(EnlargedImagePosition, Parameterization):
         row = torch.cat((origin.row[:, None], extra.row.reshape(M, P)), 1)  # (M, 1 + P)
         col = torch.cat((origin.col[:, None], extra.col.reshape(M, P)), 1)
         inside = torch.cat((origin.inside[:, None], (extra.inside & (depth > 0)).reshape(M, P)), 1)
-        m, k = torch.nonzero(inside & representable[:, None], as_tuple=True)
+        m, k = torch.nonzero(inside, as_tuple=True)
         priority = gt.visibility[m].double() + ORIGIN_PRIORITY * (k == 0)
         cell = flat_cell(gt.batch_index[m], 0, row[m, k], col[m, k], self.slots, self.grid_size)
-        return Candidates(m, cell, priority, position[m])
+        position, ok = self._candidate_positions(proj, m, row[m, k], col[m, k])
+        return Candidates(m, cell, priority, position).select(ok)

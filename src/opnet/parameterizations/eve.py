@@ -16,10 +16,10 @@ import torch
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import ORIGIN_PRIORITY, Candidates, flat_cell
 from opnet.parameterizations.base import GroundTruthBatch, Parameterization
-from opnet.parameterizations.positions import EnlargedImagePosition, ObjectProjection
+from opnet.parameterizations.positions import MultiCellPosition, ObjectProjection
 
 
-class EVEParameterization(EnlargedImagePosition, Parameterization):
+class EVEParameterization(MultiCellPosition, Parameterization):
     """Vanilla grid with feature vectors copied to neighbouring cells near a border.
 
     Args:
@@ -28,6 +28,7 @@ class EVEParameterization(EnlargedImagePosition, Parameterization):
         border: distance from a cell border, in cell units, under which the neighbour across that
             border gets the object too (0.2 in the paper).
         averaging: cluster and average the hypotheses (default on).
+        position: "enlarged" (paper) or "cell_offset" (:class:`MultiCellPosition`).
         **kwargs: the common settings of :class:`Parameterization`.
     """
 
@@ -37,8 +38,10 @@ class EVEParameterization(EnlargedImagePosition, Parameterization):
         grid: int = 16,
         border: float = 0.2,
         averaging: bool = True,
+        position: str = "enlarged",
         **kwargs: Any,
     ) -> None:
+        self._set_position_mode(position)
         if not 0 <= border <= 0.5:
             raise ValueError(f"eve border must lie in [0, 0.5] (cell units), got {border}")
         super().__init__(obj, grid, averaging=averaging, **kwargs)
@@ -46,7 +49,6 @@ class EVEParameterization(EnlargedImagePosition, Parameterization):
 
     def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         cells = proj.cells(self.grid_size)
-        position, representable = proj.enlarged(self.obj.diameter)
         steps = torch.tensor([-1, 0, 1], device=cells.row.device)
         # allowed moves per axis: (M, 3) for steps -1, 0, +1
         moves_y = torch.stack(
@@ -61,16 +63,11 @@ class EVEParameterization(EnlargedImagePosition, Parameterization):
         on_grid = (
             (row >= 0) & (row < self.grid_size) & (col >= 0) & (col < self.grid_size)
         )  # (M, 3, 3)
-        keep = allowed & on_grid & (cells.inside & representable)[:, None, None]
+        keep = allowed & on_grid & cells.inside[:, None, None]
         m, dy, dx = torch.nonzero(keep, as_tuple=True)
         is_origin = (dy == 1) & (dx == 1)
         priority = gt.visibility[m].double() + ORIGIN_PRIORITY * is_origin
-        cell = flat_cell(
-            gt.batch_index[m],
-            0,
-            cells.row[m] + dy - 1,
-            cells.col[m] + dx - 1,
-            self.slots,
-            self.grid_size,
-        )
-        return Candidates(m, cell, priority, position[m])
+        row, col = cells.row[m] + dy - 1, cells.col[m] + dx - 1
+        cell = flat_cell(gt.batch_index[m], 0, row, col, self.slots, self.grid_size)
+        position, ok = self._candidate_positions(proj, m, row, col)
+        return Candidates(m, cell, priority, position).select(ok)

@@ -216,14 +216,83 @@ class CellRelativePosition:
         return u, v, position[:, 2]
 
 
-class EnlargedImagePosition:
-    """Mixin of parameterizations with x, y relative to the enlarged image (EVE, AP, SI)."""
+POSITION_MODES = ("enlarged", "cell_offset")
+
+
+def offset_margins(cams: CameraBatch, diameter: float, grid: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Half ranges (N,) in pixels of the ``cell_offset`` position channels: the diameter seen at
+    the near clip plane, and at least two cells."""
+    m_u, m_v = cams.margins(diameter)
+    return torch.maximum(m_u, 2 * cams.width / grid), torch.maximum(m_v, 2 * cams.height / grid)
+
+
+def cell_offset_position(
+    u: torch.Tensor, v: torch.Tensor, row: torch.Tensor, col: torch.Tensor, cams: CameraBatch, grid: int,
+    diameter: float,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Pixels u, v (N,) seen from cells (row, col) (N,) -> x, y (N,): ``0.5 + offset / (2 M)``
+    with the offset from the cell centre and M of :func:`offset_margins`."""
+    u_c, v_c = cell_pixel(row, col, 0.5, 0.5, cams, grid)
+    m_u, m_v = offset_margins(cams, diameter, grid)
+    return 0.5 + (u - u_c) / (2 * m_u), 0.5 + (v - v_c) / (2 * m_v)
+
+
+def cell_offset_pixel(
+    x: torch.Tensor, y: torch.Tensor, row: torch.Tensor, col: torch.Tensor, cams: CameraBatch, grid: int,
+    diameter: float,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Inverse of :func:`cell_offset_position`."""
+    u_c, v_c = cell_pixel(row, col, 0.5, 0.5, cams, grid)
+    m_u, m_v = offset_margins(cams, diameter, grid)
+    return u_c + (x - 0.5) * 2 * m_u, v_c + (y - 0.5) * 2 * m_v
+
+
+class MultiCellPosition:
+    """Mixin of parameterizations that assign an object to several cells (EVE, AP, SI).
+
+    Two ways to write the origin into the x, y channels of a cell (``position``):
+
+    - ``enlarged`` (the paper): relative to the image enlarged by the object diameter projected
+      at the near clip plane, ``x = (u + m) / (W + 2m)``. Every cell of an object holds the same
+      values, absolute image coordinates, which a fully convolutional network (translation
+      equivariant) can only produce from the zero padding at the borders: slow to learn.
+    - ``cell_offset``: relative to the centre of the cell, ``x = 0.5 + (u - u_cell) / (2 M)``
+      with ``M`` the projected diameter (at least two cells), so the channels say where the
+      origin lies *from here*, as vanilla's sub-cell offsets do, and still reach origins outside
+      the cell and outside the image.
+
+    The z channel is the origin depth normalized between the clip planes in both.
+    """
 
     obj: Any  # ObjectModel: only its diameter is used
+    grid_size: int
+    position_mode: str = "enlarged"
+
+    def _set_position_mode(self, position: str) -> None:
+        if position not in POSITION_MODES:
+            raise ValueError(f"parameterization.position must be one of {POSITION_MODES}, got {position!r}")
+        self.position_mode = position
+
+    def _candidate_positions(
+        self, proj: ObjectProjection, index: torch.Tensor, row: torch.Tensor, col: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Position channels (K, 3) of instances ``index`` (K,) in cells (row, col) (K,), and (K,)
+        bool: representable (channels in [0, 1], origin between the clip planes)."""
+        if self.position_mode == "enlarged":
+            position, ok = proj.enlarged(self.obj.diameter)
+            return position[index], ok[index]
+        cams = proj.cams.take(index)
+        x, y = cell_offset_position(proj.u[index], proj.v[index], row, col, cams, self.grid_size, self.obj.diameter)
+        ok = proj.in_range[index] & in_unit_interval(x, y)
+        return torch.stack((x, y, proj.z_norm[index]), -1), ok
 
     def _decode_position(
         self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
     ) -> DecodedPosition:
         """Position channels (N, 3) -> u (N,), v (N,) pixels, normalized depth (N,)."""
-        u, v = enlarged_pixel(position[:, 0], position[:, 1], cams, self.obj.diameter)
+        if self.position_mode == "enlarged":
+            u, v = enlarged_pixel(position[:, 0], position[:, 1], cams, self.obj.diameter)
+        else:
+            _, row, col = cells
+            u, v = cell_offset_pixel(position[:, 0], position[:, 1], row, col, cams, self.grid_size, self.obj.diameter)
         return u, v, position[:, 2]

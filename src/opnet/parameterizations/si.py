@@ -15,7 +15,7 @@ import torch
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import Candidates, flat_cell
 from opnet.parameterizations.base import GroundTruthBatch, Parameterization
-from opnet.parameterizations.positions import EnlargedImagePosition, ObjectProjection
+from opnet.parameterizations.positions import MultiCellPosition, ObjectProjection
 
 
 def resize_nearest(segmentation: torch.Tensor, size: int) -> torch.Tensor:
@@ -27,13 +27,14 @@ def resize_nearest(segmentation: torch.Tensor, size: int) -> torch.Tensor:
     return segmentation[:, rows][:, :, cols]
 
 
-class SIParameterization(EnlargedImagePosition, Parameterization):
+class SIParameterization(MultiCellPosition, Parameterization):
     """Every cell of a fine grid showing an instance predicts that instance's pose.
 
     Args:
         obj: the object model.
         grid: S (32 in the paper).
         averaging: cluster and average the hypotheses (default on).
+        position: "enlarged" (paper) or "cell_offset" (:class:`MultiCellPosition`).
         **kwargs: the common settings of :class:`Parameterization`.
     """
 
@@ -41,8 +42,9 @@ class SIParameterization(EnlargedImagePosition, Parameterization):
     needs_segmentation = True
 
     def __init__(
-        self, obj: ObjectModel, grid: int = 32, averaging: bool = True, **kwargs: Any
+        self, obj: ObjectModel, grid: int = 32, averaging: bool = True, position: str = "enlarged", **kwargs: Any
     ) -> None:
+        self._set_position_mode(position)
         super().__init__(obj, grid, averaging=averaging, **kwargs)
 
     def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
@@ -54,12 +56,10 @@ class SIParameterization(EnlargedImagePosition, Parameterization):
         ids = resize_nearest(gt.segmentation, self.grid_size)  # (B, S, S)
         b, row, col = torch.nonzero(ids > 0, as_tuple=True)
         gt_index, found = _instance_lookup(gt, b, ids[b, row, col])
-        position, representable = proj.enlarged(self.obj.diameter)
-        keep = found.clone()
-        keep[found] = representable[gt_index[found]]
-        m = gt_index[keep]
-        cell = flat_cell(b[keep], 0, row[keep], col[keep], self.slots, self.grid_size)
-        return Candidates(m, cell, gt.visibility[m].double(), position[m])
+        m, b, row, col = gt_index[found], b[found], row[found], col[found]
+        cell = flat_cell(b, 0, row, col, self.slots, self.grid_size)
+        position, ok = self._candidate_positions(proj, m, row, col)
+        return Candidates(m, cell, gt.visibility[m].double(), position).select(ok)
 
 
 def _instance_lookup(

@@ -1,0 +1,187 @@
+"""A/B evidence for the learning changes: the same object, data, seed and step budget with and
+without each change, scored on the same held-out scenes (one table).
+
+    python scripts/ab_learning.py --train <IPA dir> --test <IPA dir> [--foreign <IPA dir>]
+        [--object bunny] [--steps 2000] [--arms A0 A1 ...] [--runs-dir outputs/ab] [--out results/learning]
+
+Arms (``ARMS``; each is ``train.py`` with the listed overrides, fp32 unless it says otherwise):
+the paper's formulation, then one change at a time (balanced loss, continuous 6-D rotation,
+tuned decoding, cell-offset positions for AP, bf16 at the same steps and at the same minutes,
+random viewing conditions). A ``tuned`` arm re-uses the model of its base arm and decodes the
+test split with the decoding settings that ``scripts/tune_decoding.py``'s search finds best on
+the *validation* split. ``--foreign`` adds a column: AP on scenes of another camera set-up.
+Finished arms (same overrides, ``test/summary.json`` present) are not trained again. Writes
+``ab.md`` and ``ab.csv`` to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+
+PAPER = ["rotation=euler_zyz", "loss=paper"]
+BEST = ["rotation=r6d", "loss=balanced"]
+#: name -> (what changes, base arm of a tuned arm or None, train.py overrides)
+ARMS: dict[str, tuple[str, str | None, list[str]]] = {
+    "V0": ("vanilla, the paper (Euler Z-Y-Z, paper loss)", None, ["parameterization=vanilla", *PAPER]),
+    "V1": ("V0 + balanced loss", None, ["parameterization=vanilla", "rotation=euler_zyz", "loss=balanced"]),
+    "V2": ("V1 + continuous 6-D rotation", None, ["parameterization=vanilla", *BEST]),
+    "V3": ("V2 + decoding tuned on validation", "V2", []),
+    "V4": ("V2 in bf16 (same steps)", None, ["parameterization=vanilla", *BEST, "trainer.precision=bf16-mixed"]),
+    "V5": ("V4 for the minutes V2 trained (more steps)", None,
+           ["parameterization=vanilla", *BEST, "trainer.precision=bf16-mixed"]),
+    "A0": ("AP, the paper (enlarged-image positions)", None, ["parameterization=ap", *PAPER]),
+    "A1": ("A0 + balanced loss", None, ["parameterization=ap", "rotation=euler_zyz", "loss=balanced"]),
+    "A2": ("A1 + continuous 6-D rotation", None, ["parameterization=ap", *BEST]),
+    "A3": ("A2 + cell-offset positions", None, ["parameterization=ap", *BEST, "parameterization.position=cell_offset"]),
+    "A4": ("A3 + decoding tuned on validation", "A3", []),
+    "R1": ("V4 + random viewing conditions (augmentation=robust)", None,
+           ["parameterization=vanilla", *BEST, "trainer.precision=bf16-mixed", "augmentation=robust"]),
+}  # fmt: skip
+FIELDS = ("arm", "change", "steps", "train_minutes", "ap", "map", "f1", "found", "no_hypothesis", "position",
+          "orientation", "conflict", "confident_fp_per_scene", "foreign_ap", "decoding", "run")  # fmt: skip
+
+
+def overrides_of(run: Path) -> list[str] | None:
+    import yaml
+
+    path = run / ".hydra" / "overrides.yaml"
+    return yaml.safe_load(path.read_text()) if path.is_file() else None
+
+
+def train_arm(run: Path, overrides: list[str]) -> None:
+    if (run / "test" / "summary.json").is_file() and overrides_of(run) == overrides:
+        print(f"  {run.name}: done already", flush=True)
+        return
+    cmd = [sys.executable, str(REPO / "train.py"), *overrides, f"hydra.run.dir={run}"]
+    run.mkdir(parents=True, exist_ok=True)
+    print(f"  {run.name}: training", flush=True)
+    with open(run / "ab_stdout.log", "w") as log:
+        subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+
+
+def train_minutes(run: Path) -> float:
+    """Minutes of training of a finished run (its learning curve's last row)."""
+    return float(list(csv.DictReader((run / "learning_curve.csv").open()))[-1]["train_minutes"])
+
+
+def best_checkpoint(run: Path) -> Path:
+    ckpts = sorted(p for p in (run / "checkpoints").glob("epoch*.ckpt"))
+    return ckpts[-1] if ckpts else run / "checkpoints" / "last.ckpt"
+
+
+def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> dict[str, Any]:
+    """Test AP and diagnostics of a checkpoint on all scenes of ``data_root``, decoding with
+    ``settings`` (None: as configured)."""
+    from omegaconf import OmegaConf
+    from torch.utils.data import DataLoader
+    from tune_decoding import decoder
+
+    from opnet.cli.build import build_datamodule, load_checkpoint
+    from opnet.cli.eval import predict_split
+    from opnet.data.sample import collate
+    from opnet.metrics.bregier import evaluate_scenes
+    from opnet.metrics.diagnostics import diagnose
+
+    system, cfg = load_checkpoint(ckpt)
+    if settings is not None:
+        system.parameterization = decoder(system.parameterization, settings)
+    cfg = OmegaConf.merge(cfg, {"data": {"root": str(data_root), "test_root": str(data_root), "generate": None}})
+    dm = build_datamodule(cfg, system.parameterization.obj, train=False)
+    dm.setup("test")
+    loader = DataLoader(dm.splits["test"], batch_size=16, collate_fn=collate)
+    scenes = predict_split(system, loader)
+    obj = system.parameterization.obj
+    summary = evaluate_scenes(scenes, obj.pose_space, max_occlusion=system.hparams.max_occlusion)
+    diag = diagnose(scenes, obj.pose_space, obj.diameter, max_occlusion=system.hparams.max_occlusion)
+    return {"summary": summary.to_dict(), "diagnostics": diag.to_dict()}
+
+
+def row_of(arm: str, change: str, run: Path, result: dict[str, Any], steps: int) -> dict[str, Any]:
+    s, d = result["summary"], result["diagnostics"]
+    n = max(d["to_find"], 1)
+    curve = list(csv.DictReader((run / "learning_curve.csv").open())) if (run / "learning_curve.csv").is_file() else []
+    return {
+        "arm": arm, "change": change, "steps": steps,
+        "train_minutes": round(float(curve[-1]["train_minutes"]), 1) if curve else "",
+        "ap": s["ap"], "map": s["map"], "f1": s["f1"], "found": d["matched"] / n,
+        "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n, "orientation": d["orientation"] / n,
+        "conflict": d["conflict"] / n, "confident_fp_per_scene": d["confident_false_positives"] / max(s["num_scenes"], 1),
+        "run": os.path.relpath(run, REPO),
+    }  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--train", type=Path, required=True)
+    parser.add_argument("--test", type=Path, required=True)
+    parser.add_argument("--foreign", type=Path, default=None)
+    parser.add_argument("--object", default="bunny")
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--arms", nargs="+", default=list(ARMS))
+    parser.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "ab")
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "learning")
+    args = parser.parse_args(argv)
+    from tune_decoding import RecordedSplit, search
+
+    base = [f"object={args.object}", "data=ipa", f"data.root={args.train.resolve()}",
+            f"data.test_root={args.test.resolve()}", "data.num_workers=0", "trainer.max_epochs=100000",
+            "trainer.enable_progress_bar=false", "example_predictions=0"]  # fmt: skip
+    rows = []
+    for arm in [a for a in ARMS if a in args.arms]:
+        change, tuned_from, extra = ARMS[arm]
+        steps = args.steps
+        if arm == "V5":  # bf16 for as many minutes as fp32 (V2) trained: steps scaled by the speed-up
+            minutes = {a: train_minutes(args.runs_dir / f"{args.object}_{a}") for a in ("V2", "V4")}
+            steps = round(args.steps * minutes["V2"] / minutes["V4"])
+        if tuned_from is None:
+            run = args.runs_dir / f"{args.object}_{arm}"
+            train_arm(run, [*base, *extra, f"trainer.max_steps={steps}"])
+            ckpt, settings = best_checkpoint(run), None
+        else:
+            run = args.runs_dir / f"{args.object}_{tuned_from}"
+            ckpt = best_checkpoint(run)
+            settings, _ = search([RecordedSplit.record(str(ckpt), "val")])
+        result = evaluate(ckpt, args.test, settings)
+        row = row_of(arm, change, run, result, steps)
+        row["decoding"] = "configured" if settings is None else json.dumps(settings, sort_keys=True)
+        if args.foreign is not None:
+            row["foreign_ap"] = evaluate(ckpt, args.foreign, settings)["summary"]["ap"]
+        rows.append(row)
+        print(f"{arm}: test AP {row['ap']:.4f}" + (f", foreign AP {row['foreign_ap']:.4f}" if args.foreign else ""), flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=FIELDS, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    (args.out / "ab.csv").write_text(buf.getvalue())
+    lines = [f"A/B on {args.object}: {args.steps} steps each (batch 16), seed 0, same data; test AP on "
+             f"{args.test.name}" + (f", foreign AP on {args.foreign.name}" if args.foreign else ""), "",
+             "| arm | change | steps | train min | **test AP** | MAP | F1 | found % | no hyp % | position % "
+             "| orientation % | conf. FP/scene | foreign AP |", "|" + "---|" * 13]  # fmt: skip
+    for r in rows:
+        lines.append(
+            f"| {r['arm']} | {r['change']} | {r['steps']} | {r['train_minutes']} | **{r['ap']:.3f}** | {r['map']:.3f} | "
+            f"{r['f1']:.3f} | {100 * r['found']:.1f} | {100 * r['no_hypothesis']:.1f} | {100 * r['position']:.1f} | "
+            f"{100 * r['orientation']:.1f} | {r['confident_fp_per_scene']:.2f} | "
+            f"{'' if r.get('foreign_ap') in (None, '') else format(r['foreign_ap'], '.3f')} |"
+        )
+    (args.out / "ab.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
