@@ -31,24 +31,30 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
 
-PAPER = ["rotation=euler_zyz", "loss=paper"]
-BEST = ["rotation=r6d", "loss=balanced"]
+FP32 = ["trainer.precision=32"]
 #: name -> (what changes, base arm of a tuned arm or None, train.py overrides)
 ARMS: dict[str, tuple[str, str | None, list[str]]] = {
-    "V0": ("vanilla, the paper (Euler Z-Y-Z, paper loss)", None, ["parameterization=vanilla", *PAPER]),
-    "V1": ("V0 + balanced loss", None, ["parameterization=vanilla", "rotation=euler_zyz", "loss=balanced"]),
-    "V2": ("V1 + continuous 6-D rotation", None, ["parameterization=vanilla", *BEST]),
+    "V0": ("vanilla, the paper's formulation", None, ["parameterization=vanilla", "formulation=paper", *FP32]),
+    "V1": ("V0 + balanced loss", None, ["parameterization=vanilla", "formulation=paper", "loss=balanced", *FP32]),
+    "V1b": ("V0 + continuous 6-D rotation (paper loss: L2 on its channels)", None,
+            ["parameterization=vanilla", "formulation=paper", "rotation=r6d", *FP32]),
+    "V2": ("V1 + continuous 6-D rotation", None,
+           ["parameterization=vanilla", "formulation=paper", "loss=balanced", "rotation=r6d", *FP32]),
     "V3": ("V2 + decoding tuned on validation", "V2", []),
-    "V4": ("V2 in bf16 (same steps)", None, ["parameterization=vanilla", *BEST, "trainer.precision=bf16-mixed"]),
+    "V4": ("V2 in bf16 (same steps)", None,
+           ["parameterization=vanilla", "formulation=paper", "loss=balanced", "rotation=r6d", "trainer.precision=bf16-mixed"]),
     "V5": ("V4 for the minutes V2 trained (more steps)", None,
-           ["parameterization=vanilla", *BEST, "trainer.precision=bf16-mixed"]),
-    "A0": ("AP, the paper (enlarged-image positions)", None, ["parameterization=ap", *PAPER]),
-    "A1": ("A0 + balanced loss", None, ["parameterization=ap", "rotation=euler_zyz", "loss=balanced"]),
-    "A2": ("A1 + continuous 6-D rotation", None, ["parameterization=ap", *BEST]),
-    "A3": ("A2 + cell-offset positions", None, ["parameterization=ap", *BEST, "parameterization.position=cell_offset"]),
+           ["parameterization=vanilla", "formulation=paper", "loss=balanced", "rotation=r6d", "trainer.precision=bf16-mixed"]),
+    "A0": ("AP, the paper's formulation (enlarged-image positions)", None, ["parameterization=ap", "formulation=paper", *FP32]),
+    "A1": ("A0 + balanced loss", None, ["parameterization=ap", "formulation=paper", "loss=balanced", *FP32]),
+    "A2": ("A1 + continuous 6-D rotation", None,
+           ["parameterization=ap", "formulation=paper", "loss=balanced", "rotation=r6d", *FP32]),
+    "A3": ("A2 + cell-offset positions", None, ["parameterization=ap", "formulation=paper", "loss=balanced",
+                                                 "rotation=r6d", "multi_cell_position=cell_offset", *FP32]),
     "A4": ("A3 + decoding tuned on validation", "A3", []),
-    "R1": ("V4 + random viewing conditions (augmentation=robust)", None,
-           ["parameterization=vanilla", *BEST, "trainer.precision=bf16-mixed", "augmentation=robust"]),
+    "R0": ("ours (formulation=ours, bf16)", None, ["parameterization=vanilla", "trainer.precision=bf16-mixed"]),
+    "R1": ("R0 + random viewing conditions (augmentation=robust)", None,
+           ["parameterization=vanilla", "trainer.precision=bf16-mixed", "augmentation=robust"]),
 }  # fmt: skip
 FIELDS = ("arm", "change", "steps", "train_minutes", "ap", "map", "f1", "found", "no_hypothesis", "position",
           "orientation", "conflict", "confident_fp_per_scene", "foreign_ap", "decoding", "run")  # fmt: skip

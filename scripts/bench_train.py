@@ -27,6 +27,7 @@ import torch  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 
 from opnet.cli.build import build_components, build_datamodule  # noqa: E402
+from opnet.cli.train import resolve_precision  # noqa: E402
 from opnet.paths import config_dir  # noqa: E402
 
 ARMS: dict[str, list[str]] = {
@@ -56,7 +57,7 @@ def measure(overrides: list[str], steps: int, warmup: int) -> float:
     dm = build_datamodule(cfg, comps.obj, train=True)
     clock = StepClock()
     trainer = L.Trainer(
-        accelerator="cpu", devices=1, precision=cfg.trainer.precision, max_steps=warmup + steps,
+        accelerator="cpu", devices=1, precision=resolve_precision(cfg.trainer.precision, "cpu"), max_steps=warmup + steps,
         limit_val_batches=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
         enable_model_summary=False, callbacks=[clock], num_sanity_val_steps=0,
     )  # fmt: skip

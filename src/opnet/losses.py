@@ -37,6 +37,7 @@ from opnet.parameterizations.positions import CameraBatch
 
 ORIENTATION_LOSSES = ("euler_l2", "channel_l2", "sym_rotation")
 POSITION_LOSSES = ("channels", "metric")
+ROBUST = ("none", "charbonnier")
 
 
 class MultiTaskLoss(nn.Module):
@@ -50,6 +51,11 @@ class MultiTaskLoss(nn.Module):
             "sym_rotation" (symmetry-aware rotation distance / δ²).
         position: "channels" (paper) or "metric" (origin distance / δ, squared).
         lambda_pose: factor on λ3 (the weight of position and orientation together); 1 in the paper.
+        robust: "none" (squared errors, the paper) or "charbonnier": each pose term ``e`` (a
+            squared error) becomes ``2 (sqrt(1 + e) - 1)``: the same near zero, but growing only
+            linearly with the error, so that the large errors of early training do not swamp the
+            presence and visibility gradients (AdamW's per-parameter scaling remembers them for
+            about a thousand steps).
     """
 
     def __init__(
@@ -60,12 +66,15 @@ class MultiTaskLoss(nn.Module):
         orientation: str = "euler_l2",
         position: str = "channels",
         lambda_pose: float = 1.0,
+        robust: str = "none",
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
             raise ValueError(
                 f"loss.orientation must be one of {ORIENTATION_LOSSES}, got {orientation!r}"
             )
+        if robust not in ROBUST:
+            raise ValueError(f"loss.robust must be one of {ROBUST}, got {robust!r}")
         if position not in POSITION_LOSSES:
             raise ValueError(f"loss.position must be one of {POSITION_LOSSES}, got {position!r}")
         for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
@@ -80,6 +89,7 @@ class MultiTaskLoss(nn.Module):
         self.lambda_pose = float(lambda_pose)
         self.orientation = orientation
         self.position = position
+        self.robust = robust
 
     @property
     def is_paper(self) -> bool:
@@ -88,6 +98,7 @@ class MultiTaskLoss(nn.Module):
             self.position == "channels"
             and self.orientation in ("euler_l2", "channel_l2")
             and self.lambda_pose == 1.0
+            and self.robust == "none"
         )
 
     def forward(
@@ -163,6 +174,9 @@ class MultiTaskLoss(nn.Module):
             )
         else:
             orientation = ((o[:, 5:] - t[:, 5:]) ** 2).sum(-1)
+        if self.robust == "charbonnier":
+            position = 2 * (torch.sqrt(1 + position) - 1)
+            orientation = 2 * (torch.sqrt(1 + orientation) - 1)
         return {
             "position": weight * position,
             "orientation": self.lambda_ori * weight * orientation,

@@ -42,14 +42,51 @@ def test_train_config_every_builtin_object(obj: str) -> None:
     assert build_components(cfg).obj.name == obj
 
 
-@pytest.mark.parametrize("group", ["model", "loss", "augmentation"])
+@pytest.mark.parametrize("group", ["model", "loss", "augmentation", "rotation"])
 def test_group_options_instantiate(group: str) -> None:
+    from opnet.geometry import Symmetry
+
     for option in sorted((CONF / group).glob("*.yaml")):
-        cfg = OmegaConf.load(option)
+        cfg = _compose("train", [f"{group}={option.stem}", "paths.root_dir=/tmp/opnet"])[group]
         if group == "model":
             assert instantiate(cfg, out_channels=8, out_grid=16) is not None
+        elif group == "rotation":
+            assert instantiate(cfg, _partial_=True)(symmetry=Symmetry("cyclic", order=2)).num_channels > 0
         elif cfg is not None and len(cfg):
             instantiate(cfg)
+
+
+def test_formulations_select_the_paper_or_our_measured_best() -> None:
+    ours = _compose("train", ["parameterization=eve", "paths.root_dir=/tmp/opnet"])
+    paper = _compose("train", ["parameterization=eve", "formulation=paper", "paths.root_dir=/tmp/opnet"])
+    assert (ours.rotation._target_.endswith("SixDCodec"), ours.loss.position, ours.parameterization.position) == (
+        True, "metric", "cell_offset")
+    assert (paper.rotation.convention, paper.loss.orientation, paper.loss.position, paper.parameterization.position,
+            paper.parameterization.score, paper.parameterization.averaging_eps) == (
+        "ZYZ", "euler_l2", "channels", "enlarged", "p", 0.5)  # fmt: skip
+    # a command-line choice still wins over the formulation's
+    mixed = _compose("train", ["formulation=paper", "loss=balanced", "paths.root_dir=/tmp/opnet"])
+    assert mixed.loss.position == "metric" and mixed.rotation.convention == "ZYZ"
+    vanilla_paper = _compose("train", ["formulation=paper", "paths.root_dir=/tmp/opnet"])
+    assert vanilla_paper.parameterization.averaging is False  # the paper's vanilla does not average
+
+
+def test_bad_learning_settings_name_their_config_key() -> None:
+    from hydra.errors import InstantiationException, MissingConfigException
+
+    bad = (ValueError, InstantiationException)  # hydra wraps what the class raises, message included
+    with pytest.raises(MissingConfigException, match="rotation"):
+        _compose("train", ["rotation=quaternion"])
+    with pytest.raises(bad, match=r"rotation.convention='ZYX'"):
+        build_components(_compose("train", ["object=zbracket", "rotation=euler_zyz", "rotation.convention=ZYX",
+                                            "paths.root_dir=/tmp/opnet"]))  # fmt: skip
+    with pytest.raises(bad, match="parameterization.averaging_eps"):
+        build_components(_compose("train", ["parameterization.averaging_eps=-0.5", "paths.root_dir=/tmp/opnet"]))
+    with pytest.raises(bad, match="loss.position"):
+        build_components(_compose("train", ["loss.position=pixels", "paths.root_dir=/tmp/opnet"]))
+    with pytest.raises(bad, match="parameterization.position"):
+        build_components(_compose("train", ["parameterization=ap", "multi_cell_position=image",
+                                            "paths.root_dir=/tmp/opnet"]))  # fmt: skip
 
 
 @pytest.mark.parametrize("experiment", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))

@@ -249,3 +249,27 @@ def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path
     minutes = [float(r.split(",")[2]) for r in rows[1:]]
     assert 0 < minutes[0] < minutes[1] and all(r.split(",")[5] != "" for r in rows[1:])
     assert "Error diagnostics" in (out / "test" / "ap_table.md").read_text()
+
+
+def test_several_training_datasets_are_split_by_dataset_and_cycle(tiny_dataset: Path, tmp_path: Path) -> None:
+    """data.root as a list: the datasets (e.g. two camera set-ups) are trained on together; cycles
+    of different datasets are different groups, names stay unique."""
+    from opnet.cli.build import build_datamodule
+
+    other = tmp_path / "wide_view"
+    generate_dataset(builtin_object("zbracket"), other, cycles=4, drops=2, workers=1, seed=9,
+                     scene=SceneConfig(resolution=128, fov_deg=65.0), progress=False, previews=0,
+                     object_config={"name": "zbracket", "builtin": "zbracket"})  # fmt: skip
+    cfg = _train_cfg(tiny_dataset, tmp_path / "run", [f"data.root=[{tiny_dataset},{other}]"])
+    dm = build_datamodule(cfg, builtin_object("zbracket"), train=True)
+    dm.prepare_data()
+    dm.setup("fit")
+    sizes = {k: len(v) for k, v in dm.splits.items()}
+    assert sum(sizes.values()) == 4 * 4 + 4 * 2  # scenes with objects of both datasets
+    names = [dm.splits[k].record(i).name for k in dm.splits for i in range(len(dm.splits[k]))]
+    assert len(set(names)) == len(names) and {n[:3] for n in names} == {"d0_", "d1_"}
+    cams = {round(dm.splits[k].record(i).camera.fx, 3) for k in dm.splits for i in range(len(dm.splits[k]))}
+    assert len(cams) == 2  # both camera set-ups are there
+    with pytest.raises(ValueError, match="one data.root"):
+        build_datamodule(_train_cfg(tiny_dataset, tmp_path / "r2", [f"data.root=[{tiny_dataset},{other}]",
+                                                                     "+data.generate={cycles: 1}"]), builtin_object("zbracket"))  # fmt: skip

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
+import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
@@ -31,10 +32,29 @@ def resolve_ckpt_path(ckpt_path: str | None, output_dir: Path) -> str | None:
     return ckpt_path
 
 
+def cpu_has_native_bf16() -> bool:
+    """The CPU computes bf16 natively (AVX512-BF16 or AMX): bf16 autocast is then faster than fp32.
+    Elsewhere bf16 is emulated and slower."""
+    probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
+    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
+
+
+def resolve_precision(precision: Any, accelerator: str) -> Any:
+    """``trainer.precision: auto``: bf16 mixed precision where the hardware has it (GPUs, CPUs with
+    native bf16), else 32-bit. Any other value is passed to Lightning as it is."""
+    if str(precision) != "auto":
+        return precision
+    if accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available()):
+        return "bf16-mixed"
+    return "bf16-mixed" if cpu_has_native_bf16() else "32-true"
+
+
 def build_trainer(cfg: DictConfig) -> L.Trainer:
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c is not None]
     logger = instantiate(cfg.logger) if cfg.get("logger") is not None else False
-    return instantiate(cfg.trainer, callbacks=callbacks, logger=logger)
+    precision = resolve_precision(cfg.trainer.get("precision", "32"), str(cfg.trainer.get("accelerator", "cpu")))
+    log.info("trainer precision: %s", precision)
+    return instantiate(cfg.trainer, callbacks=callbacks, logger=logger, precision=precision)
 
 
 def run(cfg: DictConfig) -> dict[str, Any]:

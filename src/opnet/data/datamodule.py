@@ -78,6 +78,45 @@ class SceneSamples(Dataset):
         return make_sample(self.record(i), self.input_size, interp, self.augmenter, rng)
 
 
+class ConcatScenes:
+    """Several datasets (or their caches) as one: scenes in order, keys prefixed with the dataset's
+    index and names with ``d<index>_`` so that they stay unique (e.g. training data of several
+    camera set-ups)."""
+
+    def __init__(self, sources: Sequence[Any]) -> None:
+        self.sources = list(sources)
+        self.offsets = np.cumsum([0] + [len(s) for s in self.sources])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def _locate(self, i: int) -> tuple[int, int]:
+        k = int(np.searchsorted(self.offsets, i, side="right")) - 1
+        return k, i - int(self.offsets[k])
+
+    def __getitem__(self, i: int) -> SceneRecord:
+        k, j = self._locate(i)
+        record = self.sources[k][j]
+        record.name = f"d{k}_{record.name}"
+        return record
+
+    def scenes(self) -> list[Any]:
+        out = []
+        for k, s in enumerate(self.sources):
+            keys = s.scenes() if hasattr(s, "scenes") else list(range(len(s)))
+            out += [(k, *key) if isinstance(key, tuple) else (k, key, 1) for key in keys]
+        return out
+
+
+def as_paths(value: Any) -> list[Path]:
+    """One folder or a list of folders (a Hydra list too) as a list of paths."""
+    if value is None or value == "":
+        return []
+    if isinstance(value, (str, Path)):
+        return [Path(value)]
+    return [Path(v) for v in value]
+
+
 def split_groups(
     keys: Sequence[Any], val_fraction: float, test_fraction: float, seed: int
 ) -> tuple[list[int], list[int], list[int]]:
@@ -104,7 +143,8 @@ class OPNetDataModule(L.LightningDataModule):
 
     Args:
         obj: the object model the scenes show (used to generate synthetic data).
-        root: dataset folder (IPA layout with parameter.json, or Siléane with camera_params.txt).
+        root: dataset folder (IPA layout with parameter.json, or Siléane with camera_params.txt),
+            or a list of them, trained on together (e.g. several camera set-ups).
         generate: if given and ``root`` is not a complete dataset yet, generate it first with
             these settings (cycles, drops, workers, seed, scene: SceneConfig fields).
         input_size: network input side in pixels.
@@ -119,14 +159,14 @@ class OPNetDataModule(L.LightningDataModule):
         cache_size: side of the cached canvas in pixels; None = twice ``input_size``.
         cache_dir: where the cache lives; None = ``<root>/cache_s<size>``.
         cache_workers: processes that build the cache.
-        test_root: a separate dataset whose scenes (all of them) form the test split; the
-            ``test_fraction`` of ``root`` is then not held out.
+        test_root: a separate dataset (or a list) whose scenes, all of them, form the test split;
+            the ``test_fraction`` of ``root`` is then not held out.
     """
 
     def __init__(
         self,
         obj: ObjectModel,
-        root: str | Path,
+        root: str | Path | Sequence[str | Path],
         generate: Mapping[str, Any] | None = None,
         input_size: int = 128,
         val_fraction: float = 0.1,
@@ -142,11 +182,16 @@ class OPNetDataModule(L.LightningDataModule):
         cache_size: int | None = None,
         cache_dir: str | Path | None = None,
         cache_workers: int = 1,
-        test_root: str | Path | None = None,
+        test_root: str | Path | Sequence[str | Path] | None = None,
     ) -> None:
         super().__init__()
         self.obj = obj
-        self.root = Path(root)
+        self.roots = as_paths(root)
+        if not self.roots:
+            raise ValueError("data.root: no dataset folder given")
+        self.root = self.roots[0]
+        if generate is not None and len(self.roots) > 1:
+            raise ValueError("data.generate: synthetic data is generated into one data.root, not a list")
         self.generate = dict(generate) if generate is not None else None
         self.input_size = input_size
         self.val_fraction, self.test_fraction = val_fraction, test_fraction
@@ -160,15 +205,17 @@ class OPNetDataModule(L.LightningDataModule):
         self.cache_size = int(cache_size) if cache_size is not None else 2 * int(input_size)
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir(self.root, self.cache_size)
         self.cache_workers = int(cache_workers)
-        self.test_root = Path(test_root) if test_root not in (None, "") else None
+        self.test_roots = as_paths(test_root)
+        self.test_root = self.test_roots[0] if self.test_roots else None
         self.splits: dict[str, SceneSamples] = {}
 
     def prepare_data(self) -> None:
         """Generate the synthetic dataset if it is configured and not complete (resumable), then
         build (or complete) its scene cache."""
         if self.generate is None:
-            if not self.root.exists():
-                raise FileNotFoundError(f"{self.root}: dataset folder not found (and no 'generate' settings)")
+            for root in self.roots:
+                if not root.exists():
+                    raise FileNotFoundError(f"{root}: dataset folder not found (and no 'generate' settings)")
         else:
             from opnet.synthesis import SceneConfig, generate_dataset
 
@@ -177,24 +224,27 @@ class OPNetDataModule(L.LightningDataModule):
             log.info("preparing synthetic dataset at %s", self.root)
             generate_dataset(self.obj, self.root, scene=scene, object_config=self.object_config, **g)
         if self.cache:
-            self._open_source()
+            self._open_sources(self.roots)
+            self._open_sources(self.test_roots)
 
-        if self.cache and self.test_root is not None:
-            self._open_source(self.test_root)
-
-    def _open_source(self, root: Path | None = None) -> Any:
-        """A dataset, or its scene cache (built or completed first when it is not up to date)."""
-        source = open_dataset(root or self.root)
-        if not self.cache:
-            return source
-        cache_dir = self.cache_dir if root is None else default_cache_dir(root, self.cache_size)
-        return build_scene_cache(source, cache_dir, self.cache_size, workers=self.cache_workers)
+    def _open_sources(self, roots: Sequence[Path]) -> Any:
+        """The datasets (one, or concatenated), or their scene caches (built or completed first)."""
+        sources = []
+        for root in roots:
+            source = open_dataset(root)
+            if self.cache:
+                single = root == self.root and len(self.roots) == 1
+                cache_dir = self.cache_dir if single else default_cache_dir(root, self.cache_size)
+                source = build_scene_cache(source, cache_dir, self.cache_size, workers=self.cache_workers)
+            sources.append(source)
+        return sources[0] if len(sources) == 1 else ConcatScenes(sources)
 
     def setup(self, stage: str | None = None) -> None:
         if self.splits:
             return
-        self._check_object()
-        source = self._open_source()
+        for root in (*self.roots, *self.test_roots):
+            self._check_object(root)
+        source = self._open_sources(self.roots)
         keys, keep = self._scene_keys(source)
         test_fraction = 0.0 if self.test_root is not None else self.test_fraction
         tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, test_fraction, self.seed)
@@ -206,14 +256,14 @@ class OPNetDataModule(L.LightningDataModule):
             "val": SceneSamples(source, pick(va), **common),
             "test": SceneSamples(source, pick(te), **common),
         }
-        if self.test_root is not None:  # a held-out dataset of its own (other seed, other generator)
-            test_source = self._open_source(self.test_root)
+        if self.test_roots:  # held-out datasets of their own (other seed, other generator)
+            test_source = self._open_sources(self.test_roots)
             self.splits["test"] = SceneSamples(test_source, self._scene_keys(test_source)[1], **common)
-        log.info("dataset %s: %s", self.root, {k: len(v) for k, v in self.splits.items()})
+        log.info("dataset %s: %s", ", ".join(map(str, self.roots)), {k: len(v) for k, v in self.splits.items()})
 
-    def _check_object(self) -> None:
+    def _check_object(self, root: Path) -> None:
         """Refuse a dataset made of another part (its ``object.json`` names the object)."""
-        path = self.root / "object.json"
+        path = root / "object.json"
         if not path.is_file():
             return
         try:
@@ -227,13 +277,14 @@ class OPNetDataModule(L.LightningDataModule):
             )
 
     def _scene_keys(self, source: Any) -> tuple[list[Any], list[int]]:
-        """Group key per scene (cycle for IPA, scene name otherwise) and the scenes to keep."""
+        """Group key per scene (its cycle for IPA-layout keys ``(..., cycle, objects)``, the scene
+        name otherwise) and the scenes to keep (scenes with objects, unless ``include_empty``)."""
         scenes = source.scenes() if hasattr(source, "scenes") else list(range(len(source)))
         keys, keep = [], []
         for i, s in enumerate(scenes):
             is_ipa = isinstance(s, tuple)
-            keys.append(s[0] if is_ipa else s)
-            if self.include_empty or not is_ipa or s[1] > 0:
+            keys.append(s[:-1] if is_ipa else s)
+            if self.include_empty or not is_ipa or s[-1] > 0:
                 keep.append(i)
         return keys, keep
 

@@ -115,15 +115,15 @@ class PoseAveraging:
     def __post_init__(self) -> None:
         if not self.eps > 0:
             raise ValueError(
-                f"averaging eps must be positive (a fraction of delta), got {self.eps}"
+                f"parameterization.averaging_eps must be positive (a fraction of delta), got {self.eps}"
             )
         if self.cluster_score not in CLUSTER_SCORES:
             raise ValueError(
-                f"averaging cluster_score must be one of {CLUSTER_SCORES}, "
+                f"parameterization.averaging_score must be one of {CLUSTER_SCORES}, "
                 f"got {self.cluster_score!r}"
             )
         if self.min_samples < 1:
-            raise ValueError(f"averaging min_samples must be >= 1, got {self.min_samples}")
+            raise ValueError(f"parameterization.averaging_min_samples must be >= 1, got {self.min_samples}")
 
     def cluster(self, hyps: HypothesisSet) -> np.ndarray:
         """(N,) int64 DBSCAN labels of the hypotheses (-1 = noise).
