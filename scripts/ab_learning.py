@@ -12,6 +12,15 @@ test split with the decoding settings that ``scripts/tune_decoding.py``'s search
 the *validation* split. ``--foreign`` adds a column: AP on scenes of another camera set-up.
 Finished arms (same overrides, ``test/summary.json`` present) are not trained again. Writes
 ``ab.md`` and ``ab.csv`` to ``--out``.
+
+    python scripts/ab_learning.py --collect results/learning/ab_runs.yaml --runs-dir <dir>
+
+``--collect`` builds the table from finished ``train.py`` runs listed in a YAML spec (arm, change,
+run name under ``--runs-dir``, optionally ``tune: true``: decode the run's model with the
+settings found best on its validation split, or ``decoding``: fixed settings): each row shows the
+run's own overrides, so every cell can be re-run with ``python train.py <overrides>``; test AP and
+diagnostics are read from the run's ``test/summary.json`` (scored by ``train.py`` on the same
+held-out set) unless the arm re-decodes.
 """
 
 from __future__ import annotations
@@ -129,10 +138,70 @@ def row_of(arm: str, change: str, run: Path, result: dict[str, Any], steps: int)
     }  # fmt: skip
 
 
+def run_overrides(run: Path) -> str:
+    """The run's ``train.py`` overrides that choose the method (no paths, no logging)."""
+    skip = ("data.root=", "data.test_root=", "hydra.", "trainer.enable_progress_bar", "example_predictions",
+            "data.num_workers", "trainer.max_epochs")  # fmt: skip
+    return " ".join(o for o in overrides_of(run) or [] if not o.startswith(skip))
+
+
+def collect(spec_path: Path, runs_dir: Path, out: Path) -> list[dict[str, Any]]:
+    """The A/B table of finished runs listed in ``spec_path`` (see the module docstring)."""
+    import yaml
+    from tune_decoding import RecordedSplit, search
+
+    spec = yaml.safe_load(spec_path.read_text())
+    rows = []
+    for arm in spec["arms"]:
+        run = runs_dir / arm["run"]
+        if not (run / "test" / "summary.json").is_file():
+            raise FileNotFoundError(f"{spec_path}: arm {arm['arm']}: no finished run at {run}")
+        settings = arm.get("decoding")
+        if arm.get("tune"):
+            settings, _ = search([RecordedSplit.record(str(best_checkpoint(run)), "val")])
+        if settings is None:
+            summary = json.loads((run / "test" / "summary.json").read_text())
+            result = {"summary": summary, "diagnostics": summary["diagnostics"]}
+        else:
+            test_root = yaml.safe_load((run / ".hydra" / "config.yaml").read_text())["data"]["test_root"]
+            result = evaluate(best_checkpoint(run), Path(test_root), settings)
+        steps = next((o.split("=")[1] for o in overrides_of(run) or [] if o.startswith("trainer.max_steps=")), "")
+        row = row_of(arm["arm"], arm["change"], run, result, steps)
+        row.update(object=arm.get("object", spec.get("object", "")), overrides=run_overrides(run),
+                   decoding="configured" if settings is None else json.dumps(settings, sort_keys=True))  # fmt: skip
+        rows.append(row)
+        print(f"{arm['arm']}: test AP {row['ap']:.4f}", flush=True)
+    lines = [spec.get("title", "A/B"), "",
+             "| arm | object | change | steps | train min | **test AP** | MAP | found % | no hyp % | position % "
+             "| orientation % | conf. FP/scene | decoding | overrides |", "|" + "---|" * 14]  # fmt: skip
+    for r in rows:
+        lines.append(
+            f"| {r['arm']} | {r['object']} | {r['change']} | {r['steps']} | {r['train_minutes']} | **{r['ap']:.3f}** | "
+            f"{r['map']:.3f} | {100 * r['found']:.1f} | {100 * r['no_hypothesis']:.1f} | {100 * r['position']:.1f} | "
+            f"{100 * r['orientation']:.1f} | {r['confident_fp_per_scene']:.2f} | {r['decoding']} | `{r['overrides']}` |"
+        )
+    notes = spec.get("notes")
+    write_tables(out, ("object", *FIELDS, "overrides"), rows, lines + (["", notes] if notes else []))
+    return rows
+
+
+def write_tables(out: Path, fields: tuple[str, ...], rows: list[dict[str, Any]], lines: list[str]) -> None:
+    """``ab.csv`` (the rows) and ``ab.md`` (the markdown ``lines``) under ``out``; prints the table."""
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    (out / "ab.csv").write_text(buf.getvalue())
+    (out / "ab.md").write_text("\n".join(lines).rstrip("\n") + "\n")
+    print("\n".join(lines))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--train", type=Path, required=True)
-    parser.add_argument("--test", type=Path, required=True)
+    parser.add_argument("--collect", type=Path, default=None, help="YAML spec of finished runs (no training)")
+    parser.add_argument("--train", type=Path)
+    parser.add_argument("--test", type=Path)
     parser.add_argument("--foreign", type=Path, default=None)
     parser.add_argument("--object", default="bunny")
     parser.add_argument("--steps", type=int, default=2000)
@@ -140,6 +209,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "ab")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "learning")
     args = parser.parse_args(argv)
+    if args.collect is not None:
+        collect(args.collect, args.runs_dir, args.out)
+        return 0
+    if args.train is None or args.test is None:
+        parser.error("--train and --test are required (or --collect)")
     from tune_decoding import RecordedSplit, search
 
     base = [f"object={args.object}", "data=ipa", f"data.root={args.train.resolve()}",
@@ -167,12 +241,6 @@ def main(argv: list[str] | None = None) -> int:
             row["foreign_ap"] = evaluate(ckpt, args.foreign, settings)["summary"]["ap"]
         rows.append(row)
         print(f"{arm}: test AP {row['ap']:.4f}" + (f", foreign AP {row['foreign_ap']:.4f}" if args.foreign else ""), flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=FIELDS, extrasaction="ignore")
-    writer.writeheader()
-    writer.writerows(rows)
-    (args.out / "ab.csv").write_text(buf.getvalue())
     lines = [f"A/B on {args.object}: {args.steps} steps each (batch 16), seed 0, same data; test AP on "
              f"{args.test.name}" + (f", foreign AP on {args.foreign.name}" if args.foreign else ""), "",
              "| arm | change | steps | train min | **test AP** | MAP | F1 | found % | no hyp % | position % "
@@ -184,8 +252,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{100 * r['orientation']:.1f} | {r['confident_fp_per_scene']:.2f} | "
             f"{'' if r.get('foreign_ap') in (None, '') else format(r['foreign_ap'], '.3f')} |"
         )
-    (args.out / "ab.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_tables(args.out, FIELDS, rows, lines)
     return 0
 
 

@@ -137,7 +137,11 @@ def fmt(value: Any, kind: str = "f3") -> str:
         v = float(value)
     except (TypeError, ValueError):
         return str(value)
-    return {"f3": f"{v:.3f}", "f1": f"{v:.1f}", "pct": f"{100 * v:.1f}", "int": f"{int(v)}"}[kind]
+    if v != v:  # NaN: nothing to report (e.g. no matched pair)
+        return "–"
+    if kind == "int":
+        return f"{int(v)}"
+    return f"{100 * v:.1f}" if kind == "pct" else f"{v:.{kind[1]}f}"
 
 
 def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:

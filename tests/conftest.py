@@ -37,3 +37,24 @@ def meshes_dir(shared: Path) -> Path:
 @pytest.fixture(scope="session")
 def bunny_sample(shared: Path) -> Path:
     return shared / "data" / "sileane_bunny_sample"
+
+
+def small_builtin_dataset(root: Path, name: str, cycles: int, drops: int, seed: int) -> Path:
+    """Generate a small IPA-layout dataset of a built-in object at 128 x 128 under ``root``."""
+    from opnet.objects import builtin_object
+    from opnet.synthesis import SceneConfig, generate_dataset
+
+    generate_dataset(builtin_object(name), root, cycles=cycles, drops=drops, workers=1, seed=seed,
+                     scene=SceneConfig(resolution=128), progress=False, previews=0,
+                     object_config={"name": name, "builtin": name})  # fmt: skip
+    return root
+
+
+@pytest.fixture(scope="session")
+def builtin_dataset(tmp_path_factory: pytest.TempPathFactory):
+    """A factory: ``builtin_dataset(name, cycles, drops, seed)`` -> the dataset's root folder."""
+
+    def make(name: str, cycles: int, drops: int, seed: int) -> Path:
+        return small_builtin_dataset(tmp_path_factory.mktemp(name) / name, name, cycles, drops, seed)
+
+    return make

@@ -15,6 +15,9 @@ Position term ``L_pos`` (``position``):
 
 Orientation term ``L_ori`` (``orientation``):
 - ``euler_l2`` (paper; alias ``channel_l2``): squared L2 on the orientation channels.
+- ``sym_channel_l2``: the squared L2 to the nearest of the channel targets of the symmetric
+  equivalents ``R g`` (the object's finite group; the axis and its flip for revolution objects):
+  the paper's channel loss without the seams of a canonical choice of equivalent.
 - ``sym_rotation``: the squared Brégier rotation distance ``min_g ||(R̂ - R g) Λ||²_F / δ²`` of the
   rotations decoded from the channels (revolution objects: ``λ² min_g ||R̂ e_z - R g e_z||² / δ²``).
   With ``position=metric`` the pose term is then exactly the squared Brégier pose distance in units
@@ -35,7 +38,7 @@ from opnet.geometry.camera import Camera
 from opnet.parameterizations.base import Parameterization
 from opnet.parameterizations.positions import CameraBatch
 
-ORIENTATION_LOSSES = ("euler_l2", "channel_l2", "sym_rotation")
+ORIENTATION_LOSSES = ("euler_l2", "channel_l2", "sym_channel_l2", "sym_rotation")
 POSITION_LOSSES = ("channels", "metric")
 ROBUST = ("none", "charbonnier")
 
@@ -47,10 +50,13 @@ class MultiTaskLoss(nn.Module):
         lambda_p: λ1, weight of the presence term.
         lambda_v: λ2, weight of the visibility term.
         lambda_ori: λ4, weight of the orientation term relative to the position term.
-        orientation: "euler_l2" (paper), "channel_l2" (the same for any rotation codec) or
-            "sym_rotation" (symmetry-aware rotation distance / δ²).
+        orientation: "euler_l2" (paper), "channel_l2" (the same for any rotation codec),
+            "sym_channel_l2" (the nearest symmetric equivalent's channels) or "sym_rotation"
+            (symmetry-aware rotation distance / δ²).
         position: "channels" (paper) or "metric" (origin distance / δ, squared).
         lambda_pose: factor on λ3 (the weight of position and orientation together); 1 in the paper.
+        lambda_pos: weight of the position term (1 in the paper); with ``position=metric`` 0.1
+            makes a δ-sized origin error cost what it costs in vanilla's channel units.
         robust: "none" (squared errors, the paper) or "charbonnier": each pose term ``e`` (a
             squared error) becomes ``2 (sqrt(1 + e) - 1)``: the same near zero, but growing only
             linearly with the error, so that the large errors of early training do not swamp the
@@ -67,6 +73,7 @@ class MultiTaskLoss(nn.Module):
         position: str = "channels",
         lambda_pose: float = 1.0,
         robust: str = "none",
+        lambda_pos: float = 1.0,
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
@@ -78,7 +85,8 @@ class MultiTaskLoss(nn.Module):
         if position not in POSITION_LOSSES:
             raise ValueError(f"loss.position must be one of {POSITION_LOSSES}, got {position!r}")
         for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
-                           ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose)):  # fmt: skip
+                           ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose),
+                           ("lambda_pos", lambda_pos)):  # fmt: skip
             if not float(value) >= 0:
                 raise ValueError(f"loss.{key} must be >= 0, got {value}")
         self.lambda_p, self.lambda_v, self.lambda_ori = (
@@ -87,6 +95,7 @@ class MultiTaskLoss(nn.Module):
             float(lambda_ori),
         )
         self.lambda_pose = float(lambda_pose)
+        self.lambda_pos = float(lambda_pos)
         self.orientation = orientation
         self.position = position
         self.robust = robust
@@ -98,6 +107,7 @@ class MultiTaskLoss(nn.Module):
             self.position == "channels"
             and self.orientation in ("euler_l2", "channel_l2")
             and self.lambda_pose == 1.0
+            and self.lambda_pos == 1.0
             and self.robust == "none"
         )
 
@@ -167,18 +177,22 @@ class MultiTaskLoss(nn.Module):
             position = (((t_hat - t_gt) / delta) ** 2).sum(-1).to(o.dtype)
         else:
             position = ((o[:, 2:5] - t[:, 2:5]) ** 2).sum(-1)
+        rotation = parameterization.rotation
         if self.orientation == "sym_rotation":
-            rotation = parameterization.rotation
             orientation = symmetric_rotation_error(
                 rotation.decode(o[:, 5:]), rotation.decode(t[:, 5:]).detach(), parameterization
             )
+        elif self.orientation == "sym_channel_l2":
+            group = torch.as_tensor(parameterization.obj.pose_space.group, device=o.device)
+            targets = rotation.equivalent_channels(rotation.decode(t[:, 5:].double()), group).to(o.dtype)
+            orientation = ((o[:, None, 5:] - targets.detach()) ** 2).sum(-1).amin(-1)  # (P,)
         else:
             orientation = ((o[:, 5:] - t[:, 5:]) ** 2).sum(-1)
         if self.robust == "charbonnier":
             position = 2 * (torch.sqrt(1 + position) - 1)
             orientation = 2 * (torch.sqrt(1 + orientation) - 1)
         return {
-            "position": weight * position,
+            "position": self.lambda_pos * weight * position,
             "orientation": self.lambda_ori * weight * orientation,
         }
 

@@ -59,14 +59,14 @@ def test_group_options_instantiate(group: str) -> None:
 def test_formulations_select_the_paper_or_our_measured_best() -> None:
     ours = _compose("train", ["parameterization=eve", "paths.root_dir=/tmp/opnet"])
     paper = _compose("train", ["parameterization=eve", "formulation=paper", "paths.root_dir=/tmp/opnet"])
-    assert (ours.rotation._target_.endswith("SixDCodec"), ours.loss.position, ours.parameterization.position) == (
-        True, "metric", "cell_offset")
+    assert (ours.rotation._target_.endswith("SixDCodec"), ours.loss.orientation, ours.parameterization.position) == (
+        True, "sym_channel_l2", "cell_offset")
     assert (paper.rotation.convention, paper.loss.orientation, paper.loss.position, paper.parameterization.position,
             paper.parameterization.score, paper.parameterization.averaging_eps) == (
         "ZYZ", "euler_l2", "channels", "enlarged", "p", 0.5)  # fmt: skip
     # a command-line choice still wins over the formulation's
     mixed = _compose("train", ["formulation=paper", "loss=balanced", "paths.root_dir=/tmp/opnet"])
-    assert mixed.loss.position == "metric" and mixed.rotation.convention == "ZYZ"
+    assert mixed.loss.orientation == "sym_channel_l2" and mixed.rotation.convention == "ZYZ"
     vanilla_paper = _compose("train", ["formulation=paper", "paths.root_dir=/tmp/opnet"])
     assert vanilla_paper.parameterization.averaging is False  # the paper's vanilla does not average
 

@@ -135,7 +135,7 @@ def test_eps_is_a_fraction_of_delta():
     hyps = HypothesisSet(R, t, np.ones(2))
     assert len(PoseAveraging(ZBRACKET.pose_space, eps=0.5)(hyps)) == 1
     assert len(PoseAveraging(ZBRACKET.pose_space, eps=0.4)(hyps)) == 2
-    with pytest.raises(ValueError, match="cluster_score"):
+    with pytest.raises(ValueError, match="averaging_score"):
         PoseAveraging(ZBRACKET.pose_space, cluster_score="median")
 
 

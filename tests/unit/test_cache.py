@@ -12,17 +12,11 @@ from opnet.data.cache import SceneCache, build_scene_cache, decode_depth, defaul
 from opnet.data.sample import make_sample
 from opnet.datasets import open_dataset
 from opnet.geometry import Camera
-from opnet.objects import builtin_object
-from opnet.synthesis import SceneConfig, generate_dataset
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("cache") / "pin"
-    generate_dataset(builtin_object("pin"), root, cycles=3, drops=3, workers=1, seed=1,
-                     scene=SceneConfig(resolution=128), progress=False, previews=0,
-                     object_config={"name": "pin", "builtin": "pin"})  # fmt: skip
-    return root
+def dataset(builtin_dataset) -> Path:
+    return builtin_dataset("pin", 3, 3, 1)
 
 
 def test_depth_code_round_trip_and_missing_pixels():

@@ -165,9 +165,11 @@ def test_paper_loss_reproduces_the_previous_values_exactly(case):
 
 
 def test_balanced_position_is_the_origin_error_in_units_of_delta():
-    """loss=balanced: an origin decoded delta away costs exactly the pose weight, whatever the
-    parameterization's position encoding (vanilla cell offsets or enlarged-image positions)."""
-    loss_fn = hydra.utils.instantiate(OmegaConf.load(config_dir() / "loss" / "balanced.yaml"))
+    """loss=balanced loss.position=metric: an origin decoded delta away costs exactly lambda_pos times the pose weight,
+    whatever the parameterization's position encoding (vanilla cell offsets or enlarged-image
+    positions)."""
+    cfg = OmegaConf.load(config_dir() / "loss" / "balanced.yaml")
+    loss_fn = hydra.utils.instantiate(cfg, position="metric", lambda_pos=0.1)  # the metric option
     for config in PARAM_CONFIGS:
         param, target = setup(config, ZBRACKET)
         target = target[:1]
@@ -185,7 +187,7 @@ def test_balanced_position_is_the_origin_error_in_units_of_delta():
         moved_t = param.decode_translations(moved, (slot, row, col), cams)
         shift = (moved_t - t.detach()).norm(dim=-1)
         weight = param.pose_weight(grid[:, :, 1][b, slot, row, col])
-        expected = float((weight * (shift / ZBRACKET.delta) ** 2).sum())
+        expected = loss_fn.lambda_pos * float((weight * (shift / ZBRACKET.delta) ** 2).sum())
         got = float(loss_fn(output, target, param, CAMERA)["position"])
         assert got == pytest.approx(expected, rel=1e-4), config.stem
         depth_shift = (moved_t - t.detach())[:, 2]
@@ -193,7 +195,8 @@ def test_balanced_position_is_the_origin_error_in_units_of_delta():
 
 
 def test_balanced_loss_needs_the_cameras_and_checks_its_settings():
-    loss_fn = hydra.utils.instantiate(OmegaConf.load(config_dir() / "loss" / "balanced.yaml"))
+    cfg = OmegaConf.load(config_dir() / "loss" / "balanced.yaml")
+    loss_fn = hydra.utils.instantiate(cfg, position="metric", lambda_pos=0.1)  # the metric option
     param, target = setup(PARAM_CONFIGS[0], ZBRACKET)
     with pytest.raises(ValueError, match="cameras"):
         loss_fn(target, target, param)
@@ -220,3 +223,31 @@ def test_sym_rotation_with_r6d_is_zero_for_symmetric_equivalents(name: str):
     assert symmetric_rotation_error(decoded, R, param).abs().max() < 1e-12
     wrong = codec.decode(codec.encode(R @ axis_angle_rotation("X", torch.tensor(0.3, dtype=torch.float64))))
     assert (symmetric_rotation_error(wrong, R, param) > 1e-3).all()
+
+
+@pytest.mark.parametrize("name", ["bracket", "zbracket", "shaft", "pin"])
+def test_sym_channel_l2_is_zero_for_every_symmetric_equivalent_and_positive_otherwise(name: str):
+    """The channel loss of the nearest equivalent: a prediction of any equivalent of the target
+    (not the canonical one the encoder chose) costs nothing, a wrong rotation does."""
+    obj = builtin_object(name)
+    param = VanillaParameterization(obj, rotation=SixDCodec(obj.symmetry))
+    gt = random_scene_batch(obj, CAMERA, 1, 20, torch.Generator().manual_seed(9))
+    target = param.encode(gt, CAMERA)
+    grid = param.split_slots(target)
+    b, slot, row, col = torch.nonzero(grid[:, :, 0] > 0, as_tuple=True)
+    cells = grid.permute(0, 1, 3, 4, 2)[b, slot, row, col]
+    R = param.rotation.decode(cells[:, 5:].double())
+    G = torch.as_tensor(obj.symmetry.group())
+    spin = axis_angle_rotation("Z", torch.tensor(0.7, dtype=torch.float64)) if obj.symmetry.is_revolution else torch.eye(3, dtype=torch.float64)
+    other = R @ spin @ G[-1]  # another equivalent (the last group element; a spin for revolution)
+    raw = param.rotation.equivalent_channels(other, torch.eye(3, dtype=torch.float64)[None])[:, 0]
+    output = target.clone()
+    param.split_slots(output).permute(0, 1, 3, 4, 2)[b, slot, row, col, 5:] = raw.float()
+    sym = MultiTaskLoss(orientation="sym_channel_l2")
+    assert float(sym(output, target, param, CAMERA)["orientation"]) < 1e-9
+    if len(G) > 1:  # the plain channel loss sees the other equivalent as an error
+        assert float(MultiTaskLoss(orientation="channel_l2", position="metric")(output, target, param, CAMERA)["orientation"]) > 1e-3
+    tilted = R @ axis_angle_rotation("X", torch.tensor(0.4, dtype=torch.float64))
+    raw = param.rotation.equivalent_channels(tilted, torch.eye(3, dtype=torch.float64)[None])[:, 0]
+    param.split_slots(output).permute(0, 1, 3, 4, 2)[b, slot, row, col, 5:] = raw.float()
+    assert float(sym(output, target, param, CAMERA)["orientation"]) > 1e-3

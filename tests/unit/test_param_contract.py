@@ -233,3 +233,19 @@ def test_cell_offset_positions_round_trip_and_reach_at_least_the_enlarged_image(
         dist = np.linalg.norm(t_gt[:, None] - h.t[None], axis=-1)
         assert dist.min(0).max() < 1e-4  # every hypothesis (one per cell) sits on an origin
         assert dist.min(1).max() < 1e-4  # every assigned instance has one
+
+
+def test_min_visibility_gates_decoding_and_with_decoding_copies():
+    param = make(CONFIGS[0], "zbracket", averaging=False)
+    gt = scenes("zbracket", batch_size=1, seed=8)
+    target = param.encode(gt, CAMERA)
+    all_hyps = param.decode(target, CAMERA)[0]
+    gated = param.with_decoding(min_visibility=0.5).decode(target, CAMERA)[0]
+    assert len(gated) == int((all_hyps.visibility >= 0.5).sum()) < len(all_hyps)
+    assert param.min_visibility == 0.0  # the original is unchanged
+    tuned = param.with_decoding(score="p*v", averaging={"eps": 1.5, "cluster_score": "sum"})
+    assert tuned.averaging.eps == 1.5 and tuned.averaging.cluster_score == "sum" and param.averaging is None
+    with pytest.raises(ValueError, match="unknown setting"):
+        param.with_decoding(grid=8)
+    with pytest.raises(ValueError, match="min_visibility"):
+        VanillaParameterization(builtin_object("zbracket"), min_visibility=1.5)

@@ -58,6 +58,18 @@ class RotationCodec(abc.ABC):
     def decode(self, channels: torch.Tensor) -> torch.Tensor:
         """Channels (..., num_channels) to proper rotations (..., 3, 3) (differentiable)."""
 
+    def equivalent_channels(self, R: torch.Tensor, group: torch.Tensor) -> torch.Tensor:
+        """The channels of every symmetric equivalent ``R g`` (for a loss minimised over them).
+
+        Args:
+            R: (M, 3, 3) rotations. group: (K, 3, 3) the object's finite symmetry group.
+        Returns:
+            (M, K, num_channels). This default encodes each equivalent (a codec that
+            canonicalizes then returns K equal rows).
+        """
+        cand = R.unsqueeze(1) @ group.to(R)  # (M, K, 3, 3)
+        return self.encode(cand.reshape(-1, 3, 3)).reshape(len(R), len(group), -1)
+
 
 def canonical_equivalent(R: torch.Tensor, group: torch.Tensor, by_x: bool = True) -> torch.Tensor:
     """One symmetric equivalent ``R g`` per rotation, chosen by fixed generic preferences.
@@ -113,6 +125,12 @@ class SixDCodec(RotationCodec):
         R = canonical_equivalent(R.to(torch.float64), self._group, by_x=not self.revolution)
         cols = R[..., 2] if self.revolution else torch.cat((R[..., 2], R[..., 0]), -1)
         return (0.5 + 0.5 * cols).clamp(0.0, 1.0)
+
+    def equivalent_channels(self, R: torch.Tensor, group: torch.Tensor) -> torch.Tensor:
+        """Channels of every ``R g`` as they are (no canonical choice): (M, K, num_channels)."""
+        cand = R.to(torch.float64).unsqueeze(1) @ group.to(device=R.device, dtype=torch.float64)
+        cols = cand[..., 2] if self.revolution else torch.cat((cand[..., 2], cand[..., 0]), -1)
+        return 0.5 + 0.5 * cols
 
     def decode(self, channels: torch.Tensor) -> torch.Tensor:
         v = 2.0 * channels - 1.0
