@@ -139,10 +139,32 @@ def row_of(arm: str, change: str, run: Path, result: dict[str, Any], steps: int)
 
 
 def run_overrides(run: Path) -> str:
-    """The run's ``train.py`` overrides that choose the method (no paths, no logging)."""
-    skip = ("data.root=", "data.test_root=", "hydra.", "trainer.enable_progress_bar", "example_predictions",
-            "data.num_workers", "trainer.max_epochs")  # fmt: skip
-    return " ".join(o for o in overrides_of(run) or [] if not o.startswith(skip))
+    """The method of a finished run as explicit ``train.py`` overrides, read from its composed
+    config (so that they re-run it whatever the defaults are today)."""
+    import yaml
+
+    c = yaml.safe_load((run / ".hydra" / "config.yaml").read_text())
+    rot, loss, p = c["rotation"], c["loss"], c["parameterization"]
+    rotation = "r6d" if rot["_target_"].endswith("SixDCodec") else f"euler_{str(rot.get('convention', 'zyz')).lower()}"
+    out = [f"parameterization={run_choice(run, 'parameterization')}", f"rotation={rotation}",
+           f"loss.orientation={loss['orientation']}", f"loss.position={loss.get('position', 'channels')}"]  # fmt: skip
+    out += [f"loss.{k}={loss[k]}" for k in ("lambda_pos", "lambda_pose", "lambda_ori") if float(loss.get(k, 1.0)) != 1.0]
+    if "position" in p:
+        out.append(f"multi_cell_position={p['position']}")
+    if p.get("averaging"):
+        out += ["parameterization.averaging=true", f"parameterization.averaging_eps={p['averaging_eps']}",
+                f"parameterization.averaging_score={p['averaging_score']}"]  # fmt: skip
+    else:
+        out.append("parameterization.averaging=false")
+    out += [f"parameterization.score={p.get('score', 'p')}", f"trainer.precision={c['trainer']['precision']}",
+            f"augmentation={run_choice(run, 'augmentation')}"]  # fmt: skip
+    return " ".join(out)
+
+
+def run_choice(run: Path, group: str) -> str:
+    import yaml
+
+    return str(yaml.safe_load((run / ".hydra" / "hydra.yaml").read_text())["hydra"]["runtime"]["choices"].get(group))
 
 
 def collect(spec_path: Path, runs_dir: Path, out: Path) -> list[dict[str, Any]]:

@@ -79,10 +79,10 @@ def calibrate_steps(overrides: list[str], minutes: float) -> int:
     return steps
 
 
-def train(overrides: list[str], run_dir: Path, steps: int) -> None:
+def train(overrides: list[str], run_dir: Path, steps: int, test_every: int = 1) -> None:
     cmd = [sys.executable, str(REPO / "train.py"), *overrides, f"trainer.max_steps={steps}",
            "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
-           "callbacks.learning_curve.test_every=1", f"hydra.run.dir={run_dir}"]  # fmt: skip
+           f"callbacks.learning_curve.test_every={test_every}", f"hydra.run.dir={run_dir}"]  # fmt: skip
     run_dir.mkdir(parents=True, exist_ok=True)
     with open(run_dir / "bench_stdout.log", "w") as log:
         subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
@@ -168,7 +168,8 @@ def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:
             f"{fmt(r['confident_fp_per_scene'], 'f1')} | {fmt(r['duplicates_per_scene'], 'f1')} | "
             f"{fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} |"
         )
-    lines += ["", "Learning curves (test AP against minutes of training): `curves.png`, `curves.csv`.", ""]
+    lines += ["", "Learning curves (AP against minutes of training; solid: test, dashed: validation), also in "
+              "`curves.csv`:", "", "![learning curves](curves.png)", ""]
     (out / "README.md").write_text("\n".join(lines))
 
 
@@ -183,11 +184,13 @@ def plot_curves(out: Path, curves: list[dict[str, Any]]) -> None:
         groups.setdefault((c["object"], c["config"]), []).append(c)
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for (obj, config), pts in sorted(groups.items()):
-        pts = [p for p in pts if p["test_ap"] not in ("", None)]
-        ax.plot([float(p["train_minutes"]) for p in pts], [float(p["test_ap"]) for p in pts], marker="o",
-                ms=3, label=f"{obj} ({config})")  # fmt: skip
+        tested = [p for p in pts if p["test_ap"] not in ("", None)]
+        line, = ax.plot([float(p["train_minutes"]) for p in tested], [float(p["test_ap"]) for p in tested],
+                        marker="o", ms=4, label=f"{obj} ({config}): test")  # fmt: skip
+        ax.plot([float(p["train_minutes"]) for p in pts], [float(p["val_ap"]) for p in pts], ls="--", lw=1,
+                color=line.get_color(), label=f"{obj} ({config}): validation")  # fmt: skip
     ax.set_xlabel("minutes of training (2 CPU cores)")
-    ax.set_ylabel("test AP")
+    ax.set_ylabel("AP (test: held-out seed; validation: held-out cycles)")
     ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -208,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "learning")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "learning")
     parser.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
+    parser.add_argument("--test-every", type=int, default=3,
+                        help="score the test split for the curve every this many epochs (validation AP: every epoch)")
     args = parser.parse_args(argv)
     command = "python scripts/bench_learning.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows, curves = [], []
@@ -222,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = args.runs_dir / f"{obj}_{args.config}"
         start = time.time()
         print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
-        train(overrides, run_dir, steps)
+        train(overrides, run_dir, steps, args.test_every)
         row, curve = summarize(obj, args.config, run_dir, steps)
         print(f"[{obj}] test AP {row['ap']:.4f} after {row['train_minutes']:.1f} training minutes "
               f"({(time.time() - start) / 60:.1f} min wall)", flush=True)  # fmt: skip
