@@ -149,8 +149,9 @@ def run_overrides(run: Path) -> str:
     out = [f"parameterization={run_choice(run, 'parameterization')}", f"rotation={rotation}",
            f"loss.orientation={loss['orientation']}", f"loss.position={loss.get('position', 'channels')}"]  # fmt: skip
     out += [f"loss.{k}={loss[k]}" for k in ("lambda_pos", "lambda_pose", "lambda_ori") if float(loss.get(k, 1.0)) != 1.0]
-    if "position" in p:
-        out.append(f"multi_cell_position={p['position']}")
+    if "position" in p:  # an interpolation of the top-level key in newer configs
+        position = c.get("multi_cell_position", "enlarged") if "${" in str(p["position"]) else p["position"]
+        out.append(f"multi_cell_position={position}")
     if p.get("averaging"):
         out += ["parameterization.averaging=true", f"parameterization.averaging_eps={p['averaging_eps']}",
                 f"parameterization.averaging_score={p['averaging_score']}"]  # fmt: skip
