@@ -2,7 +2,9 @@
 
 The data goes to a temporary file in the destination folder (same file system), which then
 replaces the destination with ``os.replace`` (atomic on POSIX and Windows). No fsync: this guards
-against concurrent readers and crashed writers, not against power loss.
+against concurrent readers and crashed writers, not against power loss. The file gets the mode a
+plain ``open(path, "w")`` would give it (0666 less the umask), not ``mkstemp``'s private 0600, so
+that a shared dataset or results folder stays readable by colleagues.
 """
 
 from __future__ import annotations
@@ -10,6 +12,19 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)  # elsewhere: set and restore at once
+    os.umask(mask)
+    return mask
 
 
 def write_bytes_atomic(path: str | Path, data: bytes) -> None:
@@ -23,6 +38,8 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        if hasattr(os, "fchmod"):
+            os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
