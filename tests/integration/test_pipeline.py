@@ -249,6 +249,13 @@ def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path
     minutes = [float(r.split(",")[2]) for r in rows[1:]]
     assert 0 < minutes[0] < minutes[1] and all(r.split(",")[5] != "" for r in rows[1:])
     assert "Error diagnostics" in (out / "test" / "ap_table.md").read_text()
+    # eval.py on other data, as the README writes it (data.root / data.test_root without a '+')
+    ckpt = out / "checkpoints" / "last.ckpt"
+    ev = eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"data.test_root={other}", f"out={tmp_path / 'ev'}", "examples=0"]))
+    assert ev["scenes"] == 3
+    ev = eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"data.root={tiny_dataset}", "split=val",
+                                    f"out={tmp_path / 'ev_root'}", "examples=0"]))  # fmt: skip
+    assert ev["scenes"] > 0
 
 
 def test_several_training_datasets_are_split_by_dataset_and_cycle(tiny_dataset: Path, tmp_path: Path) -> None:

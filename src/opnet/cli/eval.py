@@ -86,8 +86,11 @@ def write_examples(
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of eval.py (see conf/eval.yaml)."""
     system, run_cfg = load_checkpoint(cfg.ckpt)
-    if cfg.get("data") is not None:  # overrides of the data section (e.g. another dataset root)
-        run_cfg = OmegaConf.merge(run_cfg, {"data": cfg.data})
+    overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
+    if overrides.get("root") is not None and run_cfg.data.get("generate") is not None:
+        overrides.setdefault("generate", None)  # another dataset is read as it is, never generated into
+    if overrides:  # overrides of the data section (e.g. another dataset root)
+        run_cfg = OmegaConf.merge(run_cfg, {"data": overrides})
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
     out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)))
