@@ -124,6 +124,17 @@ def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> di
     return {"summary": summary.to_dict(), "diagnostics": diag.to_dict()}
 
 
+RESULT_HEADER = ("change | steps | train min | **test AP** | MAP | F1 | found % | no hyp % | position % "
+                 "| orientation % | conf. FP/scene")
+
+
+def result_cells(r: dict[str, Any]) -> str:
+    """The cells of :data:`RESULT_HEADER` for one row."""
+    return (f"{r['change']} | {r['steps']} | {r['train_minutes']} | **{r['ap']:.3f}** | {r['map']:.3f} | "
+            f"{r['f1']:.3f} | {100 * r['found']:.1f} | {100 * r['no_hypothesis']:.1f} | {100 * r['position']:.1f} | "
+            f"{100 * r['orientation']:.1f} | {r['confident_fp_per_scene']:.2f}")  # fmt: skip
+
+
 def row_of(arm: str, change: str, run: Path, result: dict[str, Any], steps: int) -> dict[str, Any]:
     s, d = result["summary"], result["diagnostics"]
     n = max(d["to_find"], 1)
@@ -194,15 +205,9 @@ def collect(spec_path: Path, runs_dir: Path, out: Path) -> list[dict[str, Any]]:
                    decoding="configured" if settings is None else json.dumps(settings, sort_keys=True))  # fmt: skip
         rows.append(row)
         print(f"{arm['arm']}: test AP {row['ap']:.4f}", flush=True)
-    lines = [spec.get("title", "A/B"), "",
-             "| arm | object | change | steps | train min | **test AP** | MAP | found % | no hyp % | position % "
-             "| orientation % | conf. FP/scene | decoding | overrides |", "|" + "---|" * 14]  # fmt: skip
-    for r in rows:
-        lines.append(
-            f"| {r['arm']} | {r['object']} | {r['change']} | {r['steps']} | {r['train_minutes']} | **{r['ap']:.3f}** | "
-            f"{r['map']:.3f} | {100 * r['found']:.1f} | {100 * r['no_hypothesis']:.1f} | {100 * r['position']:.1f} | "
-            f"{100 * r['orientation']:.1f} | {r['confident_fp_per_scene']:.2f} | {r['decoding']} | `{r['overrides']}` |"
-        )
+    lines = [spec.get("title", "A/B"), "", f"| arm | object | {RESULT_HEADER} | decoding | overrides |",
+             "|" + "---|" * 15]  # fmt: skip
+    lines += [f"| {r['arm']} | {r['object']} | {result_cells(r)} | {r['decoding']} | `{r['overrides']}` |" for r in rows]
     notes = spec.get("notes")
     write_tables(out, ("object", *FIELDS, "overrides"), rows, lines + (["", notes] if notes else []))
     return rows
@@ -266,15 +271,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{arm}: test AP {row['ap']:.4f}" + (f", foreign AP {row['foreign_ap']:.4f}" if args.foreign else ""), flush=True)
     lines = [f"A/B on {args.object}: {args.steps} steps each (batch 16), seed 0, same data; test AP on "
              f"{args.test.name}" + (f", foreign AP on {args.foreign.name}" if args.foreign else ""), "",
-             "| arm | change | steps | train min | **test AP** | MAP | F1 | found % | no hyp % | position % "
-             "| orientation % | conf. FP/scene | foreign AP |", "|" + "---|" * 13]  # fmt: skip
-    for r in rows:
-        lines.append(
-            f"| {r['arm']} | {r['change']} | {r['steps']} | {r['train_minutes']} | **{r['ap']:.3f}** | {r['map']:.3f} | "
-            f"{r['f1']:.3f} | {100 * r['found']:.1f} | {100 * r['no_hypothesis']:.1f} | {100 * r['position']:.1f} | "
-            f"{100 * r['orientation']:.1f} | {r['confident_fp_per_scene']:.2f} | "
-            f"{'' if r.get('foreign_ap') in (None, '') else format(r['foreign_ap'], '.3f')} |"
-        )
+             f"| arm | {RESULT_HEADER} | foreign AP |", "|" + "---|" * 13]  # fmt: skip
+    lines += [f"| {r['arm']} | {result_cells(r)} | "
+              f"{'' if r.get('foreign_ap') in (None, '') else format(r['foreign_ap'], '.3f')} |" for r in rows]  # fmt: skip
     write_tables(args.out, FIELDS, rows, lines)
     return 0
 

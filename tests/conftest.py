@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -39,13 +40,14 @@ def bunny_sample(shared: Path) -> Path:
     return shared / "data" / "sileane_bunny_sample"
 
 
-def small_builtin_dataset(root: Path, name: str, cycles: int, drops: int, seed: int) -> Path:
-    """Generate a small IPA-layout dataset of a built-in object at 128 x 128 under ``root``."""
+def small_builtin_dataset(root: Path, name: str, cycles: int, drops: int, seed: int, **scene: Any) -> Path:
+    """Generate a small IPA-layout dataset of a built-in object at 128 x 128 (other ``SceneConfig``
+    fields in ``scene``) under ``root``."""
     from opnet.objects import builtin_object
     from opnet.synthesis import SceneConfig, generate_dataset
 
     generate_dataset(builtin_object(name), root, cycles=cycles, drops=drops, workers=1, seed=seed,
-                     scene=SceneConfig(resolution=128), progress=False, previews=0,
+                     scene=SceneConfig(resolution=128, **scene), progress=False, previews=0,
                      object_config={"name": name, "builtin": name})  # fmt: skip
     return root
 

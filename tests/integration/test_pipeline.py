@@ -22,18 +22,14 @@ from opnet.cli import predict as predict_cli
 from opnet.cli import train as train_cli
 from opnet.objects import builtin_object
 from opnet.paths import REPO_ROOT, config_dir
-from opnet.synthesis import SceneConfig, generate_dataset
+from conftest import small_builtin_dataset
 
 PARAMETERIZATIONS = sorted(p.stem for p in (config_dir() / "parameterization").glob("*.yaml"))
 
 
 @pytest.fixture(scope="module")
 def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("data") / "zbracket_tiny"
-    generate_dataset(builtin_object("zbracket"), root, cycles=4, drops=4, workers=1, seed=0,
-                     scene=SceneConfig(resolution=128), progress=False, previews=0,
-                     object_config={"name": "zbracket", "builtin": "zbracket"})
-    return root
+    return small_builtin_dataset(tmp_path_factory.mktemp("data") / "zbracket_tiny", "zbracket", 4, 4, 0)
 
 
 def _cfg(name: str, overrides: list[str]) -> DictConfig:
@@ -235,9 +231,7 @@ def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path
     """data.test_root scores another dataset; the learning curve records minutes, val and test AP;
     the test summary carries the error diagnostics."""
     other = tmp_path / "other_seed"
-    generate_dataset(builtin_object("zbracket"), other, cycles=1, drops=3, workers=1, seed=5,
-                     scene=SceneConfig(resolution=128), progress=False, previews=0,
-                     object_config={"name": "zbracket", "builtin": "zbracket"})  # fmt: skip
+    small_builtin_dataset(other, "zbracket", 1, 3, 5)
     out = tmp_path / "run"
     result = train_cli.run(_train_cfg(tiny_dataset, out, [f"data.test_root={other}", "trainer.max_epochs=2",
                                                           "callbacks.learning_curve.test_every=1"]))  # fmt: skip
@@ -264,9 +258,7 @@ def test_several_training_datasets_are_split_by_dataset_and_cycle(tiny_dataset: 
     from opnet.cli.build import build_datamodule
 
     other = tmp_path / "wide_view"
-    generate_dataset(builtin_object("zbracket"), other, cycles=4, drops=2, workers=1, seed=9,
-                     scene=SceneConfig(resolution=128, fov_deg=65.0), progress=False, previews=0,
-                     object_config={"name": "zbracket", "builtin": "zbracket"})  # fmt: skip
+    small_builtin_dataset(other, "zbracket", 4, 2, 9, fov_deg=65.0)
     cfg = _train_cfg(tiny_dataset, tmp_path / "run", [f"data.root=[{tiny_dataset},{other}]"])
     dm = build_datamodule(cfg, builtin_object("zbracket"), train=True)
     dm.prepare_data()

@@ -121,16 +121,18 @@ class SixDCodec(RotationCodec):
         )
         self._group = torch.as_tensor(symmetry.group(), dtype=torch.float64)
 
+    def _channels(self, R: torch.Tensor) -> torch.Tensor:
+        """``0.5 + 0.5`` times the z column (and the x column) of ``R`` as it is."""
+        cols = R[..., 2] if self.revolution else torch.cat((R[..., 2], R[..., 0]), -1)
+        return 0.5 + 0.5 * cols
+
     def encode(self, R: torch.Tensor) -> torch.Tensor:
         R = canonical_equivalent(R.to(torch.float64), self._group, by_x=not self.revolution)
-        cols = R[..., 2] if self.revolution else torch.cat((R[..., 2], R[..., 0]), -1)
-        return (0.5 + 0.5 * cols).clamp(0.0, 1.0)
+        return self._channels(R).clamp(0.0, 1.0)
 
     def equivalent_channels(self, R: torch.Tensor, group: torch.Tensor) -> torch.Tensor:
         """Channels of every ``R g`` as they are (no canonical choice): (M, K, num_channels)."""
-        cand = R.to(torch.float64).unsqueeze(1) @ group.to(device=R.device, dtype=torch.float64)
-        cols = cand[..., 2] if self.revolution else torch.cat((cand[..., 2], cand[..., 0]), -1)
-        return 0.5 + 0.5 * cols
+        return self._channels(R.to(torch.float64).unsqueeze(1) @ group.to(device=R.device, dtype=torch.float64))
 
     def decode(self, channels: torch.Tensor) -> torch.Tensor:
         v = 2.0 * channels - 1.0
