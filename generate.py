@@ -13,9 +13,10 @@ from omegaconf import DictConfig  # noqa: E402
 
 @hydra.main(config_path="conf", config_name="generate", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    from opnet.cli.console import guarded
     from opnet.cli.generate import run
 
-    run(cfg)
+    guarded(run, cfg)  # a user error: one line naming the file or key, exit 2
 
 
 if __name__ == "__main__":

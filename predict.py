@@ -11,14 +11,11 @@ from omegaconf import DictConfig  # noqa: E402
 
 @hydra.main(config_path="conf", config_name="predict", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    from opnet.cli.console import guarded
     from opnet.cli.predict import run
 
-    try:
-        failed = run(cfg)
-    except (ValueError, FileNotFoundError) as e:  # bad input: one clear line, no traceback
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
-    if failed:
+    failed = guarded(run, cfg)  # a user error: one line naming the file or key, exit 2
+    if failed:  # some images of a folder failed (each named on its line)
         sys.exit(1)
 
 

@@ -10,9 +10,10 @@ from omegaconf import DictConfig  # noqa: E402
 
 @hydra.main(config_path="conf", config_name="train", version_base="1.3")
 def main(cfg: DictConfig) -> float | None:
+    from opnet.cli.console import guarded
     from opnet.cli.train import run
 
-    result = run(cfg)
+    result = guarded(run, cfg)  # a user error: one line naming the file or key, exit 2
     return result.get("ap")  # the value an optimizing sweeper would maximize
 
 

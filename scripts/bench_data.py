@@ -27,6 +27,8 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+from opnet.datasets.atomic import append_csv_rows  # noqa: E402
+
 
 class Memoized:
     """Keeps every record read, as the DataModule did before the scene cache (the baseline)."""
@@ -139,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-cache", action="store_true", help="read records from the dataset files")
     parser.add_argument("--memoize", action="store_true", help="keep records in memory (the former behaviour)")
     parser.add_argument("--batch", type=int, default=16)
+    parser.add_argument("--out", type=Path, help="append the rows to this CSV (e.g. results/speed/data.csv)")
     parser.add_argument("--one", nargs=3, type=int, metavar=("SCENES", "WORKERS", "CACHE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.one:
@@ -159,11 +162,14 @@ def main(argv: list[str] | None = None) -> int:
             rows.append((scenes, workers, r))
             print(f"  {scenes} scenes, {workers} workers: {r['images_per_s']:.0f} images/s, "
                   f"peak RSS {r['peak_rss_mb']:.0f} MB", flush=True)  # fmt: skip
-    print(f"\n| scenes | source | DataLoader workers | images/s (one epoch) | peak RSS (MB) |")
+    print("\n| scenes | source | DataLoader workers | images/s (one epoch) | peak RSS (MB) |")
     print("|---|---|---|---|---|")
+    src = "scene cache" if not args.no_cache else "files, records kept" if args.memoize else "dataset files"
     for scenes, workers, r in rows:
-        src = "scene cache" if not args.no_cache else "files, records kept" if args.memoize else "dataset files"
         print(f"| {scenes} | {src} | {workers} | {r['images_per_s']:.0f} | {r['peak_rss_mb']:.0f} |")
+    if args.out is not None:
+        append_csv_rows(args.out, ["scenes", "source", "workers", "images_per_s", "peak_rss_mb"],
+                    [[scenes, src, workers, f"{r['images_per_s']:.0f}", f"{r['peak_rss_mb']:.0f}"] for scenes, workers, r in rows])
     return 0
 
 

@@ -26,6 +26,7 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 
+from opnet.datasets.atomic import append_csv_rows  # noqa: E402
 from opnet.cli.build import build_components, build_datamodule  # noqa: E402
 from opnet.cli.train import resolve_precision  # noqa: E402
 from opnet.paths import config_dir  # noqa: E402
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--warmup", type=int, default=15)
     parser.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides for every arm")
+    parser.add_argument("--out", type=Path, help="append the rows to this CSV (e.g. results/speed/train.csv)")
     args = parser.parse_args(argv)
     import json
 
@@ -96,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|")
     for arm, workers, cache, ips in rows:
         print(f"| {arm} | {workers} | {cache} | {ips:.1f} | {ips / ref:.2f}x |")
+    if args.out is not None:
+        append_csv_rows(args.out, ["arm", "workers", "cache", "images_per_s"],
+                    [[arm, workers, cache, f"{ips:.1f}"] for arm, workers, cache, ips in rows])
     return 0
 
 

@@ -60,3 +60,43 @@ def builtin_dataset(tmp_path_factory: pytest.TempPathFactory):
         return small_builtin_dataset(tmp_path_factory.mktemp(name) / name, name, cycles, drops, seed)
 
     return make
+
+
+def compose_cfg(name: str, overrides: list[str]) -> Any:
+    """The composed Hydra config ``conf/<name>.yaml`` with ``overrides`` (no Hydra run)."""
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        return compose(config_name=name, overrides=overrides)
+
+
+def tiny_train_cfg(data: Path, out: Path, extra: list[str]) -> Any:
+    """A train config of the tiny network on ``data`` (2 steps), writing into ``out``."""
+    from omegaconf import OmegaConf
+
+    cfg = compose_cfg("train", [
+        "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
+        "data.val_fraction=0.25", "data.test_fraction=0.25", "logger=tensorboard",
+        "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
+        "trainer.enable_progress_bar=false", "example_predictions=1", *extra,
+    ])  # fmt: skip
+    OmegaConf.update(cfg, "paths.output_dir", str(out), force_add=True)
+    return cfg
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """4 cycles x 4 drops of the built-in zbracket at 128 x 128."""
+    return small_builtin_dataset(tmp_path_factory.mktemp("data") / "zbracket_tiny", "zbracket", 4, 4, 0)
+
+
+@pytest.fixture(scope="session")
+def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``last.ckpt`` of 2 training steps of the tiny vanilla network on :func:`tiny_dataset`."""
+    from opnet.cli import train as train_cli
+
+    out = tmp_path_factory.mktemp("ckpt_run")
+    train_cli.run(tiny_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "test=false"]))
+    return out / "checkpoints" / "last.ckpt"

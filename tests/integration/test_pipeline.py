@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -14,7 +15,6 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli import eval as eval_cli
@@ -22,30 +22,13 @@ from opnet.cli import predict as predict_cli
 from opnet.cli import train as train_cli
 from opnet.objects import builtin_object
 from opnet.paths import REPO_ROOT, config_dir
-from conftest import small_builtin_dataset
+from conftest import compose_cfg, small_builtin_dataset, tiny_train_cfg
 
 PARAMETERIZATIONS = sorted(p.stem for p in (config_dir() / "parameterization").glob("*.yaml"))
 
 
-@pytest.fixture(scope="module")
-def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return small_builtin_dataset(tmp_path_factory.mktemp("data") / "zbracket_tiny", "zbracket", 4, 4, 0)
-
-
-def _cfg(name: str, overrides: list[str]) -> DictConfig:
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        return compose(config_name=name, overrides=overrides)
-
-
-def _train_cfg(data: Path, out: Path, extra: list[str]) -> DictConfig:
-    cfg = _cfg("train", [
-        "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
-        "data.val_fraction=0.25", "data.test_fraction=0.25", "logger=tensorboard",
-        "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
-        "trainer.enable_progress_bar=false", "example_predictions=1", *extra,
-    ])
-    OmegaConf.update(cfg, "paths.output_dir", str(out), force_add=True)
-    return cfg
+_cfg = compose_cfg
+_train_cfg = tiny_train_cfg
 
 
 @pytest.mark.parametrize("parameterization", PARAMETERIZATIONS)
@@ -68,13 +51,6 @@ def test_train_eval_predict_each_parameterization(parameterization: str, tiny_da
     doc = json.loads((tmp_path / "pred" / f"{png.stem}.json").read_text())
     assert isinstance(doc["poses"], list)
     assert (tmp_path / "pred" / f"{png.stem}.png").is_file()
-
-
-@pytest.fixture(scope="module")
-def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("ckpt_run")
-    train_cli.run(_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "test=false"]))
-    return out / "checkpoints" / "last.ckpt"
 
 
 def _npy_cfg(ckpt: Path, inp: Path, out: Path, width: int, height: int) -> DictConfig:
@@ -272,3 +248,32 @@ def test_several_training_datasets_are_split_by_dataset_and_cycle(tiny_dataset: 
     with pytest.raises(ValueError, match="one data.root"):
         build_datamodule(_train_cfg(tiny_dataset, tmp_path / "r2", [f"data.root=[{tiny_dataset},{other}]",
                                                                      "+data.generate={cycles: 1}"]), builtin_object("zbracket"))  # fmt: skip
+
+
+def test_console_ends_with_the_summary_and_paths_each_line_once(tmp_path: Path) -> None:
+    """train.py from a fresh root (generation included): no line twice, no banners or adverts, and
+    the metric summary and output paths are the last lines, in the run's log file too."""
+    run_dir = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "train.py"), "experiment=quickstart", "data.generate.cycles=10",
+         "data.generate.drops=3", "data.generate.workers=2", "data.generate.scene.resolution=128", "model=tiny",
+         "trainer.max_epochs=1", "trainer.enable_progress_bar=false", "example_predictions=1",
+         f"hydra.run.dir={run_dir}"],
+        capture_output=True, text=True, timeout=400, env={**os.environ, "OPNET_ROOT": str(tmp_path)},
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out_lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
+    for banner in ("pybullet build time", "litlogger", "OpenGL_accelerate", "Traceback"):
+        assert not any(banner in line for line in out_lines), banner
+    messages = [line.split("] - ", 1)[1] for line in out_lines if "] - " in line]
+    assert messages and len(messages) == len(set(messages)), "a log line appears twice"
+    assert sum("Total params" in line for line in out_lines) == 1  # the model summary once
+    stdout = [line for line in proc.stdout.splitlines() if line.strip()]
+    start = max(i for i, line in enumerate(stdout) if re.match(r"test \d+ scenes", line))
+    tail = stdout[start:]  # test N scenes / AP ... / [errors] / run time / 5 paths: nothing after them
+    assert tail[1].strip().startswith("AP ") and "run time" in tail[-6] and len(tail) in (8, 9)
+    assert tail[-5].startswith("run directory : ") and tail[-1].startswith("predictions   : ")
+    summary = json.loads((run_dir / "test" / "summary.json").read_text())
+    assert f"AP {summary['ap']:.4f}" in tail[1]
+    log_text = (run_dir / "train.log").read_text()
+    assert tail[1] in log_text and log_text.rstrip().endswith(tail[-1])

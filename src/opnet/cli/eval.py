@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import build_datamodule, load_checkpoint
+from opnet.cli.console import report, result_summary
 from opnet.data.sample import Batch
 from opnet.datasets.atomic import write_text_atomic
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
@@ -85,6 +87,7 @@ def write_examples(
 
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of eval.py (see conf/eval.yaml)."""
+    started = time.monotonic()
     system, run_cfg = load_checkpoint(cfg.ckpt)
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
     if overrides.get("root") is not None and run_cfg.data.get("generate") is not None:
@@ -94,6 +97,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
     out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)))
-    print((out_dir / "ap_table.md").read_text())
-    print(f"results written to {out_dir}")
+    lines = result_summary(result, str(out_dir / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))
+    report(["", *lines, f"results       : {out_dir}/summary.json, {out_dir}/ap_table.md (per scene), {out_dir}/results/"])
     return result

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from opnet.cli.build import absolutize_paths, build_components, build_datamodule, load_checkpoint
+from opnet.cli.console import format_duration, report, result_summary
 from opnet.cli.eval import evaluate_split
 
 log = logging.getLogger(__name__)
@@ -59,6 +61,7 @@ def build_trainer(cfg: DictConfig) -> L.Trainer:
 
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of train.py. Returns the test summary (empty if ``test=false``)."""
+    started = time.monotonic()
     absolutize_paths(cfg)
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
@@ -75,14 +78,16 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         out = output_dir / "test"
         result = evaluate_split(system, datamodule, "test", out, examples=int(cfg.get("example_predictions", 0)))
         result["checkpoint"] = best
-        print((out / "ap_table.md").read_text())
-        print(
-            f"\nrun directory : {output_dir}\n"
-            f"checkpoint    : {best}\n"
-            f"tensorboard   : tensorboard --logdir {output_dir}\n"
-            f"test results  : {out}/summary.json, {out}/ap_table.md, {out}/results/\n"
-            f"predictions   : {out}/predictions/"
-        )
+        lines = result_summary(result, str(out / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))
+        report(["", *lines,
+                f"run directory : {output_dir}",
+                f"checkpoint    : {best}",
+                f"tensorboard   : tensorboard --logdir {output_dir}",
+                f"test results  : {out}/summary.json, {out}/ap_table.md (per scene), {out}/results/",
+                f"predictions   : {out}/predictions/"])
+    elif trainer.is_global_zero:
+        report(["", f"trained in {format_duration(time.monotonic() - started)} (test=false)",
+                f"run directory : {output_dir}", f"checkpoints   : {output_dir}/checkpoints/"])
     return result
 
 

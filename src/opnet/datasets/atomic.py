@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 
 def _umask() -> int:
@@ -51,3 +52,27 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write UTF-8 ``text`` to ``path`` atomically (``\\n`` line endings on every platform)."""
     write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def append_csv_rows(path: str | Path, header: list[str], rows: list[list[Any]]) -> None:
+    """Append ``rows`` to the CSV ``path`` (created with ``header``), rewriting it atomically.
+
+    Raises:
+        ValueError: the file exists with another header (the message names the file and both).
+    """
+    import csv
+    import io
+
+    path = Path(path)
+    text = path.read_text() if path.is_file() else ""
+    if text:
+        first = next(csv.reader(io.StringIO(text)))
+        if first != header:
+            raise ValueError(f"{path}: header {first} differs from {header}; write to another file")
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    if not text:
+        writer.writerow(header)
+    writer.writerows(rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, text + buf.getvalue())

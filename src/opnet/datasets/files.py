@@ -2,7 +2,33 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
+
+
+def require_regular_file(path: str | Path) -> Path:
+    """``path`` if it is a regular file (or a link to one).
+
+    A FIFO, socket or device named like a data file would block a reader forever or stream without
+    end (``/dev/zero``); those are refused before anything is opened.
+
+    Raises:
+        FileNotFoundError: no such file ("<path>: file not found").
+        ValueError: it exists but is a folder, FIFO, socket or device.
+    """
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError as e:
+        raise FileNotFoundError(f"{path}: file not found") from e
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read file ({e})") from e
+    if not stat.S_ISREG(mode):
+        kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else
+                "a socket" if stat.S_ISSOCK(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a file")
+        raise ValueError(f"{path}: not a regular file ({kind}); expected a data file")
+    return path
 
 
 def read_bytes(path: str | Path) -> bytes:
@@ -10,9 +36,9 @@ def read_bytes(path: str | Path) -> bytes:
 
     Raises:
         FileNotFoundError: no such file ("<path>: file not found").
-        ValueError: the file exists but cannot be read.
+        ValueError: the file exists but cannot be read, or is not a regular file (FIFO, device).
     """
-    path = Path(path)
+    path = require_regular_file(path)
     try:
         return path.read_bytes()
     except FileNotFoundError as e:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from opnet.datasets.files import read_text
 from opnet.geometry.distance import PoseSpace
 from opnet.geometry.symmetry import Symmetry, symmetry_from_rotations
 from opnet.objects.surface import SurfaceMoments, sqrtm_psd, surface_moments
@@ -159,10 +160,7 @@ def _check_units(diameter: float, source: str) -> None:
 
 
 def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise FileNotFoundError(f"{path}: cannot read file ({e.strerror})") from e
+    text = read_text(path)  # regular files only: /dev/zero or a FIFO would never end
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:

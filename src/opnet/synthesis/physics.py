@@ -35,7 +35,11 @@ from dataclasses import dataclass, field
 from typing import Self
 
 import numpy as np
-import pybullet as pb
+
+from opnet.cli.console import quiet_c_output
+
+with quiet_c_output():  # pybullet prints its build time on import, once per process
+    import pybullet as pb
 
 from opnet.geometry.rotations import matrix_to_quaternion
 from opnet.synthesis.collision import CollisionModel

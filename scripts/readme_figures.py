@@ -1,0 +1,312 @@
+"""The README's figures, rendered from the committed results files, so that they cannot drift.
+
+Every number of the README's results section sits between ``<!-- figures:NAME -->`` and
+``<!-- /figures:NAME -->`` markers and is rendered here from a file under ``results/``:
+
+| block | source |
+|---|---|
+| quickstart | ``results/quickstart/summary.json`` (``--run-quickstart`` makes it, pictures included) |
+| defaults | ``results/defaults/defaults.csv`` (``--record-run <run dir> --command ... --wall-s ...``) |
+| learning | ``results/learning/learning.csv`` (``scripts/bench_learning.py``) |
+| ab | ``results/learning/ab.csv`` (``scripts/ab_learning.py --collect``) |
+| speed | ``results/speed/{train,data}.csv`` (``scripts/bench_train.py`` / ``bench_data.py --out``) |
+| benchmarks | ``results/benchmarks.csv`` (each row names the script that printed its figure) |
+| pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
+
+Usage::
+
+    python scripts/readme_figures.py            # rewrite the README's blocks (and the ceiling chart)
+    python scripts/readme_figures.py --check    # exit 1, with a diff, when README and results disagree
+    python scripts/readme_figures.py --run-quickstart   # run the quickstart from an empty root, record it
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import difflib
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "results"
+BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
+QUICKSTART_COMMAND = "python train.py experiment=quickstart"
+
+
+def _csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _duration(seconds: float) -> str:
+    minutes, sec = divmod(int(round(float(seconds))), 60)
+    return f"{minutes} min {sec:02d} s" if minutes else f"{sec} s"
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------- blocks
+
+
+def block_quickstart(results: Path) -> str:
+    q = json.loads((results / "quickstart" / "summary.json").read_text())
+    return (
+        f"**Quickstart** — `{q['command']}` from an empty `outputs/`: generates {q['cycles']} cycles of the "
+        f"built-in stepped `{q['object']}` ({q['dataset_scenes']} scenes at {q['resolution']} × {q['resolution']}, "
+        f"up to {q['drops']} parts), trains the `{q['model']}` DenseNet-BC ({q['params_m']:.2f} M parameters) with "
+        f"opnet's defaults and the {q['parameterization']} parameterization for {q['epochs']} epochs, and evaluates "
+        f"the best checkpoint on its held-out cycles ({q['scenes']} scenes): **test AP {q['ap']:.4f}** "
+        f"(MAP {q['map']:.4f}, F1 {q['f1']:.4f}, {100 * q['found']:.1f} % of the parts found), "
+        f"**{_duration(q['wall_s'])}** end to end on {q['machine']}. The console ends with that summary and the "
+        f"paths of the checkpoint, TensorBoard logs, AP table and example prediction PNGs "
+        f"([its last lines](results/quickstart/console_tail.txt)).\n"
+    )
+
+
+def block_defaults(results: Path) -> str:
+    rows = [[f"`{r['command']}`", f"**{float(r['ap']):.3f}**", f"{float(r['map']):.3f}", f"{float(r['f1']):.3f}",
+             f"{100 * float(r['found']):.1f}", r["scenes"], _duration(r["wall_s"]) + (f" ({r['note']})" if r["note"] else "")]
+            for r in _csv(results / "defaults" / "defaults.csv")]  # fmt: skip
+    return _table(["command", "test AP", "MAP", "F1", "found %", "test scenes", "wall time"], rows) + "\n"
+
+
+def block_learning(results: Path) -> str:
+    rows = []
+    for r in _csv(results / "learning" / "learning.csv"):
+        f = {k: float(r[k]) for k in ("train_minutes", "ap", "target", "found", "position", "orientation",
+                                      "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50")}  # fmt: skip
+        rows.append([r["object"], f"{r['parameterization']}, {r['rotation']}", f"{f['train_minutes']:.1f}",
+                     f"**{f['ap']:.3f}**", f"{f['target']:g}", f"{100 * f['found']:.1f}", f"{100 * f['position']:.1f}",
+                     f"{100 * f['orientation']:.1f}", f"{f['confident_fp_per_scene']:.1f}", f"{f['t_err_mm_p50']:.1f}",
+                     f"{f['r_err_deg_p50']:.1f}"])  # fmt: skip
+    header = ["object", "parameterization, rotation", "train min", "**test AP**", "target", "found %",
+              "missed: position %", "orientation %", "conf. FP / scene", "t p50 mm", "r p50 °"]
+    return _table(header, rows) + "\n"
+
+
+def block_ab(results: Path) -> str:
+    rows = [[r["object"], r["arm"], r["change"], f"{float(r['ap']):.3f}", f"{float(r['f1']):.3f}"]
+            for r in _csv(results / "learning" / "ab.csv")]
+    return _table(["object", "arm", "what changes", "test AP", "F1"], rows) + "\n"
+
+
+def block_speed(results: Path) -> str:
+    names = {"fp32": "fp32 (before)", "cl": "fp32 + channels-last", "bf16": "bf16 autocast",
+             "bf16+cl": "bf16 + channels-last (default here)"}
+    train = _csv(results / "speed" / "train.csv")
+    ref = float(train[0]["images_per_s"])
+    left = []
+    for r in train:
+        ips = float(r["images_per_s"])
+        name = names.get(r["arm"], r["arm"]) if r["cache"] == "true" else f"{r['arm']}, files instead of the cache"
+        left.append([name, f"{ips:.1f}" + (f" ({ips / ref:.2f}×)" if r["cache"] == "true" and ips != ref else "")])
+    right = [[f"{int(r['scenes'])} scenes, {r['source']}", r["images_per_s"], f"{r['peak_rss_mb']} MB"]
+             for r in _csv(results / "speed" / "data.csv")]
+    rows = []
+    for i in range(max(len(left), len(right))):
+        a = left[i] if i < len(left) else ["", ""]
+        b = right[i] if i < len(right) else ["", "", ""]
+        rows.append([*a, "", *b])
+    return _table(["training arm", "images/s", "", "data path, one epoch", "images/s", "peak RSS"], rows) + "\n"
+
+
+def block_benchmarks(results: Path) -> str:
+    rows = [[f"`{r['command']}`", r["what"], r["figure"], r["target"]] for r in _csv(results / "benchmarks.csv")]
+    return _table(["script", "what", "figure", "target"], rows) + "\n"
+
+
+PICTURES = [
+    ("quickstart/overlay.png", "Quickstart: the densest held-out scene, each estimated part's model drawn on the depth image"),
+    ("quickstart/pr_curve.png", "Quickstart: the test split's precision-recall curve (Brégier protocol)"),
+    ("learning/curves.png", "Learning benchmark: held-out AP against training minutes, four objects"),
+    ("ceiling/ceiling.png", "Parameterization ceiling: the AP of a perfect network per parameterization and object"),
+]
+
+
+def block_pictures(results: Path) -> str:
+    cells = []
+    for rel, caption in PICTURES:
+        if not (results / rel).is_file():
+            raise FileNotFoundError(f"{results / rel}: picture missing (python scripts/readme_figures.py [--run-quickstart])")
+        cells.append(f'<img src="results/{rel}" width="420" alt="{caption}"><br><sub>{caption}</sub>')
+    return ("<table><tr>" + "".join(f"<td>{c}</td>" for c in cells[:2]) + "</tr>\n<tr>"
+            + "".join(f"<td>{c}</td>" for c in cells[2:]) + "</tr></table>\n")
+
+
+BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning": block_learning, "ab": block_ab,
+          "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures}
+
+
+def render(readme: str, results: Path = RESULTS) -> str:
+    """The README with every figures block rendered from ``results``; unknown or missing blocks are errors."""
+    found = [m.group("name") for m in BLOCK.finditer(readme)]
+    unknown = sorted(set(found) - set(BLOCKS))
+    missing = sorted(set(BLOCKS) - set(found))
+    if unknown or missing:
+        raise ValueError(f"README figures blocks: unknown {unknown}, missing {missing}")
+    return BLOCK.sub(lambda m: m.group(1) + BLOCKS[m.group("name")](results) + m.group(4), readme)
+
+
+# ------------------------------------------------------------------------------------------ pictures
+
+
+def draw_ceiling_chart(results: Path) -> Path:
+    """Grouped bars of the ceiling AP (full view) per parameterization and object."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
+    for ax, view in zip(axes, ("full_view", "close_view")):
+        rows = _csv(results / "ceiling" / view / "ceiling.csv")
+        params = list(dict.fromkeys(r["parameterization"] for r in rows))
+        order = ["vanilla", "eve", "ap", "z", "mp", "si"]
+        params = [p for p in order if p in params] + [p for p in params if p not in order]
+        objects = list(dict.fromkeys(r["object"] for r in rows))
+        ap = {(r["parameterization"], r["object"]): float(r["ap"]) for r in rows}
+        width = 0.8 / len(objects)
+        for j, obj in enumerate(objects):
+            xs = [i + (j - (len(objects) - 1) / 2) * width for i in range(len(params))]
+            ax.bar(xs, [ap.get((p, obj), 0.0) for p in params], width, label=obj)
+        ax.set_xticks(range(len(params)), params)
+        ax.set_ylim(0.9, 1.005)
+        ax.set_title(view.replace("_", " "))
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].set_ylabel("AP of a perfect network")
+    axes[1].legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    out = results / "ceiling" / "ceiling.png"
+    fig.savefig(out, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+    return out
+
+
+# ------------------------------------------------------------------------------------------ recording
+
+
+def record_run(run_dir: Path, command: str, wall_s: float, note: str, into: Path) -> None:
+    """Append a train run's test summary as a row of ``into`` (results/defaults/defaults.csv)."""
+    sys.path.insert(0, str(REPO / "src"))
+    from opnet.datasets.atomic import append_csv_rows
+
+    d = json.loads((run_dir / "test" / "summary.json").read_text())
+    g = d["diagnostics"]
+    append_csv_rows(into, ["command", "object", "scenes", "ap", "map", "f1", "found", "wall_s", "note"],
+                    [[command, d["object"], d["scenes"], f"{d['ap']:.4f}", f"{d['map']:.4f}", f"{d['f1']:.4f}",
+                      f"{g['matched'] / max(g['to_find'], 1):.4f}", round(wall_s), note]])  # fmt: skip
+
+
+def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
+    """Run the README's quickstart in an empty root, as a new user would, and record its figures,
+    its console's last lines, a prediction overlay of the densest test scene and the PR curve."""
+    import yaml
+
+    root = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="opnet_quickstart_"))
+    root.mkdir(parents=True, exist_ok=True)
+    run_dir = root / "run"
+    env = {**os.environ, "OPNET_ROOT": str(root), "PYOPENGL_PLATFORM": "egl"}
+    start = time.monotonic()
+    proc = subprocess.run([sys.executable, str(REPO / "train.py"), "experiment=quickstart", f"hydra.run.dir={run_dir}"],
+                          cwd=REPO, env=env, capture_output=True, text=True)
+    wall = time.monotonic() - start
+    if proc.returncode:
+        raise RuntimeError(f"the quickstart failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+    out = results / "quickstart"
+    out.mkdir(parents=True, exist_ok=True)
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    tail = lines[-10:]
+    (out / "console_tail.txt").write_text("\n".join(line.replace(str(root), "<root>") for line in tail) + "\n")
+    summary = json.loads((run_dir / "test" / "summary.json").read_text())
+    cfg = yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text())
+    gen = cfg["data"]["generate"]
+    ckpt = sorted((run_dir / "checkpoints").glob("epoch*.ckpt"))[-1]
+    import torch
+
+    params = sum(v.numel() for k, v in torch.load(ckpt, map_location="cpu", weights_only=True)["state_dict"].items()
+                 if k.startswith("backbone.") and "running_" not in k and "num_batches" not in k)
+    data_root = Path(cfg["data"]["root"].replace("${paths.root_dir}", str(root)))
+    data_root = next((root / "outputs" / "data").iterdir()) if not data_root.is_dir() else data_root
+    diag = summary["diagnostics"]
+    q = {
+        "command": QUICKSTART_COMMAND, "ap": summary["ap"], "map": summary["map"], "f1": summary["f1"],
+        "recall_at_p50": summary["recall_at_p50"], "found": diag["matched"] / max(diag["to_find"], 1),
+        "scenes": summary["scenes"], "wall_s": round(wall, 1), "object": cfg["object"]["name"],
+        "cycles": gen["cycles"], "drops": gen["drops"], "resolution": gen["scene"]["resolution"],
+        "dataset_scenes": len(list((data_root / "p_depth").rglob("*.png"))), "model": "small",
+        "params_m": params / 1e6, "parameterization": "vanilla", "epochs": cfg["trainer"]["max_epochs"],
+        "machine": f"this {os.cpu_count()}-core CPU machine", "date": time.strftime("%Y-%m-%d"),
+        "checkpoint": ckpt.name,
+    }  # fmt: skip
+    (out / "summary.json").write_text(json.dumps(q, indent=1) + "\n")
+    # the densest test scene (most parts; the first such), predicted with predict.py as a user would
+    names = sorted(summary["per_scene"])
+    densest = max(names, key=lambda n: (int(n.rsplit("_", 1)[1]), -names.index(n)))
+    cycle, drop = densest.rsplit("_", 1)
+    png = data_root / "p_depth" / cycle / f"{drop}_depth_uint16.png"
+    pred = root / "predict"
+    subprocess.run([sys.executable, str(REPO / "predict.py"), f"ckpt={ckpt}", f"input={png}", f"out={pred}",
+                    "overwrite=true", f"hydra.run.dir={root / 'predict_run'}"], cwd=REPO, env=env, check=True,
+                   capture_output=True)  # fmt: skip
+    shutil.copyfile(pred / f"{png.stem}.png", out / "overlay.png")
+    subprocess.run(["opnet-evaluate", "--gt", "test/gt", "--results", "test/results", "--object", q["object"],
+                    "--plot", str((out / "pr_curve.png").resolve())], cwd=run_dir, check=True, capture_output=True)
+    if not keep:
+        shutil.rmtree(root, ignore_errors=True)
+    return q
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="only compare; exit 1 when the README differs")
+    parser.add_argument("--readme", type=Path, default=REPO / "README.md")
+    parser.add_argument("--results", type=Path, default=RESULTS)
+    parser.add_argument("--run-quickstart", action="store_true", help="run the quickstart and record its figures first")
+    parser.add_argument("--keep", type=Path, help="with --run-quickstart: run in this folder and keep it")
+    parser.add_argument("--record-run", type=Path, metavar="RUN_DIR", help="append a train run to results/defaults/defaults.csv")
+    parser.add_argument("--command", help="with --record-run: the command that made the run")
+    parser.add_argument("--wall-s", type=float, help="with --record-run: its wall time in seconds")
+    parser.add_argument("--note", default="", help="with --record-run: a remark for the table")
+    args = parser.parse_args(argv)
+    if args.record_run:
+        if not args.command or args.wall_s is None:
+            parser.error("--record-run needs --command and --wall-s")
+        record_run(args.record_run, args.command, args.wall_s, args.note, args.results / "defaults" / "defaults.csv")
+    if args.run_quickstart:
+        q = run_quickstart(args.results, args.keep)
+        print(f"quickstart: test AP {q['ap']:.4f}, {_duration(q['wall_s'])}")
+    readme = args.readme.read_text()
+    if not args.check:
+        draw_ceiling_chart(args.results)
+    rendered = render(readme, args.results)
+    if args.check:
+        if rendered != readme:
+            sys.stdout.writelines(difflib.unified_diff(readme.splitlines(True), rendered.splitlines(True),
+                                                       "README.md", "rendered from results/"))  # fmt: skip
+            print("\nREADME figures differ from results/: run python scripts/readme_figures.py", file=sys.stderr)
+            return 1
+        print("README figures match results/")
+        return 0
+    if rendered != readme:
+        args.readme.write_text(rendered)
+        print(f"{args.readme}: figures updated")
+    else:
+        print(f"{args.readme}: figures already up to date")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,125 @@
+"""Every command of the README's task table runs as printed, on tiny data.
+
+The commands are read from README.md itself; each placeholder (``<ckpt>``, ``<dir>``, ...) is
+replaced by a real path of this test's workspace, optional ``[...]`` parts are kept, and only
+size overrides (fewer cycles, one epoch, the tiny network, a CPU trainer) are appended. A README
+row without a runner here fails the test, so the table and this test cannot part ways.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from opnet.datasets.png import encode_depth, write_png
+from opnet.paths import REPO_ROOT
+
+TINY_DATA = ["data.generate.cycles=6", "data.generate.drops=3", "data.generate.workers=1",
+             "data.generate.scene.resolution=128"]
+TINY_FIT = ["trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
+            "trainer.enable_progress_bar=false", "example_predictions=1"]
+
+
+def readme_commands() -> dict[str, str]:
+    """task -> the first `command` of its row in the README's task table."""
+    text = (REPO_ROOT / "README.md").read_text()
+    table = text.split("| task | command |")[1].split("\n\n")[0]
+    rows = {}
+    for line in table.strip().splitlines()[1:]:
+        cells = line.split("|")
+        task, command = cells[1].strip(), re.search(r"`([^`]+)`", cells[2]).group(1)
+        rows[task] = command
+    return rows
+
+
+def fill(command: str, values: list[tuple[str, str]]) -> list[str]:
+    """The README command with its placeholders replaced in order of appearance and the optional
+    ``[...]`` parts kept, as an argv."""
+    for placeholder, value in values:
+        assert placeholder in command, f"{placeholder} not in {command!r}"
+        command = command.replace(placeholder, value, 1)
+    leftover = re.findall(r"<[^>]+>", command)
+    assert not leftover, f"unfilled placeholders {leftover} in {command!r}"
+    command = command.replace("[", "").replace("]", "")
+    argv = shlex.split(command)
+    if argv[0] == "python":
+        argv[0] = sys.executable
+    return argv
+
+
+@pytest.mark.slow
+def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
+    rows = readme_commands()
+    ws = tmp_path
+    # a fresh machine: no reference data beside the clone (the README's commands must not need it)
+    env = {**os.environ, "OPNET_ROOT": str(ws), "PYOPENGL_PLATFORM": "egl", "OPNET_SHARED": str(ws / "no_shared")}
+    done: set[str] = set()
+
+    def run(task: str, values: list[tuple[str, str]], extra: list[str] = ()) -> subprocess.CompletedProcess:
+        argv = [*fill(rows[task], values), *extra]
+        proc = subprocess.run(argv, cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, f"README command failed: {shlex.join(argv)}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+        assert "Traceback" not in proc.stdout + proc.stderr
+        done.add(task)
+        return proc
+
+    qs_dir = ws / "qs_run"
+    qs_extra = [*TINY_DATA, "model=tiny", *TINY_FIT]
+    out = run("quickstart (data → train → test → predictions)", [], [*qs_extra, f"hydra.run.dir={qs_dir}"]).stdout
+    assert "run directory : " in out and (qs_dir / "test" / "summary.json").is_file()
+    ckpt = qs_dir / "checkpoints" / "last.ckpt"
+    data = next((ws / "outputs" / "data").glob("shaft_*"))
+
+    run("resume an interrupted run", [("<same overrides>", shlex.join(["experiment=quickstart", *qs_extra])),
+                                      ("<run dir>", str(qs_dir))], ["trainer.max_epochs=2"])
+    run("train a parameterization", [], [*TINY_DATA, *TINY_FIT, "model=tiny", f"hydra.run.dir={ws / 'eve_run'}"])
+
+    run("sweep the paper's six variants", [], [*TINY_DATA, *TINY_FIT, "model=tiny"])
+    sweep = next((ws / "outputs" / "train" / "multiruns").iterdir())
+    assert len([p for p in sweep.iterdir() if p.is_dir()]) == 6
+    run("compare a sweep (Table I layout)", [("outputs/train/multiruns/<date_time>", str(sweep))])
+    assert (sweep / "comparison.md").is_file()
+    # TensorBoard is a server: its command is checked to exist and the sweep to hold event files
+    assert fill(rows["TensorBoard over a sweep"], [("outputs/train/multiruns/<date_time>", str(sweep))])[0] == "tensorboard"
+    assert subprocess.run(["tensorboard", "--version_tb"], capture_output=True, timeout=120).returncode == 0
+    assert len(list(sweep.rglob("events.out.tfevents*"))) >= 6
+    done.add("TensorBoard over a sweep")
+
+    run("evaluate a checkpoint", [("<run dir>", str(qs_dir)), ("<other data>", str(data)),
+                                  ("<score all of other data>", str(data))], ["examples=0"])
+
+    run("estimate poses", [("<ckpt>", str(ckpt)), ("<depth png, .npy, or folder>", str(data / "p_depth")),
+                           ("<dir>", str(ws / "pred"))])
+    assert len(list((ws / "pred").rglob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
+    frame = ws / "camera_frame.png"  # a frame of "your camera": no camera file anywhere above it
+    depth = np.full((120, 160), 1.1, np.float32)
+    depth[40:80, 60:100] = 1.0
+    write_png(frame, np.round(depth * 1000).astype(np.uint16))
+    printed = run("estimate poses on your camera's 16-bit PNG",
+                  [("<ckpt>", str(ckpt)), ("<png or folder>", str(frame)), ("<px>", "150"), ("<px>", "150"),
+                   ("<px>", "79.5"), ("<px>", "59.5"), ("<m>", "0.5"), ("<m>", "1.5")],
+                  [f"out={ws / 'pred_camera'}"]).stdout
+    assert "camera: fx=150 fy=150 cx=79.5 cy=59.5 160x120" in printed and "depth = value x 0.001 m" in printed
+    assert (ws / "pred_camera" / "camera_frame.json").is_file()
+
+    gen = ws / "generated"
+    run("generate data", [("<dir>", str(gen))], ["cycles=2", "drops=3", "scene.resolution=128", "previews=0"])
+    assert (gen / "parameter.json").is_file()
+
+    run("score any results", [("<dir>", str(qs_dir / "test" / "gt")), ("<dir>", str(qs_dir / "test" / "results")),
+                              ("<json>", str(data / "poseutils.json"))],
+        ["--out", str(ws / "summary.json"), "--plot", str(ws / "pr.png")])  # the README's relative names: in ws
+    assert (ws / "pr.png").stat().st_size > 1000
+    run("parameterization ceiling", [("<dir>", str(gen)), ("<dir>", str(data)), ("<dir>", str(ws / "ceiling"))])
+    assert (ws / "ceiling" / "ceiling.csv").is_file()
+
+    run("paper network on a GPU", [], ["trainer=cpu", "trainer.precision=32", *TINY_DATA, *TINY_FIT,
+                                       "data.batch_size=2", "data.num_workers=0", f"hydra.run.dir={ws / 'paper_run'}"])
+    assert set(rows) == done, f"README rows without a runner here: {sorted(set(rows) - done)}"
