@@ -270,20 +270,27 @@ def test_bad_parameter_json_is_refused(tmp_path: Path) -> None:
 
 @settings(max_examples=25, deadline=None, derandomize=True)
 @given(
-    values=st.lists(
-        st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=14, max_size=14
-    )
+    quaternion=st.lists(st.floats(-1.0, 1.0, width=64), min_size=4, max_size=4).filter(
+        lambda q: float(np.linalg.norm(q)) > 0.1),
+    t=st.lists(st.floats(-50.0, 50.0, width=64), min_size=3, max_size=3),
+    visibility=st.lists(st.floats(0.0, 2.0, width=64), min_size=2, max_size=2),
 )
-def test_csv_floats_survive_exactly(tmp_path_factory: pytest.TempPathFactory, values: list) -> None:
+def test_csv_floats_survive_exactly(tmp_path_factory: pytest.TempPathFactory, quaternion: list, t: list,
+                                    visibility: list) -> None:
+    """Any float64 pose (the rotation from any quaternion, all 17 digits) reads back bit for bit;
+    values outside the plausible ranges are refused (tests/unit/test_input_validation.py)."""
     path = tmp_path_factory.mktemp("csv") / "001.csv"
-    v = np.array(values)
+    w, x, y, z = np.asarray(quaternion) / np.linalg.norm(quaternion)
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
     gt = IPAGroundTruth(
         instance_id=np.array([1]),
         object_class=np.array([2]),
-        R_cam_obj=v[:9].reshape(1, 3, 3),
-        t_cam_obj=v[9:12].reshape(1, 3),
-        visibility_o=v[12:13],
-        visibility_p=v[13:14],
+        R_cam_obj=R.reshape(1, 3, 3),
+        t_cam_obj=np.array(t).reshape(1, 3),
+        visibility_o=np.array(visibility[:1]),
+        visibility_p=np.array(visibility[1:]),
     )
     write_ipa_csv(path, gt)
     back = read_ipa_csv(path)

@@ -178,8 +178,12 @@ def test_symmetry_specs() -> None:
     assert Symmetry.from_spec("cyclic3").group().shape == (3, 3, 3)
     assert Symmetry.from_spec({"kind": "revolution"}).euler3_period is None
     assert Symmetry.from_spec("cyclic2").euler3_period == pytest.approx(np.pi)
-    with pytest.raises(ValueError, match="order >= 2"):
+    with pytest.raises(ValueError, match="integer order in 2..360"):
         Symmetry("cyclic", order=1)
+    with pytest.raises(ValueError, match="integer order in 2..360"):  # wrote a 240 MB poseutils.json
+        Symmetry.from_spec({"kind": "cyclic", "order": 10**6})
+    with pytest.raises(ValueError, match="must be a whole number, got 2.5"):  # silently became 2
+        Symmetry.from_spec({"kind": "cyclic", "order": 2.5})
     with pytest.raises(ValueError, match="not closed"):
         Symmetry("finite", rotations=[np.eye(3), axis_angle_rotation("Z", np.array(1.0))])
     with pytest.raises(ValueError, match="unknown symmetry keys"):

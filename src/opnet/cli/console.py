@@ -102,22 +102,35 @@ def debug_enabled() -> bool:
     return os.environ.get("HYDRA_FULL_ERROR", "") not in ("", "0")
 
 
+def user_error_in(e: BaseException) -> BaseException | None:
+    """The user error behind ``e``: ``e`` itself, or the cause Hydra's instantiation wrapped
+    (``InstantiationException`` keeps the original as ``__cause__``); None for a program error."""
+    seen = 0
+    while e is not None and seen < 10:
+        if isinstance(e, USER_ERRORS):
+            return e
+        e = e.__cause__ or e.__context__
+        seen += 1
+    return None
+
+
 def guarded(run: Callable[[Any], Any], cfg: Any) -> Any:
     """``run(cfg)``; a user error prints one line on stderr and exits 2 (traceback with HYDRA_FULL_ERROR=1)."""
     tidy_logging()
     try:
         return run(cfg)
-    except USER_ERRORS as e:
-        if debug_enabled():
-            raise
-        message = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(2)
     except MemoryError:
         if debug_enabled():
             raise
         print("error: out of memory (an input asks for an implausibly large allocation; "
               "HYDRA_FULL_ERROR=1 shows where)", file=sys.stderr)
+        sys.exit(2)
+    except Exception as e:
+        cause = user_error_in(e)
+        if cause is None or debug_enabled():
+            raise
+        message = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
+        print(f"error: {message}", file=sys.stderr)
         sys.exit(2)
 
 

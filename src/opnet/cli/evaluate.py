@@ -13,6 +13,7 @@ status 2 and a one-line message naming the file.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import warnings
 from collections.abc import Sequence
@@ -61,6 +62,9 @@ def resolve_object(name: str) -> ObjectModel:
     """
     from omegaconf import OmegaConf  # only this path needs it
 
+    if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", name) or ".." in name:
+        raise ValueError(f"--object {name!r}: a name of conf/object/ or a built-in, not a path "
+                         f"(available: {', '.join(object_names())}); for another file give --poseutils")
     config = config_dir() / "object" / f"{name}.yaml"
     if config.is_file():
         paths = {"shared_dir": str(shared_dir())}

@@ -44,7 +44,7 @@ from opnet.datasets.files import read_bytes, read_text, require_regular_file
 from opnet.datasets.ipa_params import read_parameters
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.sileane import read_camera_params
-from opnet.geometry.camera import Camera
+from opnet.geometry.camera import MAX_CLIP_END_M, Camera
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -53,8 +53,6 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = {".png", ".npy"}
 INTRINSIC_KEYS = ("fx", "fy", "cx", "cy", "clip_start", "clip_end")
 CAMERA_KEYS = (*INTRINSIC_KEYS, "width", "height", "depth_scale")
-#: beyond this the clip planes are surely not metres (a bin-picking camera works at 0.2..5 m)
-MAX_CLIP_END_M = 50.0
 
 
 @dataclass
@@ -149,10 +147,12 @@ def _camera_from_given(path: Path, given: GivenCamera, width: int, height: int) 
             raise ValueError(f"{path}: image is {width}x{height} but {given.describe(key)}")
     v = given.values
     origins = sorted(set(given.origin[k] for k in INTRINSIC_KEYS))
+    source = f"{path}: camera from {' and '.join(origins)}"
     try:
-        return Camera(v["fx"], v["fy"], v["cx"], v["cy"], width, height, v["clip_start"], v["clip_end"])
+        cam = Camera(v["fx"], v["fy"], v["cx"], v["cy"], width, height, v["clip_start"], v["clip_end"])
     except ValueError as e:
-        raise ValueError(f"{path}: camera from {' and '.join(origins)}: {e}") from None
+        raise ValueError(f"{source}: {e}") from None
+    return cam.check_plausible(source)
 
 
 def _check_agrees(path: Path, cam: Camera, source: Path, given: GivenCamera) -> None:

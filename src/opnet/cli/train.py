@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +29,24 @@ def resolve_ckpt_path(ckpt_path: str | None, output_dir: Path) -> str | None:
         if not last.is_file():
             log.warning("ckpt_path=last but %s does not exist: starting from scratch", last)
             return None
-        return str(last)
+        return check_checkpoint_file(last)
     if not Path(ckpt_path).is_file():
         raise FileNotFoundError(f"{ckpt_path}: checkpoint not found")
-    return ckpt_path
+    return check_checkpoint_file(Path(ckpt_path))
+
+
+def check_checkpoint_file(path: Path) -> str:
+    """``path`` if it is a complete checkpoint archive (torch's zip format, every member's CRC
+    intact); a file cut off by a crash or a full disk is named instead of failing deep in torch."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        raise ValueError(f"{path}: truncated or corrupt checkpoint ({e}); resume from another one, "
+                         "or delete it to start from scratch") from None
+    if bad is not None:
+        raise ValueError(f"{path}: corrupt checkpoint (member {bad} fails its CRC check)")
+    return str(path)
 
 
 def cpu_has_native_bf16() -> bool:

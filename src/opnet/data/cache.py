@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from opnet.data.preprocess import network_camera, resize_segmentation, _depth_canvas, _resize_weighted, square_canvas
-from opnet.datasets.atomic import write_bytes_atomic, write_text_atomic
+from opnet.datasets.atomic import write_bytes_atomic, write_text_if_changed
 from opnet.datasets.record import SceneRecord
 from opnet.geometry.camera import Camera
 
@@ -129,7 +129,21 @@ class CacheInfo:
 
 
 def default_cache_dir(root: str | Path, size: int) -> Path:
-    return Path(root) / f"cache_s{size}"
+    """``<root>/cache_s<size>`` (also for a dataset still to be generated); for a dataset on
+    read-only storage without a complete cache there, a folder of the user cache ($OPNET_CACHE or
+    ~/.cache/opnet) named by the dataset."""
+    local = Path(root) / f"cache_s{size}"
+    if not Path(root).exists() or os.access(root, os.W_OK) or (local / "cache.json").is_file() and not _incomplete(local):
+        return local
+    from opnet.synthesis.collision import default_cache_dir as user_cache
+
+    digest = hashlib.sha1(str(Path(root).resolve()).encode()).hexdigest()[:16]
+    return user_cache() / "scenes" / f"{Path(root).name}_{digest}_s{size}"
+
+
+def _incomplete(path: Path) -> bool:
+    info = CacheInfo.read(path)
+    return info is None or any(not _shard_stem(path, s).with_suffix(".npz").is_file() for s in range(info.num_shards))
 
 
 def _shard_stem(path: Path, shard: int) -> Path:
@@ -207,7 +221,7 @@ def build_scene_cache(
         for f in path.glob("shard_*"):
             f.unlink()
     path.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path / "cache.json", info.to_json())
+    write_text_if_changed(path / "cache.json", info.to_json())  # a complete cache is opened without writes
     todo = [s for s in range(info.num_shards) if not _shard_stem(path, s).with_suffix(".npz").is_file()]
     if todo:
         log.info("%s: caching %d scenes at %d px (%d shards)", path, info.num_scenes, size, len(todo))

@@ -28,6 +28,7 @@ from opnet.datasets.record import SceneRecord
 from opnet.objects.model import ObjectModel
 
 log = logging.getLogger(__name__)
+CHECK_MODES = ("fast", "full", "off")
 
 
 class SceneSamples(Dataset):
@@ -161,6 +162,9 @@ class OPNetDataModule(L.LightningDataModule):
         cache_workers: processes that build the cache.
         test_root: a separate dataset (or a list) whose scenes, all of them, form the test split;
             the ``test_fraction`` of ``root`` is then not held out.
+        check: before anything is read, check every dataset (:mod:`opnet.datasets.check`):
+            ``"fast"`` (headers and sizes, seconds), ``"full"`` (every file decoded and
+            validated) or ``"off"``. A problem stops the run at once, naming the file.
     """
 
     def __init__(
@@ -183,8 +187,12 @@ class OPNetDataModule(L.LightningDataModule):
         cache_dir: str | Path | None = None,
         cache_workers: int = 1,
         test_root: str | Path | Sequence[str | Path] | None = None,
+        check: str = "fast",
     ) -> None:
         super().__init__()
+        if check not in CHECK_MODES:
+            raise ValueError(f"data.check={check!r}, expected one of {CHECK_MODES}")
+        self.check = check
         self.obj = obj
         self.roots = as_paths(root)
         if not self.roots:
@@ -223,9 +231,24 @@ class OPNetDataModule(L.LightningDataModule):
             scene = SceneConfig.from_dict(dict(g.pop("scene", None) or {}))
             log.info("preparing synthetic dataset at %s", self.root)
             generate_dataset(self.obj, self.root, scene=scene, object_config=self.object_config, **g)
+        if self.check != "off":
+            self._check_datasets()
         if self.cache:
             self._open_sources(self.roots)
             self._open_sources(self.test_roots)
+
+    def _check_datasets(self) -> None:
+        """Every file of every dataset, before the first is used (fast: headers and sizes)."""
+        from opnet.datasets.check import check_dataset
+
+        for root in [*self.roots, *self.test_roots]:
+            report = check_dataset(root, fast=self.check == "fast")
+            log.info("dataset check (%s): %s", self.check, report.summary(0).replace("\n", " "))
+            if not report.ok:
+                raise ValueError(
+                    f"{report.problems[0]} ({len(report.problems)} problem(s) in {root}; all of them: "
+                    f"python -m opnet.datasets.check {root})"
+                )
 
     def _open_sources(self, roots: Sequence[Path]) -> Any:
         """The datasets (one, or concatenated), or their scene caches (built or completed first)."""

@@ -54,6 +54,21 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
+def write_text_if_changed(path: str | Path, text: str) -> bool:
+    """Write ``text`` atomically unless ``path`` already holds exactly it; returns whether it wrote.
+
+    A complete dataset or cache on read-only storage is then used without a single write.
+    """
+    path = Path(path)
+    try:
+        if path.is_file() and path.read_bytes() == text.encode("utf-8"):
+            return False
+    except OSError:
+        pass
+    write_text_atomic(path, text)
+    return True
+
+
 def append_csv_rows(path: str | Path, header: list[str], rows: list[list[Any]]) -> None:
     """Append ``rows`` to the CSV ``path`` (created with ``header``), rewriting it atomically.
 

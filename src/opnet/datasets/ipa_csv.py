@@ -20,6 +20,7 @@ import numpy as np
 
 from opnet.datasets.atomic import write_text_atomic
 from opnet.datasets.files import read_text
+from opnet.datasets.validate import MAX_IPA_VISIBILITY, check_poses, check_range
 from opnet.geometry.frames import camera_to_ipa, ipa_to_camera
 
 CSV_HEADER = (
@@ -28,6 +29,8 @@ CSV_HEADER = (
     "rot_z_axis_1,rot_z_axis_2,rot_z_axis_3,visibility_score_o,visibility_score_p"
 ).split(",")
 BIN_ID = 0
+#: the CSV id is the object's value in the uint8 segmentation PNG (255 = background)
+MAX_CSV_ID = 254
 
 
 @dataclass
@@ -59,10 +62,12 @@ def read_ipa_csv(path: str | Path) -> IPAGroundTruth:
     Raises:
         FileNotFoundError: no such file.
         ValueError: missing header, wrong column count, unparsable or non-finite value, duplicate
-            id; the message names the file and the line.
+            or out-of-range id, a rotation that is not one (scaled, a reflection), an implausible
+            translation or visibility (:mod:`opnet.datasets.validate`); the message names the file
+            and the line.
     """
     path = Path(path)
-    text = read_text(path)
+    text = read_text(path).removeprefix("\ufeff")  # a UTF-8 byte-order mark (spreadsheet exports)
     rows = [
         (i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(text))) if any(c.strip() for c in r)
     ]
@@ -86,10 +91,20 @@ def read_ipa_csv(path: str | Path) -> IPAGroundTruth:
             )
         if ids[-1] in ids[:-1]:
             raise ValueError(f"{path}: line {line}: duplicate id {ids[-1]}")
+        if ids[-1] > MAX_CSV_ID:
+            raise ValueError(f"{path}: line {line}: id {ids[-1]} exceeds {MAX_CSV_ID} (ids are the values of the "
+                             "8-bit segmentation image: 0 = bin, 255 = background)")
         numbers.append(values)
-    return _ground_truth(
-        np.array(ids, np.int64), np.array(classes, np.int64), np.array(numbers).reshape(-1, 14)
-    )
+    table = np.array(numbers).reshape(-1, 14)
+    lines = [line for line, _ in rows[1:]]
+
+    def where(i: int) -> str:
+        return f"{path}: line {lines[i]}"
+
+    check_poses(table[:, 3:12].reshape(-1, 3, 3), table[:, 0:3], where)
+    for column, name in ((12, "visibility_score_o"), (13, "visibility_score_p")):
+        check_range(table[:, column], 0.0, MAX_IPA_VISIBILITY, name, where)
+    return _ground_truth(np.array(ids, np.int64), np.array(classes, np.int64), table)
 
 
 def _ground_truth(ids: np.ndarray, classes: np.ndarray, numbers: np.ndarray) -> IPAGroundTruth:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from opnet.datasets.atomic import write_text_atomic
+from opnet.datasets.atomic import write_text_if_changed
 from opnet.datasets.files import read_text
 from opnet.geometry.camera import Camera
 
@@ -218,13 +218,17 @@ def read_parameters(path: str | Path) -> IPAParameters:
         data = json.loads(read_text(path))
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno})") from e
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply (expected an object of camera parameters)") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got a JSON {type(data).__name__}")
     values = {name: _field(data, key, kind, path) for name, (key, kind) in _FIELDS.items()}
     try:
-        return IPAParameters(**values)
+        params = IPAParameters(**values)
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
+    params.camera().check_plausible(str(path))  # offsets, sizes and clip planes of a real camera
+    return params
 
 
 def _is_number(x: Any) -> bool:
@@ -251,6 +255,7 @@ def _field(data: dict[str, Any], key: str, kind: str, path: Path) -> Any:
 
 
 def write_parameters(root: str | Path, params: IPAParameters) -> None:
-    """Write ``<root>/parameter.json`` atomically (floats in repr precision: reading is exact)."""
+    """Write ``<root>/parameter.json`` atomically (floats in repr precision: reading is exact);
+    an identical file is left as it is."""
     text = json.dumps(params.to_json_dict(), indent=2) + "\n"
-    write_text_atomic(Path(root) / PARAMETER_FILE, text)
+    write_text_if_changed(Path(root) / PARAMETER_FILE, text)  # no write when unchanged (read-only data)

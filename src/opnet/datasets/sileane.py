@@ -94,6 +94,7 @@ def read_camera_params(path: str | Path) -> tuple[Camera, np.ndarray, np.ndarray
         )
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
+    camera.check_plausible(str(path))
     return camera, quaternion_to_matrix(q), np.array(values["location"])
 
 

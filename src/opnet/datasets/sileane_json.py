@@ -24,10 +24,12 @@ from typing import Any
 import numpy as np
 
 from opnet.datasets.atomic import write_text_atomic
+from opnet.datasets.files import read_text
+from opnet.datasets.validate import check_poses, check_range
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 
-#: max |R^T R - I| accepted; the official data is orthonormal to ~1e-6
-ORTHONORMAL_TOL = 1e-4
+#: segmentation ids are the instances' values in the 16-bit segmentation image
+MAX_SEGMENTATION_ID = 65535
 JSON_SUFFIXES = (".json", ".JSON")
 
 
@@ -46,6 +48,7 @@ def read_gt_json(path: str | Path) -> GroundTruthSet:
     entries = _read_list(path)
     R, t = _poses(entries, path)
     occ = _floats(entries, "occlusion_rate", path)
+    check_range(occ, 0.0, 1.0, "'occlusion_rate'", lambda i: f"{path}: entry {i}")
     has_id = ["segmentation_id" in e for e in entries]
     if any(has_id) and not all(has_id):
         i = has_id.index(False)
@@ -166,16 +169,13 @@ def _names(names: Sequence[str], limit: int = 10) -> str:
 
 # ---- reading helpers ---------------------------------------------------------------------------
 def _read_list(path: Path) -> list[dict[str, Any]]:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as e:
-        raise FileNotFoundError(f"{path}: file not found") from e
-    except (OSError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: cannot read file ({e})") from e
+    text = read_text(path)  # regular files only, errors naming the file
     try:
         data = json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno}, column {e.colno})") from e
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply (expected a list of pose objects)") from None
     except _NonFinite as e:
         raise ValueError(f"{path}: {e} is not a finite number") from None
     if not isinstance(data, list):
@@ -218,12 +218,7 @@ def _poses(entries: Sequence[dict[str, Any]], path: Path) -> tuple[np.ndarray, n
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     R = np.stack([_array(_field(e, "R", path, i), (3, 3), "R", path, i) for i, e in enumerate(entries)])
     t = np.stack([_array(_field(e, "t", path, i), (3,), "t", path, i) for i, e in enumerate(entries)])
-    err = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).reshape(len(R), -1).max(1)
-    bad = np.flatnonzero((err > ORTHONORMAL_TOL) | (np.linalg.det(R) < 0))
-    if len(bad):
-        i = int(bad[0])
-        what = f"|R^T R - I| = {err[i]:.3g} > {ORTHONORMAL_TOL:g}" if err[i] > ORTHONORMAL_TOL else "det(R) = -1"
-        raise ValueError(f"{path}: entry {i}: 'R' is not a rotation matrix ({what}; {len(bad)} such entries)")
+    check_poses(R, t, lambda i: f"{path}: entry {i}")
     return R, t
 
 
@@ -236,6 +231,9 @@ def _int(value: Any, path: Path, i: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int | float) or not float(value).is_integer():
         got = _describe(value)
         raise ValueError(f"{path}: entry {i}: 'segmentation_id' must be an integer, got {got}")
+    if not 0 <= value <= MAX_SEGMENTATION_ID:
+        raise ValueError(f"{path}: entry {i}: 'segmentation_id' = {_describe(value)} is outside 0..{MAX_SEGMENTATION_ID} "
+                         "(the 16-bit value of the instance in the segmentation image)")
     return int(value)
 
 

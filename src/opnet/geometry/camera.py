@@ -13,6 +13,12 @@ import numpy as np
 import torch
 
 
+#: no depth camera has more pixels a side; larger values are typos that would allocate gigabytes
+MAX_IMAGE_SIDE = 16384
+#: clip planes beyond this are surely not metres (bin-picking cameras work at 0.2 .. 5 m)
+MAX_CLIP_END_M = 50.0
+
+
 @dataclass(frozen=True)
 class Camera:
     """Intrinsics, image size and clip planes of a depth camera.
@@ -46,6 +52,27 @@ class Camera:
                 f"Camera clip planes must satisfy 0 < clip_start < clip_end, "
                 f"got clip_start={self.clip_start}, clip_end={self.clip_end}"
             )
+
+    def check_plausible(self, source: str = "camera") -> Camera:
+        """``self`` if it describes a real depth camera, checked where a camera enters the program
+        (readers, configs): at most :data:`MAX_IMAGE_SIDE` pixels a side, the principal point within
+        one image size of the image, clip planes in metres (``clip_end`` <= :data:`MAX_CLIP_END_M`).
+        Beyond these, values are typos that would allocate gigabytes (a canvas around a far-away
+        principal point) or silently normalize depth wrongly.
+
+        Raises:
+            ValueError: naming ``source`` (a file or config key) and the value.
+        """
+        if max(self.width, self.height) > MAX_IMAGE_SIDE:
+            raise ValueError(f"{source}: image size {self.width}x{self.height} is implausible "
+                             f"(more than {MAX_IMAGE_SIDE} pixels a side)")
+        if not (-self.width <= self.cx <= 2 * self.width and -self.height <= self.cy <= 2 * self.height):
+            raise ValueError(f"{source}: principal point ({self.cx:g}, {self.cy:g}) lies implausibly far outside "
+                             f"the {self.width}x{self.height} image (expected within one image size of it)")
+        if self.clip_end > MAX_CLIP_END_M:
+            raise ValueError(f"{source}: clip_end = {self.clip_end:g} m is implausible for a depth camera "
+                             f"(clip planes are in metres; millimetres? divide by 1000)")
+        return self
 
     @classmethod
     def from_fov(

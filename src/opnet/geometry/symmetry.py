@@ -23,6 +23,9 @@ SymmetryKind = Literal["none", "cyclic", "revolution", "finite"]
 _KINDS = ("none", "cyclic", "revolution", "finite")
 
 
+#: beyond this a cyclic part is, for any depth camera, a solid of revolution (and the group gets huge)
+MAX_CYCLIC_ORDER = 360
+
 @dataclass(frozen=True)
 class Symmetry:
     """A proper symmetry group, in the model frame.
@@ -42,8 +45,9 @@ class Symmetry:
     def __post_init__(self) -> None:
         if self.kind not in _KINDS:
             raise ValueError(f"symmetry kind must be one of {_KINDS}, got {self.kind!r}")
-        if self.kind == "cyclic" and (int(self.order) != self.order or self.order < 2):
-            raise ValueError(f"cyclic symmetry needs an integer order >= 2, got {self.order!r}")
+        if self.kind == "cyclic" and (int(self.order) != self.order or not 2 <= self.order <= MAX_CYCLIC_ORDER):
+            raise ValueError(f"cyclic symmetry needs an integer order in 2..{MAX_CYCLIC_ORDER}, got {self.order!r} "
+                             "(a part with finer symmetry is a solid of revolution: kind: revolution)")
         if self.kind != "cyclic" and self.order != 1:
             raise ValueError(f"'order' only applies to cyclic symmetry (kind={self.kind!r})")
         if self.rotoreflection and self.kind != "revolution":
@@ -102,9 +106,12 @@ class Symmetry:
         unknown = set(spec) - {"kind", "order", "rotoreflection", "rotations"}
         if unknown:
             raise ValueError(f"unknown symmetry keys {sorted(unknown)}; expected kind, order, rotoreflection, rotations")
+        order = spec.get("order", 1)
+        if isinstance(order, bool) or not isinstance(order, int | float) or not float(order).is_integer():
+            raise ValueError(f"symmetry order must be a whole number, got {order!r}")
         return cls(
             kind=spec.get("kind", "none"),
-            order=int(spec.get("order", 1)),
+            order=int(order),
             rotoreflection=bool(spec.get("rotoreflection", False)),
             rotations=None if spec.get("rotations") is None else np.asarray(spec["rotations"], float),
         )

@@ -7,6 +7,7 @@ metric_and_formats.md §1.3-1.5. The symmetry axis is the model z-axis (method.m
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,8 +64,19 @@ class ObjectModel:
         path = Path(path)
         data = _read_json(path)
         kind = _require(data, "type", path)
-        threshold = float(_require(data, "distance_threshold", path))
+        threshold = _require(data, "distance_threshold", path)
+        if isinstance(threshold, bool) or not isinstance(threshold, int | float) or not math.isfinite(threshold) or threshold <= 0:
+            raise ValueError(f"{path}: 'distance_threshold' = {threshold!r}, expected a positive distance in metres")
+        threshold = float(threshold)
         name = name or path.parent.name
+        try:
+            return cls._from_poseutils_data(data, kind, threshold, name, mesh, path)
+        except (ValueError, TypeError) as e:  # ill-typed or ragged arrays, an invalid group
+            raise ValueError(str(e) if str(e).startswith(str(path)) else f"{path}: {e}") from None
+
+    @classmethod
+    def _from_poseutils_data(cls, data: dict[str, Any], kind: Any, threshold: float, name: str,
+                             mesh: trimesh.Trimesh | None, path: Path) -> ObjectModel:
         if kind == "AffinePoseUtils":
             Lambda = np.asarray(_require(data, "Lambda", path), float)
             G = np.asarray(_require(data, "G", path), float)
@@ -165,6 +177,8 @@ def _read_json(path: Path) -> dict[str, Any]:
         data = json.loads(text)
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno}, column {e.colno})") from e
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got {type(data).__name__}")
     return data

@@ -20,12 +20,12 @@ Decisions:
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
+import logging
+import multiprocessing
 import os
 import sys
 import tempfile
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +38,10 @@ DENSITY = 1000.0  # kg/m^3
 _VHACD_VERSION = "pybullet-vhacd-2.2-v1"  # bump to invalidate old cache entries
 #: vertices per convex part: 32 steps about 25 % faster than V-HACD's 64 in piles, same shape
 VHACD_MAX_VERTICES = 32
+#: default time cap of one decomposition (the meshes here take 5..60 s)
+VHACD_TIMEOUT_S = 300.0
+#: convex hull volume / extent^3 below which a mesh counts as flat (a 10 cm plate 0.1 mm thick: 1e-3)
+MIN_RELATIVE_VOLUME = 1e-6
 
 
 @dataclass(frozen=True)
@@ -96,8 +100,11 @@ def mass_properties(mesh: trimesh.Trimesh) -> tuple[float, np.ndarray, np.ndarra
 
 def build_collision_model(mesh: trimesh.Trimesh, cfg: SceneConfig, cache_dir: Path | None = None) -> CollisionModel:
     """Collision model of ``mesh`` (metres, model frame); runs V-HACD on a cache miss (seconds)."""
+    check_solid(mesh)
     mode = choose_mode(mesh, cfg)
     obj_file = vhacd_cached(mesh, cfg.vhacd_resolution, cache_dir or _cfg_cache(cfg)) if mode == "vhacd" else None
+    if mode == "vhacd" and obj_file is None:
+        mode = "convex_hull"  # V-HACD ran past its time cap (warned): the hull still simulates
     mass, com, axes, moments = mass_properties(mesh)
     return CollisionModel(mode, np.asarray(mesh.vertices, dtype=np.float64), obj_file, mass, com, axes, moments)
 
@@ -115,39 +122,74 @@ def mesh_key(mesh: trimesh.Trimesh, resolution: int) -> str:
     return h.hexdigest()[:24]
 
 
-def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path) -> Path:
-    """The convex decomposition of ``mesh`` as an OBJ file in ``cache_dir``, computed if missing."""
+def check_solid(mesh: trimesh.Trimesh) -> None:
+    """A part must enclose a volume: a flat sheet or a single triangle cannot be simulated (and
+    kept V-HACD busy for minutes).
+
+    Raises:
+        ValueError: the mesh has (almost) no volume.
+    """
+    extent = float(np.max(mesh.extents)) if len(mesh.vertices) else 0.0
+    try:
+        hull_volume = float(mesh.convex_hull.volume) if extent > 0 else 0.0
+    except Exception:  # noqa: BLE001 - qhull refuses coplanar points: that is the flat case
+        hull_volume = 0.0
+    if extent <= 0 or hull_volume < MIN_RELATIVE_VOLUME * extent**3:
+        raise ValueError(
+            f"the mesh has no volume (flat, a single triangle, or degenerate: convex hull {hull_volume:.3g} m^3 "
+            f"for an extent of {extent:.3g} m); a part must be a solid"
+        )
+
+
+def vhacd_timeout_s() -> float:
+    """Time cap of one convex decomposition: $OPNET_VHACD_TIMEOUT seconds, default 300."""
+    try:
+        return float(os.environ.get("OPNET_VHACD_TIMEOUT", VHACD_TIMEOUT_S))
+    except ValueError:
+        raise ValueError(f"OPNET_VHACD_TIMEOUT={os.environ['OPNET_VHACD_TIMEOUT']!r}: expected seconds") from None
+
+
+def _run_vhacd(src: str, dst: str, log: str, resolution: int) -> None:
+    from opnet.cli.console import quiet_c_output
+
+    with quiet_c_output():  # V-HACD prints its progress there
+        import pybullet as pb
+
+        client = pb.connect(pb.DIRECT)
+        try:
+            pb.vhacd(src, dst, log, resolution=int(resolution), maxNumVerticesPerCH=VHACD_MAX_VERTICES,
+                     physicsClientId=client)
+        finally:
+            pb.disconnect(client)
+
+
+def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path, timeout_s: float | None = None) -> Path | None:
+    """The convex decomposition of ``mesh`` as an OBJ file in ``cache_dir``, computed if missing.
+
+    V-HACD runs in a child process with a time cap (:func:`vhacd_timeout_s`); past it the child is
+    stopped, its temporary folder removed, a warning logged, and None returned (the caller uses
+    the convex hull).
+    """
     out = Path(cache_dir) / f"vhacd_{mesh_key(mesh, resolution)}.obj"
     if out.is_file():
         return out
-    import pybullet as pb
-
+    timeout_s = vhacd_timeout_s() if timeout_s is None else timeout_s
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=out.parent, prefix=".vhacd_") as tmp:
         src, dst, log = Path(tmp) / "in.obj", Path(tmp) / "out.obj", Path(tmp) / "log.txt"
         mesh.export(src)
-        client = pb.connect(pb.DIRECT)
-        try:
-            with _quiet_stdout():
-                pb.vhacd(str(src), str(dst), str(log), resolution=int(resolution),
-                         maxNumVerticesPerCH=VHACD_MAX_VERTICES, physicsClientId=client)
-        finally:
-            pb.disconnect(client)
+        ctx = multiprocessing.get_context("fork" if sys.platform != "win32" else "spawn")
+        child = ctx.Process(target=_run_vhacd, args=(str(src), str(dst), str(log), resolution), daemon=True)
+        child.start()
+        child.join(timeout_s)
+        if child.is_alive():
+            child.kill()
+            child.join()
+            logging.getLogger(__name__).warning(
+                "V-HACD did not finish within %g s (OPNET_VHACD_TIMEOUT); using the convex hull of the mesh", timeout_s)
+            return None
         if not dst.is_file() or dst.stat().st_size == 0:
-            raise ValueError(f"convex decomposition of the mesh failed (V-HACD wrote nothing; log: {log.read_text()[-500:]})")
+            tail = log.read_text()[-500:] if log.is_file() else "no log"
+            raise ValueError(f"convex decomposition of the mesh failed (V-HACD wrote nothing; log: {tail})")
         os.replace(dst, out)
     return out
-
-
-@contextlib.contextmanager
-def _quiet_stdout() -> Iterator[None]:
-    """Silence C-level stdout (V-HACD prints its progress there)."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "wb") as devnull:
-            os.dup2(devnull.fileno(), 1)
-        yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)

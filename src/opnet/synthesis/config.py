@@ -12,6 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from opnet.geometry.camera import MAX_IMAGE_SIDE
+
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 
 
@@ -110,7 +112,7 @@ class SceneConfig:
             if not ok:
                 raise ValueError(f"scene config: {key}={getattr(self, key)!r}, expected {expected}")
 
-        need(self.resolution >= 8, "resolution", "an integer >= 8")
+        need(8 <= self.resolution <= MAX_IMAGE_SIDE, "resolution", f"an integer in 8..{MAX_IMAGE_SIDE}")
         for key in ("width", "height"):
             value = getattr(self, key)
             need(value is None or (0 < value <= self.resolution and (self.resolution - value) % 2 == 0), key,

@@ -11,6 +11,7 @@ the same bytes as an uninterrupted run.
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import os
 import time
@@ -22,7 +23,7 @@ from typing import Any
 from tqdm import tqdm
 
 from opnet.objects.model import ObjectModel
-from opnet.synthesis.collision import CollisionModel, build_collision_model
+from opnet.synthesis.collision import CollisionModel, build_collision_model, check_solid
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.cycle import CycleGenerator
 from opnet.synthesis.layout import make_rig
@@ -176,7 +177,18 @@ def generate_dataset(
     out, scene = Path(out), scene or SceneConfig()
     rig = make_rig(obj, drops, cycles, scene)
     config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)
-    write_root_files(out, obj, config, rig.params, scene, seed, drops)
+    if obj.mesh is not None:
+        try:
+            check_solid(obj.mesh)  # before anything is written: a flat mesh cannot be dropped
+        except ValueError as e:
+            raise ValueError(f"{config.get('mesh') or obj.name}: {e}") from None
+    params = rig.params
+    present = _cycles_present(out)
+    if present and present[-1] + 1 > cycles:
+        # a re-run with fewer cycles leaves the dataset's other cycles in place: parameter.json
+        # must keep counting them (number_cycles = cycle folders), not shrink below the folders
+        params = dataclasses.replace(params, number_cycles=present[-1] + 1)
+    write_root_files(out, obj, config, params, scene, seed, drops)
     todo = [c for c in range(cycles) if not cycle_complete(out, c, drops)]
     for c in todo:
         clear_cycle(out, c)
@@ -192,6 +204,14 @@ def generate_dataset(
     report.seconds = time.perf_counter() - start
     report.startup_seconds = min(report.startup_seconds, report.seconds)
     return report
+
+
+def _cycles_present(root: Path) -> list[int]:
+    """Indices of the ``gt/cycle_XXXX`` folders of a dataset folder, sorted."""
+    gt = root / "gt"
+    if not gt.is_dir():
+        return []
+    return sorted(int(p.name[6:]) for p in gt.iterdir() if p.is_dir() and p.name.startswith("cycle_") and p.name[6:].isdigit())
 
 
 def _run(job: _Job, todo: list[int], workers: int) -> Iterator[_CycleDone]:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from opnet.datasets.atomic import write_text_atomic
+from opnet.datasets.atomic import write_text_if_changed
 from opnet.datasets.ipa import scene_paths, write_ipa_scene
 from opnet.datasets.ipa_params import IPAParameters, write_parameters
 from opnet.objects.library import BUILTINS, builtin_object
@@ -89,17 +89,26 @@ def write_root_files(
                 f"choose another output folder or delete it"
             )
     root.mkdir(parents=True, exist_ok=True)
+    # unchanged files are not rewritten: a complete dataset on read-only storage stays usable
     write_parameters(root, params)
-    write_text_atomic(root / OBJECT_FILE, _json_text(dict(object_config)))
-    write_text_atomic(root / POSEUTILS_FILE, _json_text(obj.to_poseutils()))
-    write_text_atomic(existing_file, _json_text(generation))
+    write_text_if_changed(root / OBJECT_FILE, _json_text(dict(object_config)))
+    write_text_if_changed(root / POSEUTILS_FILE, _json_text(obj.to_poseutils()))
+    write_text_if_changed(existing_file, _json_text(generation))
     for tmp in root.glob(".*.tmp"):  # left by a run killed while writing a root file
         tmp.unlink(missing_ok=True)
 
 
 def cycle_complete(root: Path, cycle: int, drops: int) -> bool:
-    """Whether every scene CSV 000..drops of ``cycle`` exists."""
-    return all(scene_paths(root, cycle, n)["csv"].is_file() for n in range(drops + 1))
+    """Whether every scene 000..drops of ``cycle`` has its three files, none of them empty (the
+    CSV is written last, but a file truncated later, e.g. by a full disk, still shows)."""
+    for n in range(drops + 1):
+        for path in scene_paths(root, cycle, n).values():
+            try:
+                if path.stat().st_size == 0:
+                    return False
+            except OSError:
+                return False
+    return True
 
 
 def clear_cycle(root: Path, cycle: int) -> None:
