@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from opnet.datasets.png import encode_depth, write_png
+from opnet.datasets.png import write_png
 from opnet.paths import REPO_ROOT
 
 TINY_DATA = ["data.generate.cycles=6", "data.generate.drops=3", "data.generate.workers=1",
@@ -117,6 +117,11 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
                               ("<json>", str(data / "poseutils.json"))],
         ["--out", str(ws / "summary.json"), "--plot", str(ws / "pr.png")])  # the README's relative names: in ws
     assert (ws / "pr.png").stat().st_size > 1000
+    bop = ws / "bop"
+    run("write a dataset as BOP", [("<ipa dataset>", str(data)), ("<bop dataset>", str(bop))])
+    run("train on a BOP split", [("<bop dataset>", str(bop))],
+        ["model=tiny", "data.num_workers=0", *TINY_FIT, f"hydra.run.dir={ws / 'bop_run'}"])
+    assert (ws / "bop_run" / "test" / "bop_results.csv").is_file()
     run("parameterization ceiling", [("<dir>", str(gen)), ("<dir>", str(data)), ("<dir>", str(ws / "ceiling"))])
     assert (ws / "ceiling" / "ceiling.csv").is_file()
 

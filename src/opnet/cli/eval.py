@@ -59,10 +59,31 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
     result.update(split=split, scenes=len(scenes), object=system.parameterization.obj.name,
                   parameterization=type(system.parameterization).__name__)
     write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
+    _write_bop_results(datamodule, split, scenes, out_dir / "bop_results.csv")
     write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n")
     if examples:
         write_examples(system, datamodule.splits[split], scenes, out_dir / "predictions", examples)
     return result
+
+
+def _write_bop_results(datamodule: Any, split: str, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]],
+                       path: Path) -> None:
+    """The predictions as a BOP results CSV (for the user's own bop_toolkit), when the scene names
+    are BOP (``<scene>_<image>``) or IPA (``cycle_XXXX_NNN``) ones; poses back in the BOP model frame."""
+    from opnet.datasets.bop import bop_results_rows, is_bop_split, models_dir_of, model_info, symmetry_from_bop
+
+    obj_id = getattr(datamodule, "object_id", None)
+    roots = getattr(datamodule, "test_roots", None) if split == "test" and getattr(datamodule, "test_roots", None) \
+        else getattr(datamodule, "roots", [])
+    R_align = None
+    if obj_id is not None and roots and is_bop_split(Path(roots[0])):
+        models = models_dir_of(Path(roots[0]))
+        R_align = symmetry_from_bop(model_info(models, obj_id), str(models))[1]
+    try:
+        lines = bop_results_rows(((n, h) for n, (_, h) in scenes.items()), obj_id or 1, R_align)
+    except ValueError:  # names of another layout (Siléane): no BOP ids to write
+        return
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 def write_examples(

@@ -165,6 +165,8 @@ class OPNetDataModule(L.LightningDataModule):
         check: before anything is read, check every dataset (:mod:`opnet.datasets.check`):
             ``"fast"`` (headers and sizes, seconds), ``"full"`` (every file decoded and
             validated) or ``"off"``. A problem stops the run at once, naming the file.
+        object_id: for a BOP split folder: the ``obj_id`` whose instances are the ground truth.
+        clip: for BOP data: (near, far) working range in metres (None: from the first image).
     """
 
     def __init__(
@@ -188,11 +190,15 @@ class OPNetDataModule(L.LightningDataModule):
         cache_workers: int = 1,
         test_root: str | Path | Sequence[str | Path] | None = None,
         check: str = "fast",
+        object_id: int | None = None,
+        clip: Sequence[float] | None = None,
     ) -> None:
         super().__init__()
         if check not in CHECK_MODES:
             raise ValueError(f"data.check={check!r}, expected one of {CHECK_MODES}")
         self.check = check
+        self.object_id = int(object_id) if object_id is not None else None
+        self.clip = (float(clip[0]), float(clip[1])) if clip is not None else None
         self.obj = obj
         self.roots = as_paths(root)
         if not self.roots:
@@ -242,7 +248,7 @@ class OPNetDataModule(L.LightningDataModule):
         from opnet.datasets.check import check_dataset
 
         for root in [*self.roots, *self.test_roots]:
-            report = check_dataset(root, fast=self.check == "fast")
+            report = check_dataset(root, fast=self.check == "fast", object_id=self.object_id, clip=self.clip)
             log.info("dataset check (%s): %s", self.check, report.summary(0).replace("\n", " "))
             if not report.ok:
                 raise ValueError(
@@ -254,7 +260,7 @@ class OPNetDataModule(L.LightningDataModule):
         """The datasets (one, or concatenated), or their scene caches (built or completed first)."""
         sources = []
         for root in roots:
-            source = open_dataset(root)
+            source = open_dataset(root, object_id=self.object_id, clip=self.clip)
             if self.cache:
                 single = root == self.root and len(self.roots) == 1
                 cache_dir = self.cache_dir if single else default_cache_dir(root, self.cache_size)
@@ -305,8 +311,8 @@ class OPNetDataModule(L.LightningDataModule):
         scenes = source.scenes() if hasattr(source, "scenes") else list(range(len(source)))
         keys, keep = [], []
         for i, s in enumerate(scenes):
-            is_ipa = isinstance(s, tuple)
-            keys.append(s[:-1] if is_ipa else s)
+            is_ipa = isinstance(s, tuple)  # (group, ..., objects): IPA (cycle, objects), BOP (scene, image, objects)
+            keys.append(s[:1] if is_ipa else s)
             if self.include_empty or not is_ipa or s[-1] > 0:
                 keep.append(i)
         return keys, keep

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from opnet.datasets.autodetect import open_dataset
+from opnet.datasets.bop import BOPDataset
 from opnet.datasets.ipa import IPADataset, scene_paths
 from opnet.datasets.ipa_csv import CSV_HEADER, read_ipa_csv
 from opnet.datasets.sileane import SileaneDataset
@@ -155,7 +156,7 @@ def _fast_ipa(ds: IPADataset) -> list[Problem]:
     return problems
 
 
-def _depth_samples(ds: IPADataset | SileaneDataset, bad: set[Path]) -> list[Problem]:
+def _depth_samples(ds: IPADataset | SileaneDataset | BOPDataset, bad: set[Path]) -> list[Problem]:
     """Decode the depth of a few scenes spread over the dataset; a depth image without any valid
     pixel is a problem (wrong clip planes, a broken export)."""
     scenes = ds.scenes()
@@ -165,11 +166,15 @@ def _depth_samples(ds: IPADataset | SileaneDataset, bad: set[Path]) -> list[Prob
     problems = []
     for i in picks:
         scene = scenes[i]
-        path = scene_paths(ds.root, *scene)["depth"] if isinstance(ds, IPADataset) else ds._image("depth", scene)
+        if isinstance(ds, BOPDataset):
+            path = ds.scene_dir(scene[0]) / "depth" / f"{scene[1]:06d}.png"
+        else:
+            path = scene_paths(ds.root, *scene)["depth"] if isinstance(ds, IPADataset) else ds._image("depth", scene)
         if path is None or path in bad:
             continue
         try:
-            record = ds.read(*scene) if isinstance(ds, IPADataset) else ds.read(scene)
+            record = (ds.read(*scene[:2]) if isinstance(ds, BOPDataset) else
+                      ds.read(*scene) if isinstance(ds, IPADataset) else ds.read(scene))
         except (ValueError, FileNotFoundError) as e:
             problems.append(_as_problem(e, path))
             continue
@@ -210,11 +215,27 @@ def _fast_sileane(ds: SileaneDataset) -> list[Problem]:
     return problems
 
 
-def _full(ds: IPADataset | SileaneDataset) -> list[Problem]:
+def _fast_bop(ds: BOPDataset) -> list[Problem]:
+    """Depth PNG headers of every image and the visible masks' headers (scene JSONs were parsed
+    when the dataset was opened), the records of a few images read."""
+    problems = []
+    for sid, im, _ in ds.scenes():
+        depth = ds.scene_dir(sid) / "depth" / f"{im:06d}.png"
+        if (problem := png_header_problem(depth, None, 16)) is not None:
+            problems.append(Problem(depth, problem))
+        for mask in sorted((ds.scene_dir(sid) / "mask_visib").glob(f"{im:06d}_*.png")):
+            if (problem := png_header_problem(mask, None, 8)) is not None:
+                problems.append(Problem(mask, problem))
+    return problems + _depth_samples(ds, {p.path for p in problems})
+
+
+def _full(ds: IPADataset | SileaneDataset | BOPDataset) -> list[Problem]:
     problems = []
     for scene in ds.scenes():
         try:
-            if isinstance(ds, IPADataset):
+            if isinstance(ds, BOPDataset):
+                record, depth_path = ds.read(*scene[:2]), ds.scene_dir(scene[0]) / "depth" / f"{scene[1]:06d}.png"
+            elif isinstance(ds, IPADataset):
                 record, depth_path = ds.read(*scene), scene_paths(ds.root, *scene)["depth"]
             elif ds.camera is not None:
                 record, depth_path = ds.read(scene), ds._image("depth", scene)
@@ -229,7 +250,8 @@ def _full(ds: IPADataset | SileaneDataset) -> list[Problem]:
     return problems
 
 
-def check_dataset(root: str | Path, fast: bool = False) -> CheckReport:
+def check_dataset(root: str | Path, fast: bool = False, object_id: int | None = None,
+                  clip: tuple[float, float] | None = None) -> CheckReport:
     """Check every scene of the dataset in ``root``; problems are collected, not raised.
 
     Raises:
@@ -237,8 +259,10 @@ def check_dataset(root: str | Path, fast: bool = False) -> CheckReport:
             ``parameter.json`` / ``camera_params.txt``, or a malformed one).
     """
     start = time.perf_counter()
-    ds = open_dataset(root)
-    if fast:
+    ds = open_dataset(root, object_id=object_id, clip=clip)
+    if isinstance(ds, BOPDataset):
+        problems = _fast_bop(ds) if fast else _full(ds)
+    elif fast:
         problems = _fast_ipa(ds) if isinstance(ds, IPADataset) else _fast_sileane(ds)
     else:
         problems = _full(ds)
@@ -250,11 +274,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("roots", nargs="+", type=Path, help="dataset folders (IPA or Siléane layout)")
     parser.add_argument("--fast", action="store_true", help="headers and sizes only (what train.py runs)")
     parser.add_argument("--limit", type=int, default=50, help="problems listed per dataset")
+    parser.add_argument("--object-id", type=int, help="BOP splits: the obj_id to check")
+    parser.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), help="BOP splits: working range, metres")
     args = parser.parse_args(argv)
     status = 0
     for root in args.roots:
         try:
-            report = check_dataset(root, fast=args.fast)
+            report = check_dataset(root, fast=args.fast, object_id=args.object_id, clip=args.clip)
         except (ValueError, FileNotFoundError) as e:
             print(f"error: {e}", file=sys.stderr)
             status = 2

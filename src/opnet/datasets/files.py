@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 from pathlib import Path
+from typing import Any
 
 
 def require_regular_file(path: str | Path) -> Path:
@@ -54,3 +56,25 @@ def read_text(path: str | Path) -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise ValueError(f"{path}: not UTF-8 text ({e})") from e
+
+
+class _NonFinite(Exception):
+    pass
+
+
+def _reject_constant(name: str) -> float:
+    raise _NonFinite(name)  # NaN, Infinity, -Infinity: Python's json accepts them, we do not
+
+
+def read_json(path: str | Path, expected: str = "") -> Any:
+    """The JSON content of ``path``, with errors naming it: regular files only, UTF-8, no NaN or
+    Infinity, bounded nesting (``expected`` describes the content for the nesting message)."""
+    text = read_text(path)
+    try:
+        return json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno}, column {e.colno})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply" + (f" (expected {expected})" if expected else "")) from None
+    except _NonFinite as e:
+        raise ValueError(f"{path}: {e} is not a finite number") from None

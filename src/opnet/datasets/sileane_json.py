@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from opnet.datasets.atomic import write_text_atomic
-from opnet.datasets.files import read_text
+from opnet.datasets.files import read_json
 from opnet.datasets.validate import check_poses, check_range
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 
@@ -169,29 +169,13 @@ def _names(names: Sequence[str], limit: int = 10) -> str:
 
 # ---- reading helpers ---------------------------------------------------------------------------
 def _read_list(path: Path) -> list[dict[str, Any]]:
-    text = read_text(path)  # regular files only, errors naming the file
-    try:
-        data = json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno}, column {e.colno})") from e
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply (expected a list of pose objects)") from None
-    except _NonFinite as e:
-        raise ValueError(f"{path}: {e} is not a finite number") from None
+    data = read_json(path, "a list of pose objects")
     if not isinstance(data, list):
         raise ValueError(f"{path}: expected a JSON list of poses, got a JSON {type(data).__name__}")
     for i, e in enumerate(data):
         if not isinstance(e, dict):
             raise ValueError(f"{path}: entry {i}: expected a JSON object, got {type(e).__name__}")
     return data
-
-
-class _NonFinite(Exception):
-    pass
-
-
-def _reject_constant(name: str) -> float:
-    raise _NonFinite(name)  # NaN, Infinity, -Infinity: Python's json accepts them, we do not
 
 
 def _field(entry: dict[str, Any], key: str, path: Path, i: int) -> Any:

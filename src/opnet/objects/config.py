@@ -8,7 +8,7 @@ from typing import Any
 from opnet.objects.io import load_object
 from opnet.objects.model import ObjectModel
 
-_KEYS = {"name", "builtin", "mesh", "mesh_scale", "symmetry", "model_rotation", "poseutils"}
+_KEYS = {"name", "builtin", "mesh", "mesh_scale", "symmetry", "model_rotation", "poseutils", "bop_models", "bop_obj_id"}
 
 
 def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
@@ -19,6 +19,12 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
         raise ValueError(f"object config: unknown keys {sorted(unknown)}; expected some of {sorted(_KEYS)}")
     if "name" not in cfg:
         raise ValueError("object config: missing key 'name'")
+    if cfg.get("bop_models") is not None:  # a BOP model: mesh in mm and symmetries from models_info.json
+        from opnet.datasets.bop import bop_object
+
+        if cfg.get("bop_obj_id") is None:
+            raise ValueError("object config: 'bop_models' needs 'bop_obj_id' (the BOP obj_id)")
+        return bop_object(cfg["bop_models"], int(cfg["bop_obj_id"]), str(cfg["name"]))
     symmetry = cfg.get("symmetry")
     if symmetry is not None and not isinstance(symmetry, str):
         symmetry = {k: (list(v) if k == "rotations" else v) for k, v in dict(symmetry).items()}
