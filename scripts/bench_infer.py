@@ -1,7 +1,13 @@
-"""Inference latency of the paper network: preprocessing, forward pass and decoding, timed apart.
+"""Inference latency of the paper network against this machine's compute ceiling.
 
-    python scripts/bench_infer.py [--model paper] [--parameterization vanilla] [--batches 1,32]
-                                  [--repeats 10] [--threads N] [--device cpu|cuda]
+    python scripts/bench_infer.py [--model paper] [--batches 1,32] [--repeats 10] [--threads N]
+                                  [--device cpu|cuda] [--compile] [--out results/speed/infer.csv]
+
+In one run: the roofline (a 2048^2 fp32 matrix product's GFLOP/s), then per batch size the
+preprocessing, the forward pass on each inference path (fp32 eager, the default fp32
+channels-last, bf16 autocast channels-last, optionally compiled) with its achieved GFLOP/s and its
+time as a multiple of the roofline floor, decoding + averaging, and end-to-end on the default path;
+then end-to-end / forward at batch 1 for every parameterization.
 
 Input: a synthetic 512 x 512 bin-picking depth image with 5 % missing pixels (the preprocessing
 crops it to the canvas, resizes to 128 x 128, fills holes, normalizes). Decoding turns a realistic
@@ -14,9 +20,11 @@ throughput of the paper network. Prints a table (milliseconds per batch and per 
 from __future__ import annotations
 
 import argparse
+import copy
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -26,6 +34,8 @@ from omegaconf import OmegaConf
 
 from opnet.data.preprocess import to_network_input
 from opnet.geometry import Camera
+from opnet.inference import InferenceSettings, fast_forward
+from opnet.models.stats import gflops_per_image
 from opnet.objects import builtin_object
 from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
@@ -55,72 +65,111 @@ def depth_image(camera: Camera, rng: np.random.Generator) -> np.ndarray:
     return depth
 
 
-def main() -> None:
+def roofline_gflops(device: torch.device, repeats: int = 5) -> float:
+    """Measured GFLOP/s of a 2048 x 2048 fp32 matrix product: this machine's compute ceiling."""
+    a, b = torch.randn(2048, 2048, device=device), torch.randn(2048, 2048, device=device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    return 2 * 2048**3 / timeit(lambda: a @ b, repeats, sync) / 1e6
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default="paper", help="conf/model preset")
-    ap.add_argument("--parameterization", default="vanilla", help="conf/parameterization option")
+    ap.add_argument("--parameterization", default="vanilla", help="conf/parameterization option of the forward rows")
+    ap.add_argument("--parameterizations", default="vanilla,eve,ap,z,mp,si",
+                    help="end-to-end (fast default path, batch 1) for each of these")
     ap.add_argument("--object", default="zbracket", help="built-in object")
     ap.add_argument("--batches", default="1,32")
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    args = ap.parse_args()
+    ap.add_argument("--compile", action="store_true", help="also time torch.compile'd forwards (slow to start)")
+    ap.add_argument("--out", type=Path, help="write the rows to this CSV (replaced)")
+    args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     rng = np.random.default_rng(0)
-
     obj = builtin_object(args.object)
-    pcfg = OmegaConf.load(config_dir() / "parameterization" / f"{args.parameterization}.yaml")
-    param = instantiate(pcfg, _partial_=True)(obj=obj)
-    model = instantiate(OmegaConf.load(config_dir() / "model" / f"{args.model}.yaml"),
-                        out_channels=param.out_channels, out_grid=param.grid_size).to(device).eval()
     camera = Camera.from_fov(50.0, 512, 512, 0.6, 1.2)
     net_cam = to_network_input(np.full((512, 512), 1.0, np.float32), camera)[1]
-    gt = random_scene_batch(obj, net_cam, 1, 25, torch.Generator().manual_seed(0))
-    perfect = param.encode(gt, net_cam)
-    noisy = (perfect + 0.01 * torch.rand_like(perfect)).clamp(0, 1)
-    presence = noisy[:, :: param.channels_per_slot]
-    presence[torch.rand_like(presence) < 0.15] = 0.2  # low-confidence cells above tau
+    roof = roofline_gflops(device)
+    param, model, noisy = _setup(args.parameterization, args.model, obj, net_cam, device)
+    gflop = gflops_per_image(model)
+    print(f"model {args.model} ({sum(p.numel() for p in model.parameters()) / 1e6:.3f} M params, {gflop:.2f} GFLOP "
+          f"per image), device {device}, torch {torch.__version__}, {torch.get_num_threads()} threads")
+    print(f"roofline: 2048^2 fp32 matmul {roof:.1f} GFLOP/s -> forward floor {1000 * gflop / roof:.1f} ms per image")
+    header = f"{'batch':>5} {'stage':<34} {'ms/batch':>9} {'ms/image':>9} {'GFLOP/s':>8} {'x floor':>8}"
+    print(header)
+    rows: list[tuple[int, str, float, float | None]] = []
 
-    print(f"model {args.model} ({sum(p.numel() for p in model.parameters()) / 1e6:.3f} M params), "
-          f"parameterization {args.parameterization}, device {device}, torch threads {torch.get_num_threads()}")
-    print(f"{'batch':>5} {'stage':<28} {'ms/batch':>10} {'ms/image':>10}")
-    rows = []
+    def record(b: int, name: str, ms: float, flops: bool) -> None:
+        rate = gflop * b / (ms / 1000) if flops else None
+        rows.append((b, name, ms, rate))
+        extra = f"{rate:>8.1f} {roof / rate:>8.2f}" if rate else f"{'':>8} {'':>8}"
+        print(f"{b:>5} {name:<34} {ms:>9.2f} {ms / b:>9.2f} {extra}", flush=True)
+
+    fast = InferenceSettings()  # the default of predict.py / eval.py
+    paths = {"forward fp32 eager": InferenceSettings("32", False), "forward fp32 channels-last (default)": fast,
+             "forward bf16 autocast channels-last": InferenceSettings("bf16", True)}
+    if args.compile:
+        paths["forward bf16 channels-last compiled"] = InferenceSettings("bf16", True, compile=True)
     for b in [int(x) for x in args.batches.split(",")]:
         depths = [depth_image(camera, rng) for _ in range(b)]
         pre = lambda: [to_network_input(d, camera, 128, cv2.INTER_AREA) for d in depths]  # noqa: E731
         x = torch.from_numpy(np.stack([p[0] for p in pre()]))[:, None].to(device)
         out = noisy.expand(b, -1, -1, -1).contiguous().to(device)
         cams = [net_cam] * b
-
-        def forward() -> torch.Tensor:
-            with torch.inference_mode():
-                return model(x)
-
-        def decode() -> object:
-            return param.decode(out, cams)
+        record(b, "preprocess", timeit(pre, args.repeats, sync), False)
+        for name, settings in paths.items():
+            run = fast_forward(copy.deepcopy(model), settings)
+            record(b, name, timeit(lambda: run(x), args.repeats if b == 1 else max(3, args.repeats // 3), sync), True)
+        record(b, "decode + averaging", timeit(lambda: param.decode(out, cams), args.repeats, sync), False)
+        run = fast_forward(copy.deepcopy(model), fast)
 
         def end_to_end() -> object:
             xs = torch.from_numpy(np.stack([p[0] for p in pre()]))[:, None].to(device)
-            with torch.inference_mode():
-                y = model(xs)
-            return param.decode(y.float(), cams)
+            return param.decode(run(xs), cams)
 
-        stages = {"preprocess": pre, "forward (fp32)": forward, "decode + averaging": decode}
-        if device.type == "cuda":
-            stages.update(cuda_variants(model, x))
-        stages["end-to-end"] = end_to_end
-        for name, fn in stages.items():
-            ms = timeit(fn, args.repeats, sync)
-            rows.append((b, name, ms))
-            print(f"{b:>5} {name:<28} {ms:>10.2f} {ms / b:>10.2f}")
-        fwd = next(ms for bb, n, ms in rows if bb == b and n == "forward (fp32)")
-        e2e = next(ms for bb, n, ms in rows if bb == b and n == "end-to-end")
-        print(f"{b:>5} {'end-to-end / forward':<28} {e2e / fwd:>10.3f}")
+        record(b, "end-to-end (default path)", timeit(end_to_end, args.repeats if b == 1 else 3, sync), False)
+    e2e_rows = []
+    for name in [p for p in args.parameterizations.split(",") if p]:
+        p_param, p_model, _ = _setup(name, args.model, obj, net_cam, device)
+        run = fast_forward(p_model, fast)
+        depth = depth_image(camera, rng)
+
+        def e2e() -> object:
+            xs = torch.from_numpy(to_network_input(depth, camera, 128, cv2.INTER_AREA)[0])[None, None].to(device)
+            return p_param.decode(run(xs), [net_cam])
+
+        ms = timeit(e2e, args.repeats, sync)
+        fwd = timeit(lambda: run(torch.rand(1, 1, 128, 128, device=device)), args.repeats, sync)
+        e2e_rows.append((name, ms, fwd))
+        print(f"    end-to-end {name:<8} batch 1: {ms:7.2f} ms, forward {fwd:7.2f} ms, ratio {ms / fwd:.3f}", flush=True)
+    if args.out is not None:
+        lines = ["batch,stage,ms_batch,ms_image,gflops_per_s,x_floor,roofline_gflops,forward_gflop"]
+        lines += [f"{b},{n},{ms:.2f},{ms / b:.2f},{'' if r is None else f'{r:.1f}'},{'' if r is None else f'{roof / r:.3f}'},"
+                  f"{roof:.1f},{gflop:.3f}" for b, n, ms, r in rows]
+        lines += [f"1,end-to-end {n} / forward,{ms:.2f},{ms:.2f},,{ms / f:.3f},{roof:.1f},{gflop:.3f}" for n, ms, f in e2e_rows]
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text("\n".join(lines) + "\n")
     if device.type == "cuda":
         print(f"training throughput (bf16, batch 32): {train_throughput(model, param.out_channels, device):.1f} images/s")
+
+
+def _setup(name: str, model_name: str, obj: object, net_cam: Camera, device: torch.device) -> tuple:
+    """The parameterization, a fresh network of ``model_name`` for it, and a realistic noisy output."""
+    pcfg = OmegaConf.load(config_dir() / "parameterization" / f"{name}.yaml")
+    param = instantiate(pcfg, _partial_=True)(obj=obj)
+    model = instantiate(OmegaConf.load(config_dir() / "model" / f"{model_name}.yaml"),
+                        out_channels=param.out_channels, out_grid=param.grid_size).to(device).eval()
+    gt = random_scene_batch(obj, net_cam, 1, 25, torch.Generator().manual_seed(0))
+    perfect = param.encode(gt, net_cam)
+    noisy = (perfect + 0.01 * torch.rand_like(perfect)).clamp(0, 1)
+    presence = noisy[:, :: param.channels_per_slot]
+    presence[torch.rand_like(presence) < 0.15] = 0.2  # low-confidence cells above tau
+    return param, model, noisy
 
 
 def cuda_variants(model: torch.nn.Module, x: torch.Tensor) -> dict[str, Callable[[], object]]:

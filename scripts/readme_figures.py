@@ -10,6 +10,7 @@ Every number of the README's results section sits between ``<!-- figures:NAME --
 | learning | ``results/learning/learning.csv`` (``scripts/bench_learning.py``) |
 | ab | ``results/learning/ab.csv`` (``scripts/ab_learning.py --collect``) |
 | speed | ``results/speed/{train,data}.csv`` (``scripts/bench_train.py`` / ``bench_data.py --out``) |
+| inference | ``results/speed/infer.csv`` (``scripts/bench_infer.py --out``), ``inference_check.csv`` (``scripts/check_inference.py``) |
 | benchmarks | ``results/benchmarks.csv`` (each row names the script that printed its figure) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 
@@ -123,6 +124,27 @@ def block_speed(results: Path) -> str:
     return _table(["training arm", "images/s", "", "data path, one epoch", "images/s", "peak RSS"], rows) + "\n"
 
 
+def block_inference(results: Path) -> str:
+    rows = _csv(results / "speed" / "infer.csv")
+    head = rows[0]
+    lines = [f"Roofline of this run: a 2048² fp32 matrix product at {float(head['roofline_gflops']):.1f} GFLOP/s, so the "
+             f"paper network's {float(head['forward_gflop']):.2f} GFLOP forward has a floor of "
+             f"{1000 * float(head['forward_gflop']) / float(head['roofline_gflops']):.1f} ms per image.", ""]
+    table = [[r["batch"], r["stage"], r["ms_batch"], r["ms_image"], r["gflops_per_s"], r["x_floor"]]
+             for r in rows if not r["stage"].startswith("end-to-end ") or r["stage"] == "end-to-end (default path)"]
+    lines.append(_table(["batch", "stage", "ms / batch", "ms / image", "GFLOP/s", "× floor"], table))
+    e2e = [r for r in rows if r["stage"].endswith("/ forward")]
+    lines += ["", "End-to-end (preprocess + forward + decode + averaging) / forward, batch 1, default path: "
+              + ", ".join(f"{r['stage'].split()[1]} {float(r['x_floor']):.3f}" for r in e2e) + "."]
+    check = _csv(results / "speed" / "inference_check.csv")
+    lines += ["", "Poses of each path against fp32 eager on the quickstart model's 150 test scenes "
+              "(`scripts/check_inference.py`):", ""]
+    lines.append(_table(["path", "hypotheses", "paired within 0.1 mm and 0.05°", "p99 Δt mm", "p99 Δr °", "AP"],
+                        [[r["path"], r["hypotheses"], r["paired within 0.1 mm and 0.05 deg"], r["p99 dt mm"],
+                          r["p99 dr deg"], r["AP"]] for r in check]))
+    return "\n".join(lines) + "\n"
+
+
 def block_benchmarks(results: Path) -> str:
     rows = [[f"`{r['command']}`", r["what"], r["figure"], r["target"]] for r in _csv(results / "benchmarks.csv")]
     return _table(["script", "what", "figure", "target"], rows) + "\n"
@@ -147,7 +169,8 @@ def block_pictures(results: Path) -> str:
 
 
 BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning": block_learning, "ab": block_ab,
-          "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures}
+          "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures,
+          "inference": block_inference}
 
 
 def render(readme: str, results: Path = RESULTS) -> str:

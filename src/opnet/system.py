@@ -66,8 +66,26 @@ class OPNetSystem(L.LightningModule):
         return self.backbone(images)
 
     def predict_poses(self, batch: Batch) -> list[HypothesisSet]:
-        """Pose hypotheses per image, camera frame, metres."""
-        return self.parameterization.decode(self(batch.images), batch.cameras)
+        """Pose hypotheses per image, camera frame, metres (through the fast inference path when
+        :meth:`configure_inference` set one and the module is not training)."""
+        return self.parameterization.decode(self.infer(batch.images), batch.cameras)
+
+    def configure_inference(self, settings: Any) -> str:
+        """Use :func:`opnet.inference.fast_forward` with ``settings`` for predictions; returns a
+        description of the path (precision, memory format, device)."""
+        from opnet.inference import InferenceSettings, fast_forward
+
+        if not isinstance(settings, InferenceSettings):
+            settings = InferenceSettings.from_config(settings)
+        self._fast = fast_forward(self.backbone, settings)
+        return settings.describe(self.device)
+
+    def infer(self, images: torch.Tensor) -> torch.Tensor:
+        """The network output for prediction: the fast path if configured (eval mode), else forward."""
+        fast = getattr(self, "_fast", None)
+        if fast is not None and not self.training:
+            return fast(images)
+        return self(images)
 
     # ---- training ---------------------------------------------------------------------------
     def _losses(self, batch: Batch, output: torch.Tensor) -> dict[str, torch.Tensor]:

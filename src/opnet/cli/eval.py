@@ -110,6 +110,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of eval.py (see conf/eval.yaml)."""
     started = time.monotonic()
     system, run_cfg = load_checkpoint(cfg.ckpt)
+    log.info("inference: %s", system.configure_inference(cfg.get("inference")))
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
     if overrides.get("root") is not None and run_cfg.data.get("generate") is not None:
         overrides.setdefault("generate", None)  # another dataset is read as it is, never generated into

@@ -287,7 +287,7 @@ def predict_image(system: OPNetSystem, image: DepthImage) -> HypothesisSet:
     size = int(system.hparams.get("config", {}).get("data", {}).get("input_size", 128))
     net_in, net_cam = to_network_input(image.depth, image.camera, size=size, interpolation=cv2.INTER_AREA)
     x = torch.from_numpy(net_in)[None, None].to(system.device)
-    return system.parameterization.decode(system(x), [net_cam])[0]
+    return system.parameterization.decode(system.infer(x), [net_cam])[0]
 
 
 def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: OPNetSystem,
@@ -315,6 +315,7 @@ def run(cfg: DictConfig) -> int:
     camera_cfg = OmegaConf.to_container(cfg.camera, resolve=True) if cfg.get("camera") is not None else None
     given = given_camera(camera_cfg)
     system, _ = load_checkpoint(cfg.ckpt)
+    print(f"inference: {system.configure_inference(cfg.get('inference'))}")
     out = Path(cfg.out)
     inputs = list_inputs(Path(cfg.input))
     _check_outputs(out, inputs, bool(cfg.get("overwrite", False)))
