@@ -111,8 +111,8 @@ def test_dataset_folder_outputs_mirror_the_inputs_and_never_overwrite(checkpoint
     assert len({p.name for p in inputs}) < len(inputs)  # the case: equal names in different folders
     out = tmp_path / "out"
     assert _run(checkpoint, tiny_dataset / "p_depth", out) == 0
-    written = sorted(out.rglob("*.json"))
-    assert len(written) == len(inputs)
+    written = sorted(p for p in out.rglob("*.json") if p.parent != out / "results")
+    assert len(written) == len(inputs) == len(list((out / "results").glob("*.json")))
     assert {p.relative_to(out).with_suffix("") for p in written} == {
         p.relative_to(tiny_dataset / "p_depth").with_suffix("") for p in inputs}
     assert f"{len(inputs)} of {len(inputs)} predictions written" in capsys.readouterr().out
@@ -162,3 +162,35 @@ def test_help_shows_only_prediction_options() -> None:
     assert "camera.fx" in proc.stdout and "depth_scale" in proc.stdout and "overwrite" in proc.stdout
     for training_only in ("optim", "trainer", "augmentation", "parameterization:"):
         assert training_only not in proc.stdout
+
+
+def test_outputs_for_viewers_and_the_evaluator(checkpoint: Path, tiny_dataset: Path, tmp_path: Path) -> None:
+    """A PLY of the scene and the posed models, and results/<scene>.json in the Siléane results
+    format under the scene names of the dataset (cycle_XXXX_NNN)."""
+    import trimesh
+
+    from opnet.datasets.sileane_json import read_results_json
+
+    png = sorted((tiny_dataset / "p_depth").rglob("*.png"))[-1]
+    assert _run(checkpoint, tiny_dataset / "p_depth", tmp_path / "out", "min_score=0") == 0
+    name = f"{png.parent.name}_{png.name[:3]}"
+    hyps = read_results_json(tmp_path / "out" / "results" / f"{name}.json")
+    doc = json.loads((tmp_path / "out" / png.parent.name / f"{png.stem}.json").read_text())
+    assert len(hyps) == len(doc["poses"]) and "poses_world" not in doc  # IPA: camera frame only
+    cloud = trimesh.load(tmp_path / "out" / png.parent.name / f"{png.stem}.ply")
+    assert len(cloud.vertices) > 1000 and cloud.colors.shape[1] == 4
+
+
+def test_real_sileane_frame(checkpoint: Path, shared: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The real structured-light frame with its own camera file: JSON (camera and world frame),
+    results/depth.json, overlay PNG and PLY (the model is a tiny zbracket one: no claim on what it finds)."""
+    frame = shared / "data" / "sileane_real_frame"
+    assert _run(checkpoint, frame, tmp_path / "out") == 0
+    assert "fx=4507.08" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "out" / "depth.json").read_text())
+    assert len(doc["poses_world"]) == len(doc["poses"])  # camera = world in this file
+    for a, b in zip(doc["poses"], doc["poses_world"]):
+        assert np.allclose(a["t"], b["t"]) and np.allclose(a["R"], b["R"])
+    for suffix in (".png", ".ply"):
+        assert (tmp_path / "out" / f"depth{suffix}").stat().st_size > 1000
+    assert (tmp_path / "out" / "results" / "depth.json").is_file()

@@ -97,7 +97,7 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
 
     run("estimate poses", [("<ckpt>", str(ckpt)), ("<depth png, .npy, or folder>", str(data / "p_depth")),
                            ("<dir>", str(ws / "pred"))])
-    assert len(list((ws / "pred").rglob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
+    assert len(list((ws / "pred" / "results").glob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
     frame = ws / "camera_frame.png"  # a frame of "your camera": no camera file anywhere above it
     depth = np.full((120, 160), 1.1, np.float32)
     depth[40:80, 60:100] = 1.0

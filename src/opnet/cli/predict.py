@@ -14,8 +14,11 @@ Accepted inputs:
 - a ``.npy`` array of depth in metres (NaN or 0 = missing; an integer array with
   ``camera.depth_scale``), with the intrinsics from the config as in 2.
 - a folder: every such file in it (recursively, regular files only).
-Per image it writes ``<name>.json`` (poses R, t in metres in the camera frame, score) and
-``<name>.png`` (the depth image with each estimated object's model projected on it), where
+Per image it writes ``<name>.json`` (poses R, t in metres in the camera frame, score, and in the
+world frame when the camera pose is known: Siléane ``camera_params.txt``), ``results/<scene>.json``
+(the Siléane results format, world frame when known, which ``opnet-evaluate`` scores as it is),
+``<name>.png`` (the depth image with each estimated object's model projected on it) and
+``<name>.ply`` (the scene's points and the posed models, for any 3-D viewer), where
 ``<name>`` mirrors the image's path relative to the input folder (``cycle_0001/004_depth_uint16``),
 so images of the same name in different folders never overwrite each other. An existing output is
 never overwritten unless ``overwrite=true``.
@@ -27,6 +30,7 @@ import io
 import json
 import logging
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,7 +48,9 @@ from opnet.datasets.files import read_bytes, read_text, require_regular_file
 from opnet.datasets.ipa_params import read_parameters
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.sileane import read_camera_params
+from opnet.datasets.sileane_json import write_results_json
 from opnet.geometry.camera import MAX_CLIP_END_M, Camera
+from opnet.geometry.frames import camera_to_world
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -61,6 +67,7 @@ class DepthImage:
     depth: np.ndarray  # (H, W) float32 metres, NaN = missing
     camera: Camera
     camera_source: str = ""  # where the camera came from, for the console
+    world_from_camera: tuple[np.ndarray, np.ndarray] | None = None  # (R_world_cam, t_world_cam) when known
 
 
 @dataclass
@@ -208,7 +215,7 @@ def _load_png(path: Path, given: GivenCamera) -> DepthImage:
         cam = read_parameters(params).camera()
     elif (cp := _find_upwards(path, "camera_params.txt")) is not None:
         source = cp
-        cam = read_camera_params(cp)[0]
+        cam, R_wc, t_wc = read_camera_params(cp)
     else:
         source = None
     code = read_png(path, np.uint16)
@@ -230,8 +237,9 @@ def _load_png(path: Path, given: GivenCamera) -> DepthImage:
         # a crop or a resized image: keep the intrinsics consistent by scaling them
         log.warning("%s: image %sx%s differs from the camera's %sx%s; scaling the intrinsics", path, w, h, cam.width, cam.height)
         cam = cam.resized(w, h)
+    world = (R_wc, t_wc) if source.name == "camera_params.txt" else None
     return DepthImage(path, decode_depth(code, cam.clip_start, cam.clip_end), cam,
-                      f"{_describe_camera(cam)}, depth coded between the clip planes (from {source})")
+                      f"{_describe_camera(cam)}, depth coded between the clip planes (from {source})", world)
 
 
 def load_depth_image(path: Path, camera_cfg: dict[str, Any] | GivenCamera | None) -> DepthImage:
@@ -271,7 +279,7 @@ def _check_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool) 
     existing = []
     for _, name in inputs:
         for target in (out / f"{name}.json", out / f"{name}.png"):
-            if target.resolve() in sources:
+            if target.resolve() in sources:  # (the .ply and results/ files never clash with .png/.npy inputs)
                 raise ValueError(f"{target}: the output would overwrite an input image; choose another out=")
             if target.exists():
                 existing.append(target)
@@ -297,16 +305,68 @@ def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisS
     doc = {"image": str(image.path), "frame": "camera (OpenCV: x right, y down, z forward), metres",
            "camera": {k: getattr(image.camera, k) for k in ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")},
            "object": system.parameterization.obj.name, "poses": poses}
-    written = [out / f"{name}.json"]
+    R_out, t_out = hyps.R, hyps.t
+    if image.world_from_camera is not None:  # Siléane: the camera pose is known, give world poses too
+        R_out, t_out = camera_to_world(hyps.R, hyps.t, *image.world_from_camera)
+        doc["poses_world"] = [{"R": R.tolist(), "t": t.tolist(), "score": float(s)}
+                              for R, t, s in zip(R_out, t_out, hyps.score)]
+    written = [out / f"{name}.json", out / "results" / f"{results_name(name)}.json"]
     write_text_atomic(written[0], json.dumps(doc, indent=1))
+    # the Siléane results format (world frame when known), which opnet-evaluate reads as it is
+    write_results_json(written[1], HypothesisSet(R_out, t_out, hyps.score, hyps.visibility))
     mesh = system.parameterization.obj.mesh
     if mesh is not None:
         img = draw_models(image.depth, image.camera, mesh.vertices, mesh.faces, hyps.above(min_score))
         ok, buf = cv2.imencode(".png", img[..., ::-1])
         if ok:
             written.append(out / f"{name}.png")
-            write_bytes_atomic(written[1], buf.tobytes())
+            write_bytes_atomic(written[-1], buf.tobytes())
+        written.append(out / f"{name}.ply")
+        write_point_cloud(written[-1], image, mesh, hyps.above(min_score))
     return written
+
+
+def results_name(name: Path) -> str:
+    """The scene name of a prediction: ``cycle_XXXX_NNN`` for an IPA depth image
+    (``cycle_XXXX/NNN_depth_uint16``), else the image's stem (Siléane ``depth/<scene>``)."""
+    m = re.fullmatch(r"(cycle_\d+)/(\d+)_depth_uint16", name.as_posix())
+    return f"{m.group(1)}_{m.group(2)}" if m else name.name
+
+
+#: at most this many scene points in the PLY (a 1296 x 1024 frame is subsampled on a regular grid)
+PLY_MAX_POINTS = 300_000
+
+
+def write_point_cloud(path: Path, image: DepthImage, mesh: Any, hyps: HypothesisSet) -> None:
+    """A binary PLY for any 3-D viewer: the scene's points (camera frame, grey by depth) and each
+    estimated object's posed model surface (one colour per object)."""
+    import trimesh
+
+    h, w = image.depth.shape
+    step = max(1, int(math.ceil(math.sqrt(h * w / PLY_MAX_POINTS))))
+    depth = image.depth[::step, ::step]
+    v, u = np.mgrid[0:h:step, 0:w:step]
+    ok = np.isfinite(depth)
+    z = depth[ok].astype(np.float64)
+    pts = np.stack([(u[ok] - image.camera.cx) * z / image.camera.fx, (v[ok] - image.camera.cy) * z / image.camera.fy, z], 1)
+    span = max(float(np.ptp(z)), 1e-6) if len(z) else 1.0
+    grey = (200 - 150 * (z - z.min()) / span).astype(np.uint8) if len(z) else np.zeros(0, np.uint8)
+    colours = [np.stack([grey, grey, grey, np.full_like(grey, 255)], 1)]
+    points = [pts]
+    surface = trimesh.sample.sample_surface_even(mesh, 4000, seed=0)[0] if len(hyps) else np.zeros((0, 3))
+    palette = (np.array(_PALETTE) * 255).astype(np.uint8)
+    for k, (R, t) in enumerate(zip(hyps.R, hyps.t)):
+        points.append(surface @ R.T + t)
+        colours.append(np.tile([*palette[k % len(palette)], 255], (len(surface), 1)).astype(np.uint8))
+    vertices, rgba = np.concatenate(points), np.concatenate(colours)
+    if len(vertices) == 0:  # no depth at all and nothing found: an empty cloud, as a valid PLY
+        header = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+        write_bytes_atomic(path, header.encode())
+        return
+    write_bytes_atomic(path, trimesh.PointCloud(vertices, colors=rgba).export(file_type="ply"))
+
+
+_PALETTE = [(0.9, 0.1, 0.1), (0.1, 0.7, 0.1), (0.1, 0.3, 0.9), (0.9, 0.6, 0.0), (0.6, 0.1, 0.8), (0.0, 0.7, 0.7)]
 
 
 def run(cfg: DictConfig) -> int:
