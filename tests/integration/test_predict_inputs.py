@@ -194,3 +194,11 @@ def test_real_sileane_frame(checkpoint: Path, shared: Path, tmp_path: Path, caps
     for suffix in (".png", ".ply"):
         assert (tmp_path / "out" / f"depth{suffix}").stat().st_size > 1000
     assert (tmp_path / "out" / "results" / "depth.json").is_file()
+
+
+def test_equal_stems_in_different_folders_keep_apart_in_results(checkpoint: Path, tmp_path: Path) -> None:
+    for sub in ("left", "right"):
+        (tmp_path / "in" / sub).mkdir(parents=True)
+        np.save(tmp_path / "in" / sub / "frame.npy", _scene_depth())
+    assert _run(checkpoint, tmp_path / "in", tmp_path / "out", *_camera_args(CAMERA)) == 0
+    assert sorted(p.name for p in (tmp_path / "out" / "results").glob("*.json")) == ["left_frame.json", "right_frame.json"]

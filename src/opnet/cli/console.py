@@ -106,10 +106,10 @@ def user_error_in(e: BaseException) -> BaseException | None:
     """The user error behind ``e``: ``e`` itself, or the cause Hydra's instantiation wrapped
     (``InstantiationException`` keeps the original as ``__cause__``); None for a program error."""
     seen = 0
-    while e is not None and seen < 10:
-        if isinstance(e, USER_ERRORS):
+    while e is not None and seen < 10:  # explicit chaining only: a bug raised while handling a
+        if isinstance(e, USER_ERRORS):  # user error (implicit __context__) stays a bug
             return e
-        e = e.__cause__ or e.__context__
+        e = e.__cause__
         seen += 1
     return None
 

@@ -299,7 +299,7 @@ def predict_image(system: OPNetSystem, image: DepthImage) -> HypothesisSet:
 
 
 def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: OPNetSystem,
-                     min_score: float) -> list[Path]:
+                     min_score: float, scene: str | None = None) -> list[Path]:
     """Write ``<out>/<name>.json`` and (with a mesh) ``<out>/<name>.png``; returns the files written."""
     poses = [{"R": R.tolist(), "t": t.tolist(), "score": float(s)} for R, t, s in zip(hyps.R, hyps.t, hyps.score)]
     doc = {"image": str(image.path), "frame": "camera (OpenCV: x right, y down, z forward), metres",
@@ -310,7 +310,7 @@ def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisS
         R_out, t_out = camera_to_world(hyps.R, hyps.t, *image.world_from_camera)
         doc["poses_world"] = [{"R": R.tolist(), "t": t.tolist(), "score": float(s)}
                               for R, t, s in zip(R_out, t_out, hyps.score)]
-    written = [out / f"{name}.json", out / "results" / f"{results_name(name)}.json"]
+    written = [out / f"{name}.json", out / "results" / f"{scene or results_name(name)}.json"]
     write_text_atomic(written[0], json.dumps(doc, indent=1))
     # the Siléane results format (world frame when known), which opnet-evaluate reads as it is
     write_results_json(written[1], HypothesisSet(R_out, t_out, hyps.score, hyps.visibility))
@@ -379,6 +379,9 @@ def run(cfg: DictConfig) -> int:
     out = Path(cfg.out)
     inputs = list_inputs(Path(cfg.input))
     _check_outputs(out, inputs, bool(cfg.get("overwrite", False)))
+    scenes = {name: results_name(name) for _, name in inputs}
+    if len(set(scenes.values())) < len(scenes):  # equal stems in different folders: keep the folders in the name
+        scenes = {name: name.as_posix().replace("/", "_") for name in scenes}
     failed, written, last_camera = 0, 0, None
     for path, name in inputs:
         try:
@@ -388,7 +391,7 @@ def run(cfg: DictConfig) -> int:
                 last_camera = image.camera_source
             hyps = predict_image(system, image)
             (out / name).parent.mkdir(parents=True, exist_ok=True)
-            write_prediction(out, name, image, hyps, system, float(cfg.min_score))
+            write_prediction(out, name, image, hyps, system, float(cfg.min_score), scenes[name])
             written += 1
             print(f"{path}: {len(hyps.above(cfg.min_score))} objects (score >= {cfg.min_score}), {len(hyps)} hypotheses")
         except (ValueError, FileNotFoundError) as e:

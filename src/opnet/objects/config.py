@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from opnet.geometry.symmetry import Symmetry
 from opnet.objects.io import load_object
 from opnet.objects.model import ObjectModel
 
@@ -28,6 +29,11 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
     symmetry = cfg.get("symmetry")
     if symmetry is not None and not isinstance(symmetry, str):
         symmetry = {k: (list(v) if k == "rotations" else v) for k, v in dict(symmetry).items()}
+    if symmetry is not None:
+        try:  # checked here so that the message names the config key
+            Symmetry.from_spec(symmetry)
+        except ValueError as e:
+            raise ValueError(f"object.symmetry of {cfg['name']!r}: {e}") from None
     return load_object(
         str(cfg["name"]),
         mesh=cfg.get("mesh"),
