@@ -38,6 +38,10 @@ from pathlib import Path
 from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "src"))
+
+from opnet.cli.console import format_duration  # noqa: E402
+
 RESULTS = REPO / "results"
 BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
 QUICKSTART_COMMAND = "python train.py experiment=quickstart"
@@ -46,11 +50,6 @@ QUICKSTART_COMMAND = "python train.py experiment=quickstart"
 def _csv(path: Path) -> list[dict[str, str]]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
-
-
-def _duration(seconds: float) -> str:
-    minutes, sec = divmod(int(round(float(seconds))), 60)
-    return f"{minutes} min {sec:02d} s" if minutes else f"{sec} s"
 
 
 def _table(header: list[str], rows: list[list[Any]]) -> str:
@@ -71,7 +70,7 @@ def block_quickstart(results: Path) -> str:
         f"opnet's defaults and the {q['parameterization']} parameterization for {q['epochs']} epochs, and evaluates "
         f"the best checkpoint on its held-out cycles ({q['scenes']} scenes): **test AP {q['ap']:.4f}** "
         f"(MAP {q['map']:.4f}, F1 {q['f1']:.4f}, {100 * q['found']:.1f} % of the parts found), "
-        f"**{_duration(q['wall_s'])}** end to end on {q['machine']}. The console ends with that summary and the "
+        f"**{format_duration(q['wall_s'])}** end to end on {q['machine']}. The console ends with that summary and the "
         f"paths of the checkpoint, TensorBoard logs, AP table and example prediction PNGs "
         f"([its last lines](results/quickstart/console_tail.txt)).\n"
     )
@@ -79,7 +78,7 @@ def block_quickstart(results: Path) -> str:
 
 def block_defaults(results: Path) -> str:
     rows = [[f"`{r['command']}`", f"**{float(r['ap']):.3f}**", f"{float(r['map']):.3f}", f"{float(r['f1']):.3f}",
-             f"{100 * float(r['found']):.1f}", r["scenes"], _duration(r["wall_s"]) + (f" ({r['note']})" if r["note"] else "")]
+             f"{100 * float(r['found']):.1f}", r["scenes"], format_duration(float(r["wall_s"])) + (f" ({r['note']})" if r["note"] else "")]
             for r in _csv(results / "defaults" / "defaults.csv")]  # fmt: skip
     return _table(["command", "test AP", "MAP", "F1", "found %", "test scenes", "wall time"], rows) + "\n"
 
@@ -310,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         record_run(args.record_run, args.command, args.wall_s, args.note, args.results / "defaults" / "defaults.csv")
     if args.run_quickstart:
         q = run_quickstart(args.results, args.keep)
-        print(f"quickstart: test AP {q['ap']:.4f}, {_duration(q['wall_s'])}")
+        print(f"quickstart: test AP {q['ap']:.4f}, {format_duration(q['wall_s'])}")
     readme = args.readme.read_text()
     if not args.check:
         draw_ceiling_chart(args.results)

@@ -80,6 +80,10 @@ class GivenCamera:
     def describe(self, key: str) -> str:
         return f"camera.{key}={self.values[key]:g} ({self.origin[key]})"
 
+    def sources(self) -> str:
+        """Where the intrinsics came from: "command line", a YAML file, or both."""
+        return " and ".join(sorted(set(self.origin[k] for k in INTRINSIC_KEYS)))
+
 
 def _number(value: Any, key: str, origin: str) -> float:
     try:
@@ -153,8 +157,7 @@ def _camera_from_given(path: Path, given: GivenCamera, width: int, height: int) 
         if key in given.values and int(given.values[key]) != size:
             raise ValueError(f"{path}: image is {width}x{height} but {given.describe(key)}")
     v = given.values
-    origins = sorted(set(given.origin[k] for k in INTRINSIC_KEYS))
-    source = f"{path}: camera from {' and '.join(origins)}"
+    source = f"{path}: camera from {given.sources()}"
     try:
         cam = Camera(v["fx"], v["fy"], v["cx"], v["cy"], width, height, v["clip_start"], v["clip_end"])
     except ValueError as e:
@@ -205,8 +208,7 @@ def _load_npy(path: Path, given: GivenCamera) -> DepthImage:
     if np.isinf(depth).any():
         raise ValueError(f"{path}: depth holds infinite values")
     depth[depth <= 0] = np.nan
-    origins = " and ".join(sorted(set(given.origin[k] for k in INTRINSIC_KEYS)))
-    return DepthImage(path, depth, cam, f"{_describe_camera(cam)}, depth in metres (from {origins})")
+    return DepthImage(path, depth, cam, f"{_describe_camera(cam)}, depth in metres (from {given.sources()})")
 
 
 def _load_png(path: Path, given: GivenCamera) -> DepthImage:
@@ -222,7 +224,6 @@ def _load_png(path: Path, given: GivenCamera) -> DepthImage:
     h, w = code.shape
     if source is None:
         cam = _camera_from_given(path, given, w, h)
-        origins = " and ".join(sorted(set(given.origin[k] for k in INTRINSIC_KEYS)))
         scale = given.values.get("depth_scale")
         if scale is not None:
             depth = code.astype(np.float32) * np.float32(scale)
@@ -231,7 +232,7 @@ def _load_png(path: Path, given: GivenCamera) -> DepthImage:
         else:
             depth = decode_depth(code, cam.clip_start, cam.clip_end)
             encoding = "depth coded between the clip planes, 65535 = none"
-        return DepthImage(path, depth, cam, f"{_describe_camera(cam)}, {encoding} (from {origins})")
+        return DepthImage(path, depth, cam, f"{_describe_camera(cam)}, {encoding} (from {given.sources()})")
     _check_agrees(path, cam, source, given)
     if (h, w) != (cam.height, cam.width):
         # a crop or a resized image: keep the intrinsics consistent by scaling them

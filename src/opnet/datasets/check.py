@@ -128,15 +128,6 @@ def _csv_header_problem(path: Path) -> str | None:
     return None
 
 
-def _json_list_problem(path: Path) -> str | None:
-    head = _head(path, 64)
-    if isinstance(head, str):
-        return head
-    if not head.decode("utf-8", "replace").lstrip("\ufeff \t\r\n").startswith("["):
-        return "expected a JSON list of poses"
-    return None
-
-
 def _fast_ipa(ds: IPADataset) -> list[Problem]:
     problems = []
     size = (ds.camera.width, ds.camera.height)
@@ -194,8 +185,10 @@ def _fast_sileane(ds: SileaneDataset) -> list[Problem]:
     for scene in ds.scenes():
         gt = ds.root / "gt" / f"{scene}.json"
         gt = gt if gt.exists() else ds.root / "gt" / f"{scene}.JSON"
-        if (problem := _json_list_problem(gt)) is not None:
-            problems.append(Problem(gt, problem))
+        try:  # ground truth is small: parse and validate all of it
+            read_gt_json(gt)
+        except (ValueError, FileNotFoundError) as e:
+            problems.append(_as_problem(e, gt))
         if ds.camera is None:
             continue
         depth = ds._image("depth", scene)
@@ -206,11 +199,6 @@ def _fast_sileane(ds: SileaneDataset) -> list[Problem]:
         seg = ds._image("segmentation", scene)
         if seg is not None and (problem := png_header_problem(seg, size, 16)) is not None:
             problems.append(Problem(seg, problem))
-        if not any(p.path == gt for p in problems):
-            try:
-                read_gt_json(gt)
-            except (ValueError, FileNotFoundError) as e:
-                problems.append(_as_problem(e, gt))
     problems += _depth_samples(ds, {p.path for p in problems})
     return problems
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from opnet.datasets.atomic import write_text_if_changed
-from opnet.datasets.files import read_text
+from opnet.datasets.files import read_json
 from opnet.geometry.camera import Camera
 
 PARAMETER_FILE = "parameter.json"
@@ -214,12 +214,7 @@ def read_parameters(path: str | Path) -> IPAParameters:
     path = Path(path)
     if path.is_dir():
         path = path / PARAMETER_FILE
-    try:
-        data = json.loads(read_text(path))
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno})") from e
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply (expected an object of camera parameters)") from None
+    data = read_json(path, "an object of camera parameters")
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got a JSON {type(data).__name__}")
     values = {name: _field(data, key, kind, path) for name, (key, kind) in _FIELDS.items()}

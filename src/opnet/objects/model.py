@@ -6,7 +6,6 @@ metric_and_formats.md §1.3-1.5. The symmetry axis is the model z-axis (method.m
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +14,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from opnet.datasets.files import read_text
+from opnet.datasets.files import read_json
 from opnet.geometry.distance import PoseSpace
 from opnet.geometry.symmetry import Symmetry, symmetry_from_rotations
 from opnet.objects.surface import SurfaceMoments, sqrtm_psd, surface_moments
@@ -172,13 +171,7 @@ def _check_units(diameter: float, source: str) -> None:
 
 
 def _read_json(path: Path) -> dict[str, Any]:
-    text = read_text(path)  # regular files only: /dev/zero or a FIFO would never end
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: malformed JSON ({e.msg} at line {e.lineno}, column {e.colno})") from e
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply") from None
+    data = read_json(path)  # regular files only (/dev/zero or a FIFO would never end), errors naming it
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got {type(data).__name__}")
     return data
