@@ -7,7 +7,10 @@ In one run: the roofline (a 2048^2 fp32 matrix product's GFLOP/s), then per batc
 preprocessing, the forward pass on each inference path (fp32 eager, the default fp32
 channels-last, bf16 autocast channels-last, optionally compiled) with its achieved GFLOP/s and its
 time as a multiple of the roofline floor, decoding + averaging, and end-to-end on the default path;
-then end-to-end / forward at batch 1 for every parameterization.
+then the same network exported to ONNX in ONNX Runtime (``--onnx``, default on when onnxruntime is
+installed): the forward alone, and end-to-end on the torch-free deployment path
+(:class:`opnet.deploy.runtime.OnnxPoseEstimator`: preprocess, graph with dense decoding,
+threshold, averaging); then end-to-end / forward at batch 1 for every parameterization.
 
 Input: a synthetic 512 x 512 bin-picking depth image with 5 % missing pixels (the preprocessing
 crops it to the canvas, resizes to 128 x 128, fills holes, normalizes). Decoding turns a realistic
@@ -85,6 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile'd forwards (slow to start)")
     ap.add_argument("--out", type=Path, help="write the rows to this CSV (replaced)")
+    ap.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime rows")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -111,6 +115,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{b:>5} {name:<34} {ms:>9.2f} {ms / b:>9.2f} {extra}", flush=True)
 
     fast = InferenceSettings()  # the default of predict.py / eval.py
+    onnx = None if args.no_onnx or device.type != "cpu" else onnx_paths(model, param)
     paths = {"forward fp32 eager": InferenceSettings("32", False), "forward fp32 channels-last (default)": fast,
              "forward bf16 autocast channels-last": InferenceSettings("bf16", True)}
     if args.compile:
@@ -133,6 +138,12 @@ def main(argv: list[str] | None = None) -> None:
             return param.decode(run(xs), cams)
 
         record(b, "end-to-end (default path)", timeit(end_to_end, args.repeats if b == 1 else 3, sync), False)
+        if onnx is not None:
+            forward, estimator = onnx
+            xn = x.cpu().numpy()
+            record(b, "forward ONNX Runtime fp32", timeit(lambda: forward(xn), args.repeats if b == 1 else 3), True)
+            record(b, "end-to-end ONNX Runtime (no torch)",
+                   timeit(lambda: estimator.predict_batch(depths, [camera] * b), args.repeats if b == 1 else 3), False)
     e2e_rows = []
     for name in [p for p in args.parameterizations.split(",") if p]:
         p_param, p_model, _ = _setup(name, args.model, obj, net_cam, device)
@@ -156,6 +167,31 @@ def main(argv: list[str] | None = None) -> None:
         args.out.write_text("\n".join(lines) + "\n")
     if device.type == "cuda":
         print(f"training throughput (bf16, batch 32): {train_throughput(model, param.out_channels, device):.1f} images/s")
+
+
+def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndarray], object], object] | None:
+    """(forward of the network alone in ONNX Runtime, the torch-free estimator of the whole
+    pipeline), both exported from ``model`` into a temporary folder; None without onnxruntime."""
+    import tempfile
+    import types
+
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        print("onnxruntime not installed: no ONNX rows")
+        return None
+    from opnet.deploy.export import export_onnx
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    folder = Path(tempfile.mkdtemp(prefix="opnet_bench_onnx_"))
+    net = folder / "network.onnx"
+    with torch.no_grad():
+        torch.onnx.export(model.cpu().eval(), torch.rand(1, 1, 128, 128), str(net), input_names=["x"],
+                          dynamic_axes={"x": {0: "batch"}}, opset_version=17, dynamo=False)
+    session = ort.InferenceSession(str(net), providers=["CPUExecutionProvider"])
+    system = types.SimpleNamespace(backbone=model, parameterization=param)
+    export_onnx(system, {}, Path("bench"), folder / "pipeline.onnx")
+    return (lambda x: session.run(None, {"x": x})), OnnxPoseEstimator(folder / "pipeline.onnx")
 
 
 def _setup(name: str, model_name: str, obj: object, net_cam: Camera, device: torch.device) -> tuple:

@@ -76,6 +76,11 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic[:2] != b"PK" and magic[:1] != b"\x80":  # a zip archive (torch.save) or a pickle (legacy)
+        raise ValueError(f"{path}: cannot read checkpoint (not a PyTorch checkpoint file: neither a zip archive "
+                         "nor a pickle; give the .ckpt that train.py wrote under <run>/checkpoints/)")
     try:
         # weights_only: a checkpoint is data (tensors, numbers, strings, containers); a pickle that
         # would construct other objects, i.e. run code, is refused

@@ -1,24 +1,25 @@
 """Dataset records, readers and writers (Fraunhofer IPA and Siléane layouts), and their ground
-truth as Siléane JSON. The command line converter is ``python -m opnet.datasets.convert``."""
+truth as Siléane JSON. The command line converter is ``python -m opnet.datasets.convert``.
 
-from opnet.datasets.autodetect import open_dataset
-from opnet.datasets.ground_truth import record_to_ground_truth, write_sileane_ground_truth
-from opnet.datasets.ipa import IPADataset, read_ipa_scene, write_ipa_scene
-from opnet.datasets.ipa_params import IPAParameters, read_parameters, write_parameters
-from opnet.datasets.record import SceneRecord
-from opnet.datasets.sileane import SileaneDataset, read_camera_params
+Names are imported on first use (PEP 562): the readers load without PyTorch (opnet.deploy).
+"""
 
-__all__ = [
-    "IPADataset",
-    "IPAParameters",
-    "SceneRecord",
-    "SileaneDataset",
-    "open_dataset",
-    "read_camera_params",
-    "read_ipa_scene",
-    "read_parameters",
-    "record_to_ground_truth",
-    "write_ipa_scene",
-    "write_parameters",
-    "write_sileane_ground_truth",
-]
+from __future__ import annotations
+
+from opnet._lazy import lazy_exports
+
+_WHERE = {
+    "open_dataset": "autodetect",
+    "record_to_ground_truth": "ground_truth",
+    "write_sileane_ground_truth": "ground_truth",
+    "IPADataset": "ipa",
+    "read_ipa_scene": "ipa",
+    "write_ipa_scene": "ipa",
+    "IPAParameters": "ipa_params",
+    "read_parameters": "ipa_params",
+    "write_parameters": "ipa_params",
+    "SceneRecord": "record",
+    "SileaneDataset": "sileane",
+    "read_camera_params": "sileane",
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE)

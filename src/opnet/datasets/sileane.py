@@ -26,7 +26,7 @@ from opnet.datasets.record import SceneRecord
 from opnet.datasets.sileane_json import read_gt_json, scene_files
 from opnet.geometry.camera import Camera
 from opnet.geometry.frames import world_to_camera
-from opnet.geometry.rotations import quaternion_to_matrix
+from opnet.geometry.pose_numpy import quaternion_to_matrix
 from opnet.metrics.records import GroundTruthSet
 
 CAMERA_FILE = "camera_params.txt"

@@ -1,38 +1,31 @@
 """One geometry module: rotations, Euler conventions, camera projection, frames, symmetry and the
 symmetry-aware pose distance. The metric, the loss, the clustering and the parameterizations all
-call it (architecture.md, central decision 5)."""
+call it (architecture.md, central decision 5).
 
-from opnet.geometry.camera import Camera
-from opnet.geometry.distance import PoseSpace
-from opnet.geometry.frames import camera_to_ipa, camera_to_world, ipa_to_camera, world_to_camera
-from opnet.geometry.rotations import (
-    DEFAULT_EULER,
-    axis_angle_rotation,
-    euler_to_matrix,
-    matrix_to_euler,
-    matrix_to_quaternion,
-    orthonormality_error,
-    project_to_so3,
-    quaternion_to_matrix,
-    rotation_angle,
-)
-from opnet.geometry.symmetry import Symmetry
+Names are imported on first use (PEP 562), so that ``opnet.geometry.camera`` and the numpy-only
+modules load without PyTorch (the ONNX deployment path, :mod:`opnet.deploy`).
+"""
 
-__all__ = [
-    "DEFAULT_EULER",
-    "Camera",
-    "PoseSpace",
-    "Symmetry",
-    "axis_angle_rotation",
-    "camera_to_ipa",
-    "camera_to_world",
-    "euler_to_matrix",
-    "ipa_to_camera",
-    "matrix_to_euler",
-    "matrix_to_quaternion",
-    "orthonormality_error",
-    "project_to_so3",
-    "quaternion_to_matrix",
-    "rotation_angle",
-    "world_to_camera",
-]
+from __future__ import annotations
+
+from opnet._lazy import lazy_exports
+
+_WHERE = {
+    "Camera": "camera",
+    "PoseSpace": "distance",
+    "camera_to_ipa": "frames",
+    "camera_to_world": "frames",
+    "ipa_to_camera": "frames",
+    "world_to_camera": "frames",
+    "DEFAULT_EULER": "rotations",
+    "axis_angle_rotation": "rotations",
+    "euler_to_matrix": "rotations",
+    "matrix_to_euler": "rotations",
+    "matrix_to_quaternion": "rotations",
+    "orthonormality_error": "rotations",
+    "project_to_so3": "rotations",
+    "quaternion_to_matrix": "rotations",
+    "rotation_angle": "rotations",
+    "Symmetry": "symmetry",
+}
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE)

@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:
+    import torch
 
 
 #: no depth camera has more pixels a side; larger values are typos that would allocate gigabytes
@@ -89,13 +92,13 @@ class Camera:
 
     def project(self, points_cam: torch.Tensor | np.ndarray) -> torch.Tensor | np.ndarray:
         """Project camera-frame points (..., 3), metres, to pixels (..., 2) as (u, v)."""
-        lib = torch if isinstance(points_cam, torch.Tensor) else np
+        lib = _lib(points_cam)
         x, y, z = points_cam[..., 0], points_cam[..., 1], points_cam[..., 2]
         return lib.stack((self.fx * x / z + self.cx, self.fy * y / z + self.cy), -1)
 
     def backproject(self, u, v, z):  # noqa: ANN001, ANN201 - arrays or tensors, same shapes
         """Pixel coordinates and depth (metres) of the same shape to camera-frame points (..., 3)."""
-        lib = torch if isinstance(z, torch.Tensor) else np
+        lib = _lib(z)
         return lib.stack(((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z), -1)
 
     def depth_to_points(self, depth: np.ndarray) -> np.ndarray:
@@ -129,3 +132,13 @@ class Camera:
     def cropped(self, x0: int, y0: int, width: int, height: int) -> Camera:
         """The camera of the sub-image ``[y0:y0+height, x0:x0+width]`` (x0, y0 may be negative: padding)."""
         return replace(self, cx=self.cx - x0, cy=self.cy - y0, width=width, height=height)
+
+
+def _lib(x: object) -> object:
+    """torch for a tensor, else numpy (torch is imported only when a tensor is given: the camera
+    module loads without PyTorch)."""
+    if type(x).__module__.startswith("torch"):
+        import torch
+
+        return torch
+    return np

@@ -5,51 +5,18 @@ torchmetrics wrapper (metric_and_formats.md §2).
 and the command-line evaluator does not need it.
 """
 
-from typing import Any
+from __future__ import annotations
 
-from opnet.metrics.bregier import (
-    SceneCurve,
-    evaluate_scene,
-    evaluate_scenes,
-    instances_to_find,
-    pose_distances,
-    scene_curve_from_distances,
-    summarize,
-)
-from opnet.metrics.curves import (
-    average_precision,
-    best_f1,
-    mean_curve,
-    recall_at_precision,
-    recall_is_monotone,
-)
-from opnet.metrics.records import GroundTruthSet, HypothesisSet
-from opnet.metrics.report import EvaluationSummary, NonMonotoneRecallWarning
+from opnet._lazy import lazy_exports
 
-__all__ = [
-    "EvaluationSummary",
-    "GroundTruthSet",
-    "HypothesisSet",
-    "NonMonotoneRecallWarning",
-    "PoseAP",
-    "SceneCurve",
-    "average_precision",
-    "best_f1",
-    "evaluate_scene",
-    "evaluate_scenes",
-    "instances_to_find",
-    "mean_curve",
-    "pose_distances",
-    "recall_at_precision",
-    "recall_is_monotone",
-    "scene_curve_from_distances",
-    "summarize",
-]
+# names are imported on first use (PEP 562): the records load without PyTorch (opnet.deploy)
+_WHERE = {
+    "SceneCurve": "bregier", "evaluate_scene": "bregier", "evaluate_scenes": "bregier",
+    "instances_to_find": "bregier", "pose_distances": "bregier", "scene_curve_from_distances": "bregier",
+    "summarize": "bregier", "average_precision": "curves", "best_f1": "curves", "mean_curve": "curves",
+    "recall_at_precision": "curves", "recall_is_monotone": "curves", "GroundTruthSet": "records",
+    "HypothesisSet": "records", "EvaluationSummary": "report", "NonMonotoneRecallWarning": "report",
+    "PoseAP": "torchmetric",
+}
 
-
-def __getattr__(name: str) -> Any:
-    if name == "PoseAP":
-        from opnet.metrics.torchmetric import PoseAP
-
-        return PoseAP
-    raise AttributeError(f"module 'opnet.metrics' has no attribute {name!r}")
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE)

@@ -1,7 +1,7 @@
 """Pose averaging for parameterizations with several predictions per object (method.md §6).
 
-DBSCAN in pose space with the symmetry-aware Brégier distance (the metric's own code,
-:meth:`opnet.geometry.PoseSpace.distance`), then one averaged pose per cluster: every
+DBSCAN in pose space with the symmetry-aware Brégier distance (the metric's formula in numpy,
+:mod:`opnet.geometry.pose_numpy`: this module runs without PyTorch, for :mod:`opnet.deploy`), then one averaged pose per cluster: every
 member is first aligned to the best-scored member through the symmetry group, translation =
 score-weighted mean, rotation = score-weighted chordal mean (projected onto SO(3) by SVD; for
 revolution objects the score-weighted mean axis), cluster score = max member score by default.
@@ -12,13 +12,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
 
-from opnet.geometry.distance import PoseSpace
-from opnet.geometry.rotations import euler_to_matrix, project_to_so3
+from opnet.geometry.pose_numpy import axis_rotation, closest_equivalent, pose_distance, project_to_so3
 from opnet.metrics.records import HypothesisSet
+
+if TYPE_CHECKING:
+    from opnet.geometry.distance import PoseSpace
 
 CLUSTER_SCORES = ("max", "sum", "mean")
 
@@ -106,7 +109,7 @@ class PoseAveraging:
         keep_noise: keep DBSCAN noise points (only with min_samples > 1) as single hypotheses.
     """
 
-    space: PoseSpace
+    space: PoseSpace | Any  # or PoseSpaceArrays (deployment)
     eps: float = 0.5
     min_samples: int = 1
     cluster_score: str = "max"
@@ -134,9 +137,8 @@ class PoseAveraging:
         eps = self.eps * self.space.delta
         pairs = cKDTree(hyps.t).query_pairs(eps, output_type="ndarray")  # (P, 2), i < j
         if len(pairs):
-            R, t = torch.from_numpy(hyps.R), torch.from_numpy(hyps.t)
-            a, b = torch.from_numpy(pairs[:, 0]), torch.from_numpy(pairs[:, 1])
-            pairs = pairs[self.space.distance(R[a], t[a], R[b], t[b]).numpy() <= eps]
+            a, b = pairs[:, 0], pairs[:, 1]
+            pairs = pairs[pose_distance(self.space, hyps.R[a], hyps.t[a], hyps.R[b], hyps.t[b]) <= eps]
         i, j = (
             np.concatenate((pairs[:, 0], pairs[:, 1])),
             np.concatenate((pairs[:, 1], pairs[:, 0])),
@@ -193,9 +195,7 @@ class PoseAveraging:
     ) -> np.ndarray:
         """Weighted mean rotation (C, 3, 3) of clusters given contiguously: R (N, 3, 3), w (N,)."""
         R_ref = np.repeat(R_best, counts, axis=0)  # (N, 3, 3)
-        aligned = self.space.closest_equivalent(
-            torch.from_numpy(R_ref), torch.from_numpy(R)
-        ).numpy()
+        aligned = closest_equivalent(self.space, R_ref, R)
         if self.space.revolution:
             axes = np.add.reduceat(w[:, None] * aligned[:, :, 2], start, axis=0)  # (C, 3)
             return axis_rotation(axes / np.linalg.norm(axes, axis=-1, keepdims=True).clip(1e-12))
@@ -211,13 +211,3 @@ class PoseAveraging:
             return total
         return total / np.diff(np.r_[start, len(sorted_score)])
 
-
-def axis_rotation(axes: np.ndarray) -> np.ndarray:
-    """The rotation ``Rz(a) Ry(b)`` whose z-axis is the unit axis: (N, 3) -> (N, 3, 3) float64.
-
-    Revolution objects do not care about the spin about their axis; this is the spin-free (φ3 = 0)
-    representative the parameterizations decode as well.
-    """
-    a = np.arctan2(axes[:, 1], axes[:, 0])
-    b = np.arccos(np.clip(axes[:, 2], -1.0, 1.0))
-    return euler_to_matrix(np.stack((a, b, np.zeros_like(a)), -1), "ZYZ")

@@ -1,0 +1,100 @@
+"""A user's camera from a file: Siléane ``camera_params.txt``, IPA ``parameter.json`` or a YAML.
+
+The YAML holds ``fx fy cx cy width height clip_start clip_end`` (pixels and metres; OpenCV
+convention: pixel centres at integers, x right, y down); predict.py's ``camera.file`` also accepts
+``depth_scale`` and partial files (the rest comes from the command line), the generator needs all
+eight keys. Every error names the file and the problem.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from opnet.datasets.files import read_text
+from opnet.geometry.camera import Camera
+
+YAML_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
+YAML_EXTRA_KEYS = ("depth_scale",)
+
+
+def camera_number(value: Any, key: str, origin: str) -> float:
+    """``value`` as a finite float, or a ValueError naming ``origin`` and ``camera.<key>``."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{origin}: camera.{key}={value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{origin}: camera.{key}={value!r} is not finite")
+    return x
+
+
+def read_camera_yaml(path: str | Path, allowed: tuple[str, ...] = (*YAML_CAMERA_KEYS, *YAML_EXTRA_KEYS)) -> dict[str, float]:
+    """The numbers of a camera YAML (keys among ``allowed``; null values are left out)."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(read_text(path))
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: malformed camera YAML ({e})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: a camera YAML holds a mapping of {', '.join(allowed)}")
+    unknown = sorted(set(map(str, doc)) - set(allowed))
+    if unknown:
+        raise ValueError(f"{path}: unknown camera key(s) {unknown}; expected {', '.join(allowed)}")
+    return {str(k): camera_number(v, str(k), str(path)) for k, v in doc.items() if v is not None}
+
+
+def read_camera_file(path: str | Path) -> Camera:
+    """The camera of ``path``: a ``camera_params.txt`` (Siléane), a ``parameter.json`` (IPA), a
+    ``.yaml`` / ``.yml`` with the eight keys, or a dataset folder holding one of the first two.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: an unknown kind of file, a missing key, a principal point outside the image,
+            implausible values (each message names the file).
+    """
+    from opnet.datasets.ipa_params import PARAMETER_FILE, read_parameters
+    from opnet.datasets.sileane import CAMERA_FILE, read_camera_params
+
+    path = Path(path)
+    if path.is_dir():
+        found = [path / name for name in (CAMERA_FILE, PARAMETER_FILE) if (path / name).is_file()]
+        if not found:
+            raise FileNotFoundError(f"{path}: no {CAMERA_FILE} or {PARAMETER_FILE} in this folder")
+        path = found[0]
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml"):
+        values = read_camera_yaml(path, YAML_CAMERA_KEYS)
+        missing = [k for k in YAML_CAMERA_KEYS if k not in values]
+        if missing:
+            raise ValueError(f"{path}: missing camera key(s) {missing}; a camera YAML needs {', '.join(YAML_CAMERA_KEYS)}")
+        for key in ("width", "height"):
+            if not values[key].is_integer() or values[key] <= 0:
+                raise ValueError(f"{path}: {key}={values[key]:g} must be a positive whole number of pixels")
+        try:
+            camera = Camera(values["fx"], values["fy"], values["cx"], values["cy"], int(values["width"]),
+                            int(values["height"]), values["clip_start"], values["clip_end"])
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
+        camera.check_plausible(str(path))
+    elif path.name.lower().endswith(".txt"):
+        camera = read_camera_params(path)[0]
+    elif suffix == ".json":
+        camera = read_parameters(path).camera()
+    else:
+        raise ValueError(f"{path}: unknown camera file; expected a Siléane camera_params.txt, an IPA "
+                         f"parameter.json or a .yaml with {', '.join(YAML_CAMERA_KEYS)}")
+    return require_principal_point_inside(camera, str(path))
+
+
+def require_principal_point_inside(camera: Camera, source: str) -> Camera:
+    """``camera`` if its principal point lies on the image (a camera's own optical axis does;
+    only crops of images move it outside), else a ValueError naming ``source``."""
+    if not (-0.5 <= camera.cx <= camera.width - 0.5 and -0.5 <= camera.cy <= camera.height - 0.5):
+        raise ValueError(f"{source}: principal point ({camera.cx:g}, {camera.cy:g}) lies outside the "
+                         f"{camera.width}x{camera.height} image (cx in [-0.5, {camera.width - 0.5:g}], "
+                         f"cy in [-0.5, {camera.height - 0.5:g}]); pixels or metres mixed up?")
+    return camera

@@ -1,0 +1,135 @@
+"""Export a trained model to ONNX: the network and a dense decoder in one graph, plus metadata.
+
+The graph takes ``depth`` (B, 1, S_in, S_in) float32, the normalized network input of
+:func:`opnet.data.preprocess.to_network_input`, and ``camera`` (B, 8) float64, the network-input
+camera ``fx fy cx cy width height clip_start clip_end``. It returns, for every cell and slot
+(N = slots x S x S, the order of ``Parameterization.decode``): ``presence`` (B, N),
+``visibility`` (B, N), ``translation`` (B, N, 3) metres in the camera frame and ``rotation``
+(B, N, 3, 3), all float64: the parameterization's own decoding of every cell, traced from the
+same code. What stays outside the graph needs no PyTorch (:mod:`opnet.deploy.runtime`): the
+preprocessing, the presence threshold, the score, and the pose averaging (DBSCAN).
+
+The metadata (ONNX ``metadata_props``, key ``opnet``, JSON) holds what those steps need: input
+size and framing, the decoding settings, the object's pose space for the averaging, the object
+and parameterization names and the output layout; ``opnet_version`` and the source checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from opnet import __version__
+from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.parameterizations.base import Parameterization
+from opnet.parameterizations.positions import CameraBatch
+
+METADATA_KEY = "opnet"
+FORMATS = ("onnx",)
+#: the ONNX opset of the export (onnxruntime 1.32 runs up to 23)
+OPSET = 17
+OUTPUTS = ("presence", "visibility", "translation", "rotation")
+
+
+class DenseDecodingNetwork(torch.nn.Module):
+    """The backbone followed by the decoding of every cell (the graph that is exported)."""
+
+    def __init__(self, backbone: torch.nn.Module, parameterization: Parameterization) -> None:
+        super().__init__()
+        self.backbone = backbone
+        self.param = parameterization
+        L, S = parameterization.slots, parameterization.grid_size
+        slot, row, col = torch.meshgrid(torch.arange(L), torch.arange(S), torch.arange(S), indexing="ij")
+        self.register_buffer("slot", slot.reshape(-1), persistent=False)
+        self.register_buffer("row", row.reshape(-1), persistent=False)
+        self.register_buffer("col", col.reshape(-1), persistent=False)
+
+    def forward(self, depth: torch.Tensor, camera: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        out = self.backbone(depth)
+        B = out.shape[0]
+        L, S, C = self.param.slots, self.param.grid_size, self.param.channels_per_slot
+        N = L * S * S
+        feat = out.reshape(B, L, C, S, S).permute(0, 1, 3, 4, 2).reshape(B * N, C).to(torch.float64)
+        cams = CameraBatch(camera.to(torch.float64)[:, None, :].expand(B, N, 8).reshape(B * N, 8))
+        cells = (self.slot.repeat(B), self.row.repeat(B), self.col.repeat(B))
+        t = self.param.decode_translations(feat[:, 2:5], cells, cams)
+        R = self.param.rotation.decode(feat[:, 5:])
+        return feat[:, 0].reshape(B, N), feat[:, 1].reshape(B, N), t.reshape(B, N, 3), R.reshape(B, N, 3, 3)
+
+
+def parameterization_name(param: Parameterization) -> str:
+    """The config name of a parameterization class (``VanillaParameterization`` -> ``vanilla``)."""
+    return type(param).__name__.removesuffix("Parameterization").lower()
+
+
+def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
+    """Everything the torch-free runtime needs besides the graph."""
+    param: Parameterization = system.parameterization
+    data = cfg.get("data", {}) or {}
+    avg = param.averaging
+    return {
+        "format": 1,
+        "opnet_version": __version__,
+        "checkpoint": str(ckpt),
+        "object": param.obj.name,
+        "parameterization": parameterization_name(param),
+        "rotation": param.rotation.name,
+        "grid_size": param.grid_size,
+        "slots": param.slots,
+        "channels_per_slot": param.channels_per_slot,
+        "out_channels": param.out_channels,
+        "input": {"size": int(data.get("input_size", 128)), "fit": str(data.get("fit", "pad")), "interpolation": "area",
+                  "layout": "NCHW float32, (z - clip_start) / (clip_end - clip_start), missing depth filled"},
+        "camera_input": ["fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"],
+        "outputs": list(OUTPUTS),
+        "decoding": {"threshold": param.threshold, "score": param.score, "min_visibility": param.min_visibility,
+                     "averaging": None if avg is None else {"eps": avg.eps, "min_samples": avg.min_samples,
+                                                            "cluster_score": avg.cluster_score,
+                                                            "keep_noise": avg.keep_noise}},
+        "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
+    }
+
+
+def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET) -> dict[str, Any]:
+    """Write ``out`` (.onnx, with metadata); returns the metadata."""
+    import onnx
+
+    meta = export_metadata(system, cfg, ckpt)
+    size = meta["input"]["size"]
+    model = DenseDecodingNetwork(system.backbone, system.parameterization).eval()
+    depth = torch.rand(2, 1, size, size)
+    cam = torch.tensor([[size * 1.2, size * 1.2, (size - 1) / 2, (size - 1) / 2, size, size, 0.5, 1.5]] * 2,
+                       dtype=torch.float64)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # shape checks of the backbone become constants
+        torch.onnx.export(model, (depth, cam), str(tmp), input_names=["depth", "camera"], output_names=list(OUTPUTS),
+                          dynamic_axes={"depth": {0: "batch"}, "camera": {0: "batch"},
+                                        **{k: {0: "batch"} for k in OUTPUTS}},
+                          opset_version=opset, dynamo=False)
+    proto = onnx.load(str(tmp))
+    entry = proto.metadata_props.add()
+    entry.key, entry.value = METADATA_KEY, json.dumps(meta)
+    proto.producer_name, proto.producer_version = "opnet", __version__
+    onnx.checker.check_model(proto)
+    onnx.save(proto, str(tmp))
+    tmp.replace(out)
+    return meta
+
+
+def reference_outputs(system: Any, depth: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The dense outputs of the PyTorch model (for the export's self-check)."""
+    model = DenseDecodingNetwork(system.backbone, system.parameterization).eval()
+    with torch.no_grad():
+        return tuple(x.numpy() for x in model(torch.from_numpy(depth), torch.from_numpy(camera)))
+
+
+def max_abs_difference(a: tuple[np.ndarray, ...], b: tuple[np.ndarray, ...]) -> dict[str, float]:
+    return {name: float(np.max(np.abs(x - y))) if x.size else 0.0 for name, x, y in zip(OUTPUTS, a, b, strict=True)}
+

@@ -1,0 +1,137 @@
+"""Run an exported model without PyTorch: preprocess -> ONNX Runtime -> decode -> averaging.
+
+    from opnet.deploy.runtime import OnnxPoseEstimator
+    estimator = OnnxPoseEstimator("model.onnx")
+    hyps = estimator.predict(depth_m, camera)   # (H, W) metres, NaN = none; opnet.geometry.camera.Camera
+    hyps.R, hyps.t, hyps.score                  # camera frame, metres, best first not guaranteed
+
+Imports numpy, OpenCV, SciPy and onnxruntime only: this module, the preprocessing
+(:mod:`opnet.data.preprocess`), the camera, the hypothesis records and the averaging load without
+PyTorch (``tests/unit/test_deploy.py`` runs it with ``import torch`` made to fail). The steps after
+the graph are those of ``Parameterization.decode``: cells whose presence exceeds the threshold
+(and whose visibility reaches ``min_visibility``) become hypotheses scored by ``p``, ``p*v`` or
+``v``, then the DBSCAN pose averaging of :class:`opnet.parameterizations.averaging.PoseAveraging`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from opnet.data.preprocess import to_network_input
+from opnet.geometry.camera import Camera
+from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.metrics.records import HypothesisSet
+from opnet.parameterizations.averaging import PoseAveraging
+
+METADATA_KEY = "opnet"
+_REQUIRED = ("parameterization", "grid_size", "slots", "channels_per_slot", "input", "decoding", "pose_space", "outputs")
+_INTERPOLATION = {"area": cv2.INTER_AREA}
+
+
+class OnnxPoseEstimator:
+    """An exported opnet model in ONNX Runtime (CPU by default).
+
+    Args:
+        path: the ``.onnx`` file written by ``python export.py``.
+        providers: ONNX Runtime execution providers (default: CPU).
+        threads: intra-op threads (default: ONNX Runtime's choice, one per core).
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not an ONNX model, no opnet metadata, or metadata that contradicts the graph
+            (the message names the file).
+    """
+
+    def __init__(self, path: str | Path, providers: Sequence[str] = ("CPUExecutionProvider",),
+                 threads: int | None = None) -> None:
+        import onnxruntime as ort
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: ONNX model not found")
+        options = ort.SessionOptions()
+        if threads:
+            options.intra_op_num_threads = int(threads)
+        try:
+            self.session = ort.InferenceSession(str(self.path), options, providers=list(providers))
+        except Exception as e:  # onnxruntime raises its own exception types for foreign files
+            raise ValueError(f"{self.path}: not a loadable ONNX model ({type(e).__name__}: {str(e)[:200]})") from None
+        raw = self.session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
+        if raw is None:
+            raise ValueError(f"{self.path}: no opnet metadata (key {METADATA_KEY!r}); export it with python export.py")
+        try:
+            self.meta: dict[str, Any] = json.loads(raw)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{self.path}: opnet metadata is not JSON ({e})") from None
+        self._check_metadata()
+        d = self.meta["decoding"]
+        self.threshold, self.score, self.min_visibility = float(d["threshold"]), str(d["score"]), float(d["min_visibility"])
+        space = PoseSpaceArrays.from_dict(self.meta["pose_space"])
+        avg = d.get("averaging")
+        self.averaging = None if avg is None else PoseAveraging(space, float(avg["eps"]), int(avg["min_samples"]),
+                                                                str(avg["cluster_score"]), bool(avg.get("keep_noise", False)))
+        self.input_size = int(self.meta["input"]["size"])
+        self.fit = str(self.meta["input"].get("fit", "pad"))
+
+    def _check_metadata(self) -> None:
+        m = self.meta
+        missing = [k for k in _REQUIRED if k not in m]
+        if missing:
+            raise ValueError(f"{self.path}: opnet metadata lacks {missing}")
+        if m["decoding"].get("score") not in ("p", "p*v", "v"):
+            raise ValueError(f"{self.path}: metadata decoding.score={m['decoding'].get('score')!r}, expected p, p*v or v")
+        names = [o.name for o in self.session.get_outputs()]
+        if names != list(m["outputs"]):
+            raise ValueError(f"{self.path}: graph outputs {names} differ from the metadata's {m['outputs']}")
+        cells = int(m["slots"]) * int(m["grid_size"]) ** 2
+        shape = self.session.get_outputs()[0].shape  # (batch, N)
+        if len(shape) != 2 or shape[1] != cells:
+            raise ValueError(f"{self.path}: the graph decodes {shape[1] if len(shape) == 2 else '?'} cells, but the "
+                             f"metadata's {m['parameterization']} parameterization has {m['slots']} slot(s) x "
+                             f"{m['grid_size']}^2 = {cells}: graph and metadata do not belong together")
+        size = self.session.get_inputs()[0].shape
+        if size[2:] != [m["input"]["size"], m["input"]["size"]]:
+            raise ValueError(f"{self.path}: graph input {size} does not match the metadata's input size {m['input']['size']}")
+
+    # ---- the pipeline ------------------------------------------------------------------------
+    def preprocess(self, depth: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """(1, 1, S, S) float32 network input and (1, 8) float64 input camera of one image."""
+        image, cam = to_network_input(np.asarray(depth, dtype=np.float32), camera, size=self.input_size,
+                                      interpolation=_INTERPOLATION[self.meta["input"].get("interpolation", "area")],
+                                      fit=self.fit)
+        row = [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
+        return image[None, None].astype(np.float32), np.asarray([row], dtype=np.float64)
+
+    def run(self, images: np.ndarray, cameras: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The graph on a batch: (presence, visibility, translation, rotation) of every cell."""
+        return tuple(self.session.run(None, {"depth": images, "camera": cameras}))
+
+    def decode(self, presence: np.ndarray, visibility: np.ndarray, t: np.ndarray, R: np.ndarray) -> HypothesisSet:
+        """Hypotheses of one image from its dense outputs (N,), (N,), (N, 3), (N, 3, 3)."""
+        keep = presence > self.threshold
+        if self.min_visibility > 0:
+            keep &= visibility >= self.min_visibility
+        p, v = presence[keep], visibility[keep]
+        score = {"p": p, "p*v": p * v, "v": v}[self.score]
+        hyps = HypothesisSet(R[keep], t[keep], score, v)
+        return self.averaging(hyps) if self.averaging is not None else hyps
+
+    def predict(self, depth: np.ndarray, camera: Camera) -> HypothesisSet:
+        """Pose hypotheses of one depth image ((H, W) metres, NaN = missing) in its camera frame."""
+        image, cam = self.preprocess(depth, camera)
+        presence, visibility, t, R = self.run(image, cam)
+        return self.decode(presence[0], visibility[0], t[0], R[0])
+
+    def predict_batch(self, depths: Sequence[np.ndarray], cameras: Sequence[Camera]) -> list[HypothesisSet]:
+        """Several images in one graph run (faster per image on a CPU)."""
+        pairs = [self.preprocess(d, c) for d, c in zip(depths, cameras, strict=True)]
+        if not pairs:
+            return []
+        outs = self.run(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]))
+        return [self.decode(*(o[i] for o in outs)) for i in range(len(pairs))]
+

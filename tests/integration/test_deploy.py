@@ -1,0 +1,173 @@
+"""ONNX export and the torch-free deployment: every parameterization's graph equals PyTorch's
+dense decoding, the deployment path gives the same hypotheses as predict.py's PyTorch path on
+recorded dataset images in a process where ``import torch`` fails, and bad input is refused."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from conftest import compose_cfg
+from opnet.cli import export as export_cli
+from opnet.cli.build import build_components, load_checkpoint
+from opnet.data.preprocess import to_network_input
+from opnet.datasets.ipa import IPADataset
+from opnet.deploy.export import export_onnx, max_abs_difference, reference_outputs
+from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
+from opnet.objects import builtin_object
+from opnet.paths import REPO_ROOT
+
+pytest.importorskip("onnxruntime")
+from opnet.deploy.runtime import OnnxPoseEstimator  # noqa: E402
+
+
+@pytest.mark.parametrize("param", ["vanilla", "eve", "ap", "z", "mp", "si"])
+def test_every_parameterization_exports_and_matches_pytorch(param: str, tmp_path: Path) -> None:
+    cfg = compose_cfg("train", ["model=tiny", "object=zbracket", f"parameterization={param}"])
+    system = build_components(cfg).system.eval()
+    out = tmp_path / f"{param}.onnx"
+    meta = export_onnx(system, cfg, Path("none.ckpt"), out)
+    assert meta["parameterization"] == param
+    est = OnnxPoseEstimator(out)
+    images, cams = export_cli.synthetic_inputs(meta["input"]["size"], n=3)
+    diff = max_abs_difference(est.run(images, cams), reference_outputs(system, images, cams))
+    assert diff["presence"] < 1e-5 and diff["visibility"] < 1e-5, diff
+    assert diff["translation"] < 1e-5, diff  # metres
+
+
+def _export_with_hypotheses(checkpoint: Path, out: Path) -> tuple[object, Path]:
+    """The tiny checkpoint (2 training steps: presence ~ 0.05 everywhere) exported with threshold 0
+    and averaging on, so every cell is a hypothesis and DBSCAN has work to do."""
+    system, cfg = load_checkpoint(checkpoint)
+    system.parameterization = system.parameterization.with_decoding(
+        threshold=0.0, score="p*v", averaging={"eps": 0.5, "min_samples": 1, "cluster_score": "sum"})
+    export_onnx(system, cfg, checkpoint, out)
+    return system, out
+
+
+def test_deployment_without_torch_gives_predict_hypotheses(checkpoint: Path, tiny_dataset: Path, tmp_path: Path) -> None:
+    system, onnx_path = _export_with_hypotheses(checkpoint, tmp_path / "model.onnx")
+    ds = IPADataset(tiny_dataset)
+    records = [ds[i] for i in (2, 7, 13)]
+    np.savez(tmp_path / "inputs.npz", **{f"depth{i}": r.depth for i, r in enumerate(records)},
+             **{f"camera{i}": np.array([getattr(r.camera, k) for k in ("fx", "fy", "cx", "cy", "width", "height",
+                                                                            "clip_start", "clip_end")])
+                for i, r in enumerate(records)})
+    script = f"""
+import sys
+sys.modules["torch"] = None  # any "import torch" now fails
+import numpy as np
+from opnet.deploy.runtime import OnnxPoseEstimator
+from opnet.geometry.camera import Camera
+est = OnnxPoseEstimator({str(onnx_path)!r})
+data = np.load({str(tmp_path / 'inputs.npz')!r})
+out = {{}}
+for i in range({len(records)}):
+    c = data[f"camera{{i}}"]
+    h = est.predict(data[f"depth{{i}}"], Camera(*c[:4], int(c[4]), int(c[5]), *c[6:]))
+    out.update({{f"R{{i}}": h.R, f"t{{i}}": h.t, f"s{{i}}": h.score}})
+np.savez({str(tmp_path / 'out.npz')!r}, **out)
+assert sys.modules["torch"] is None
+print("torch-free ok")
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=REPO_ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "torch-free ok" in proc.stdout
+    got = np.load(tmp_path / "out.npz")
+    space = system.parameterization.obj.pose_space
+    for i, r in enumerate(records):
+        net_in, net_cam = to_network_input(r.depth, r.camera, size=128, interpolation=cv2.INTER_AREA)
+        with torch.no_grad():
+            ref = system.parameterization.decode(system(torch.from_numpy(net_in)[None, None]), [net_cam])[0]
+        assert len(ref) == len(got[f"s{i}"]) > 0
+        order_ref, order_got = np.argsort(-ref.score, kind="stable"), np.argsort(-got[f"s{i}"], kind="stable")
+        assert np.allclose(ref.score[order_ref], got[f"s{i}"][order_got], atol=1e-5)
+        d = pose_distance(space, ref.R[order_ref], ref.t[order_ref], got[f"R{i}"][order_got], got[f"t{i}"][order_got])
+        assert d.max() < 1e-4  # metres, symmetry-aware: 0.1 mm
+
+
+def test_numpy_pose_space_equals_the_metrics_torch_code() -> None:
+    rng = np.random.default_rng(0)
+    for name in ("zbracket", "shaft", "bracket"):
+        space = builtin_object(name).pose_space
+        q = rng.standard_normal((50, 4))
+        from opnet.geometry.rotations import quaternion_to_matrix
+
+        R = quaternion_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+        t = rng.normal(0, 0.05, (50, 3))
+        ref = space.distance(torch.from_numpy(R[:25]), torch.from_numpy(t[:25]), torch.from_numpy(R[25:]),
+                             torch.from_numpy(t[25:])).numpy()
+        assert np.allclose(pose_distance(space, R[:25], t[:25], R[25:], t[25:]), ref, atol=1e-12)
+        ref_eq = space.closest_equivalent(torch.from_numpy(R[:25]), torch.from_numpy(R[25:])).numpy()
+        assert np.allclose(closest_equivalent(space, R[:25], R[25:]), ref_eq, atol=1e-12)
+
+
+def test_export_entry_point_and_bad_input(checkpoint: Path, tmp_path: Path) -> None:
+    out = tmp_path / "m.onnx"
+    meta = export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", f"out={out}"]))
+    assert out.stat().st_size > 10_000 and max(meta["max_abs_difference"].values()) < 1e-3
+    with pytest.raises(ValueError, match=r"m\.onnx: exists already; pass overwrite=true"):
+        export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", f"out={out}"]))
+    with pytest.raises(ValueError, match=r"format='tflite': unknown export format; expected one of onnx"):
+        export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", "format=tflite"]))
+    with pytest.raises(ValueError, match=r"last\.ckpt: a checkpoint of the 'vanilla' parameterization, not 'eve'"):
+        export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", f"out={tmp_path / 'x.onnx'}", "expect_parameterization=eve"]))
+    not_ckpt = tmp_path / "notes.ckpt"
+    not_ckpt.write_text("not a checkpoint")
+    with pytest.raises(ValueError, match=r"notes\.ckpt: cannot read checkpoint"):
+        export_cli.run(compose_cfg("export", [f"ckpt={not_ckpt}"]))
+    with pytest.raises(FileNotFoundError, match=r"missing\.ckpt: checkpoint not found"):
+        export_cli.run(compose_cfg("export", [f"ckpt={tmp_path / 'missing.ckpt'}"]))
+    # the command line: one-line error, exit 2
+    proc = subprocess.run([sys.executable, "export.py", f"ckpt={not_ckpt}"], cwd=REPO_ROOT, capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.strip().startswith("error:") and "notes.ckpt" in proc.stderr
+
+
+def test_runtime_refuses_foreign_and_mismatched_models(checkpoint: Path, tmp_path: Path) -> None:
+    import onnx
+
+    out = tmp_path / "m.onnx"
+    export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", f"out={out}", "check=false"]))
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"\x00garbage")
+    with pytest.raises(ValueError, match=r"junk\.onnx: not a loadable ONNX model"):
+        OnnxPoseEstimator(junk)
+    proto = onnx.load(str(out))
+    meta = json.loads(proto.metadata_props[0].value)
+    # metadata claiming another parameterization layout than the graph decodes (MP: several slots)
+    proto.metadata_props[0].value = json.dumps({**meta, "parameterization": "mp", "slots": 4})
+    onnx.save(proto, str(tmp_path / "mismatch.onnx"))
+    with pytest.raises(ValueError, match=r"mismatch\.onnx: the graph decodes 256 cells, but the metadata's mp"):
+        OnnxPoseEstimator(tmp_path / "mismatch.onnx")
+    del proto.metadata_props[0]
+    onnx.save(proto, str(tmp_path / "bare.onnx"))
+    with pytest.raises(ValueError, match=r"bare\.onnx: no opnet metadata"):
+        OnnxPoseEstimator(tmp_path / "bare.onnx")
+
+
+def test_deploy_command_line_without_torch(checkpoint: Path, tiny_dataset: Path, tmp_path: Path) -> None:
+    """``python -m opnet.deploy`` on a dataset folder, with torch unimportable: the outputs of
+    predict.py (pose JSON, Siléane results), exit 0; bad arguments exit 2 with one line."""
+    _, onnx_path = _export_with_hypotheses(checkpoint, tmp_path / "model.onnx")
+    folder = tiny_dataset / "p_depth" / "cycle_0001"
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from opnet.deploy.__main__ import main\n"
+            "sys.exit(main(sys.argv[1:]))")
+    proc = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, cwd=REPO_ROOT)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    pngs = sorted(folder.glob("*.png"))
+    assert f"{len(pngs)} of {len(pngs)} predictions written" in proc.stdout
+    doc = json.loads((tmp_path / "out" / f"{pngs[-1].stem}.json").read_text())
+    assert doc["object"] == "zbracket" and len(doc["poses"]) > 0
+    assert len(list((tmp_path / "out" / "results").glob("*.json"))) == len(pngs)
+    bad = subprocess.run([sys.executable, "-c", code, str(tmp_path / "none.onnx"), str(folder), "--out", str(tmp_path / "o2")],
+                         capture_output=True, text=True, cwd=REPO_ROOT)
+    assert bad.returncode == 2 and bad.stderr.strip() == f"error: {tmp_path / 'none.onnx'}: ONNX model not found"
