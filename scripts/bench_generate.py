@@ -2,10 +2,14 @@
 
     python scripts/bench_generate.py                       # bracket, 1 and 2 workers, 6 cycles each
     python scripts/bench_generate.py --objects bracket,pin --cycles 6 --breakdown
+    python scripts/bench_generate.py --scene bulk --drops 75 --cycles 2   # Siléane-like bulk piles
 
 Pool start-up (process spawn, imports, EGL and pybullet set-up) is reported separately and not
 counted in scenes/s. ``--breakdown`` times physics, rendering and writing of one cycle in this
 process. Objects: built-in names, or conf/object names (bunny, ring_screw, gear_shaft need ../shared).
+``--scene`` names a conf/scene preset (``bulk``: 70-80 parts in several layers). The table also
+gives the pile's occlusion in the last scene of every cycle: parts fully hidden (visibility 0)
+and parts less than half visible.
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ import os
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
@@ -61,8 +67,9 @@ def main() -> None:
     ap.add_argument("--drops", type=int, default=20)
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--breakdown", action="store_true")
+    ap.add_argument("--scene", default="default", help="conf/scene preset (e.g. bulk)")
     args = ap.parse_args()
-    scene = SceneConfig(resolution=args.resolution)
+    scene = scene_preset(args.scene, resolution=args.resolution)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_generate_") as tmp:
         for name in args.objects.split(","):
@@ -73,16 +80,41 @@ def main() -> None:
                 out = Path(tmp) / f"{name}_w{workers}"
                 r = generate_dataset(obj, out, args.cycles, args.drops, workers=workers, seed=0, scene=scene,
                                      progress=False, previews=0)
-                rows.append((name, workers, r))
-    print(f"\n{args.resolution} x {args.resolution}, {args.drops} drops per cycle, {os.cpu_count()} CPUs. "
+                rows.append((name, workers, r, occlusion(out, args.drops)))
+    print(f"\nscene={args.scene}, {args.resolution} x {args.resolution}, {args.drops} drops per cycle, {os.cpu_count()} CPUs. "
           "scenes/s: after the first worker is ready; steady: sum over workers of scenes / busy time\n")
     print("| object | workers | cycles | scenes | start-up s | total s | scenes/s | steady scenes/s "
-          "| re-drops | unsettled | solo renders/scene |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for name, workers, r in rows:
+          "| re-drops | unsettled | solo renders/scene | fully hidden | < 50 % visible |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, workers, r, (hidden, half) in rows:
         print(f"| {name} | {workers} | {r.cycles_generated} | {r.scenes_written} | {r.startup_seconds:.1f} | "
               f"{r.seconds:.1f} | {r.scenes_per_second:.2f} | {r.steady_scenes_per_second:.2f} | {r.redrops} | "
-              f"{r.unsettled} | {r.solo_renders / max(r.scenes_written, 1):.1f} |")
+              f"{r.unsettled} | {r.solo_renders / max(r.scenes_written, 1):.1f} | {100 * hidden:.0f} % | {100 * half:.0f} % |")
+
+
+def scene_preset(name: str, **overrides: object) -> SceneConfig:
+    """The SceneConfig of conf/scene/<name>.yaml (a preset's ``defaults`` resolved) with overrides."""
+    from omegaconf import OmegaConf
+
+    from opnet.paths import config_dir
+
+    def load(preset: str) -> dict:
+        doc = OmegaConf.to_container(OmegaConf.load(config_dir() / "scene" / f"{preset}.yaml"))
+        values: dict = {}
+        for base in doc.pop("defaults", []):
+            values.update(load(base))
+        return {**values, **doc}
+
+    return SceneConfig.from_dict({**load(name), **overrides})
+
+
+def occlusion(root: Path, drops: int) -> tuple[float, float]:
+    """Shares of parts fully hidden and less than half visible in the last scene of every cycle."""
+    from opnet.datasets.ipa import IPADataset
+
+    ds = IPADataset(root)
+    vis = np.concatenate([ds[i].visibility for i in range(len(ds)) if ds.scene_name(i).endswith(f"_{drops:03d}")])
+    return float((vis == 0).mean()), float((vis < 0.5).mean())
 
 
 if __name__ == "__main__":

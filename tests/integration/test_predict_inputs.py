@@ -202,3 +202,18 @@ def test_equal_stems_in_different_folders_keep_apart_in_results(checkpoint: Path
         np.save(tmp_path / "in" / sub / "frame.npy", _scene_depth())
     assert _run(checkpoint, tmp_path / "in", tmp_path / "out", *_camera_args(CAMERA)) == 0
     assert sorted(p.name for p in (tmp_path / "out" / "results").glob("*.json")) == ["left_frame.json", "right_frame.json"]
+
+
+def test_png_whose_size_differs_from_its_camera_file_is_refused(checkpoint: Path, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A depth PNG beside a camera file of another size is an error naming both (it was silently rescaled)."""
+    frame = tmp_path / "frame"
+    frame.mkdir()
+    (frame / "camera_params.txt").write_text("width\t1296\nheight\t1024\nfu\t4507.08\nfv\t4507.08\ncu\t399.557\n"
+                                             "cv\t556.6\nclip_start\t0.76\nclip_end\t0.93\nlocation\t0 0 0\nrotation\t1 0 0 0\n")
+    write_png(frame / "depth.PNG", encode_depth(_scene_depth(80, 100), 0.5, 1.5))
+    assert _run(checkpoint, frame, tmp_path / "out") == 1
+    captured = capsys.readouterr()
+    assert "depth.PNG: image is 100x80 but its camera" in captured.out + captured.err
+    assert "camera_params.txt is 1296x1024" in captured.out + captured.err
+    assert not (tmp_path / "out" / "depth.json").exists()

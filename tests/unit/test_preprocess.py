@@ -235,3 +235,27 @@ def test_resize_interpolations_are_the_seven_opencv_options() -> None:
         "nearest", "linear", "area", "cubic", "lanczos4", "nearest-exact", "linear-exact"
     }  # fmt: skip
     assert len(set(RESIZE_INTERPOLATIONS.values())) == 7
+
+
+def test_framings_of_an_off_centre_camera() -> None:
+    """Siléane's camera (principal point 250 px left of centre): the centred square wastes most of
+    the input; the image-centred squares use all of it (padding only the short side, or cropping)."""
+    from opnet.data.preprocess import framing_coverage, network_camera, square_canvas
+
+    cam = Camera(4507.08, 4507.08, 399.557, 556.6, 1296, 1024, 0.76, 0.93)
+    assert square_canvas(cam, "image") == (0, -136, 1296)
+    assert square_canvas(cam, "image_crop") == (136, 0, 1024)
+    pad_in, pad_img = framing_coverage(cam, "pad")
+    assert pad_img == 1.0 and pad_in < 0.45  # all of the image, in less than half of the input
+    img_in, img_img = framing_coverage(cam, "image")
+    assert img_img == 1.0 and abs(img_in - 1024 / 1296) < 1e-9
+    assert framing_coverage(cam, "image_crop") == (1.0, 1024 / 1296)
+    crop_in, crop_img = framing_coverage(cam, "crop")
+    assert crop_in == 1.0 and crop_img < 0.5
+    # the input camera keeps the geometry: a point projects to the same content
+    p = np.array([0.05, -0.02, 0.85])
+    for fit in ("pad", "crop", "image", "image_crop"):
+        x0, y0, side = square_canvas(cam, fit)
+        u, v = cam.project(p)
+        un, vn = network_camera(cam, 128, fit).project(p)
+        assert np.allclose([(u + 0.5 - x0) * 128 / side - 0.5, (v + 0.5 - y0) * 128 / side - 0.5], [un, vn])

@@ -38,6 +38,7 @@ def run(cfg: DictConfig) -> GenerationReport:
         progress=bool(cfg.get("progress", True)),
         previews=int(cfg.get("previews", 4)),
         object_config=object_config,
+        sensor=OmegaConf.to_container(cfg.sensor, resolve=True) if cfg.get("sensor") is not None else None,
     )
     log.info(
         "%s: %d cycles generated, %d already complete; %d scenes in %.1f s (%.2f scenes/s after %.1f s start-up); "

@@ -151,7 +151,7 @@ class DepthAugmenter:
         self._noise = A.GaussNoise(std_range=self.noise_std, p=1.0)
 
     def view(
-        self, depth: np.ndarray, camera: Camera, rng: np.random.Generator
+        self, depth: np.ndarray, camera: Camera, rng: np.random.Generator, fit: str = "pad"
     ) -> tuple[Camera, tuple[int, int, int] | None]:
         """Random viewing conditions of a scene before it becomes the network input.
 
@@ -159,13 +159,14 @@ class DepthAugmenter:
             depth: (H, W) metres, NaN = missing (only read: its valid depth range).
             camera: the scene's camera.
             rng: the generator all draws come from.
+            fit: the framing rule whose canvas the zoom window lies in.
         Returns:
             ``(camera, canvas)``: the camera with (maybe) other clip planes, and the square window
             ``(x0, y0, side)`` to resize to the network input (None: the usual canvas).
         """
         canvas = None
         if self.p_zoom > 0 and rng.random() < self.p_zoom:
-            x0, y0, side = square_canvas(camera)
+            x0, y0, side = square_canvas(camera, fit)
             window = max(1, round(side * rng.uniform(*self.zoom)))
             canvas = (x0 + int(rng.integers(side - window + 1)), y0 + int(rng.integers(side - window + 1)), window)
         if self.p_clip > 0 and rng.random() < self.p_clip:

@@ -80,15 +80,16 @@ def decode_depth(code: np.ndarray, camera: Camera) -> np.ndarray:
     return depth
 
 
-def canvas_record(record: SceneRecord, size: int) -> SceneRecord:
-    """The record on its square canvas resized to ``size`` (what the cache stores, before coding)."""
-    x0, y0, side = square_canvas(record.camera)
+def canvas_record(record: SceneRecord, size: int, fit: str = "pad") -> SceneRecord:
+    """The record on its square canvas (framing ``fit``) resized to ``size`` (what the cache
+    stores, before coding)."""
+    x0, y0, side = square_canvas(record.camera, fit)
     values, weight = _depth_canvas(record.depth, x0, y0, side)
     depth = _resize_weighted(values, weight, size, cv2.INTER_AREA)
-    camera = network_camera(record.camera, size)
+    camera = network_camera(record.camera, size, fit)
     seg = None
     if record.segmentation is not None:
-        seg = resize_segmentation(record.segmentation, record.camera, size)
+        seg = resize_segmentation(record.segmentation, record.camera, size, fit=fit)
     return SceneRecord(
         record.name, depth, camera, seg, record.R_cam_obj, record.t_cam_obj, record.visibility,
         record.instance_id, record.object_name,
@@ -104,6 +105,7 @@ class CacheInfo:
     shard_scenes: int
     fingerprint: str
     keys: list[Any]
+    fit: str = "pad"
 
     @property
     def num_shards(self) -> int:
@@ -113,7 +115,7 @@ class CacheInfo:
         keys = [list(k) if isinstance(k, tuple) else k for k in self.keys]
         return json.dumps({"version": CACHE_VERSION, "size": self.size, "num_scenes": self.num_scenes,
                            "shard_scenes": self.shard_scenes, "fingerprint": self.fingerprint,
-                           "keys": keys})  # fmt: skip
+                           "keys": keys, **({"fit": self.fit} if self.fit != "pad" else {})})  # fmt: skip
 
     @classmethod
     def read(cls, path: Path) -> CacheInfo | None:
@@ -123,22 +125,24 @@ class CacheInfo:
             if raw.get("version") != CACHE_VERSION:
                 return None
             keys = [tuple(k) if isinstance(k, list) else k for k in raw["keys"]]
-            return cls(int(raw["size"]), int(raw["num_scenes"]), int(raw["shard_scenes"]), str(raw["fingerprint"]), keys)
+            return cls(int(raw["size"]), int(raw["num_scenes"]), int(raw["shard_scenes"]), str(raw["fingerprint"]), keys,
+                       str(raw.get("fit", "pad")))
         except (OSError, ValueError, KeyError, TypeError):
             return None
 
 
-def default_cache_dir(root: str | Path, size: int) -> Path:
-    """``<root>/cache_s<size>`` (also for a dataset still to be generated); for a dataset on
-    read-only storage without a complete cache there, a folder of the user cache ($OPNET_CACHE or
-    ~/.cache/opnet) named by the dataset."""
-    local = Path(root) / f"cache_s{size}"
+def default_cache_dir(root: str | Path, size: int, fit: str = "pad") -> Path:
+    """``<root>/cache_s<size>`` (``_<fit>`` appended for another framing than ``pad``; also for a
+    dataset still to be generated); for a dataset on read-only storage without a complete cache
+    there, a folder of the user cache ($OPNET_CACHE or ~/.cache/opnet) named by the dataset."""
+    tag = f"s{size}" if fit == "pad" else f"s{size}_{fit}"
+    local = Path(root) / f"cache_{tag}"
     if not Path(root).exists() or os.access(root, os.W_OK) or (local / "cache.json").is_file() and not _incomplete(local):
         return local
     from opnet.synthesis.collision import default_cache_dir as user_cache
 
     digest = hashlib.sha1(str(Path(root).resolve()).encode()).hexdigest()[:16]
-    return user_cache() / "scenes" / f"{Path(root).name}_{digest}_s{size}"
+    return user_cache() / "scenes" / f"{Path(root).name}_{digest}_{tag}"
 
 
 def _incomplete(path: Path) -> bool:
@@ -158,7 +162,7 @@ def _write_shard(source: Any, path: Path, shard: int, info: CacheInfo) -> None:
     cams, counts, names = [], [], []
     R, t, vis, ids = [], [], [], []
     for k, i in enumerate(indices):
-        rec = canvas_record(source[i], info.size)
+        rec = canvas_record(source[i], info.size, info.fit)
         depth[k] = encode_depth(rec.depth, rec.camera)
         segs.append(np.zeros((info.size, info.size), np.int64) if rec.segmentation is None else rec.segmentation)
         cams.append([getattr(rec.camera, f) for f in _CAMERA_FIELDS])
@@ -194,7 +198,7 @@ def _build_shards(args: tuple[Any, Path, list[int], CacheInfo]) -> int:
 
 
 def build_scene_cache(
-    source: Any, path: str | Path, size: int = 256, shard_scenes: int = 512, workers: int = 1
+    source: Any, path: str | Path, size: int = 256, shard_scenes: int = 512, workers: int = 1, fit: str = "pad"
 ) -> SceneCache:
     """Write (or complete) the cache of a dataset and open it.
 
@@ -204,6 +208,7 @@ def build_scene_cache(
         size: side of the cached square canvas in pixels.
         shard_scenes: scenes per shard file.
         workers: processes that build shards in parallel (the source must be picklable).
+        fit: the framing of the canvas (:func:`opnet.data.preprocess.square_canvas`).
     Returns:
         The opened cache. A folder holding a cache of other settings or of another scene list is
         rebuilt from scratch.
@@ -212,10 +217,10 @@ def build_scene_cache(
     if size < 1 or shard_scenes < 1:
         raise ValueError(f"scene cache: size={size} and shard_scenes={shard_scenes} must be positive")
     keys = scene_keys(source)
-    info = CacheInfo(int(size), len(keys), int(shard_scenes), _fingerprint(keys), keys)
+    info = CacheInfo(int(size), len(keys), int(shard_scenes), _fingerprint(keys), keys, fit)
     old = CacheInfo.read(path)
-    if old is not None and (old.size, old.num_scenes, old.shard_scenes, old.fingerprint) != (
-        info.size, info.num_scenes, info.shard_scenes, info.fingerprint
+    if old is not None and (old.size, old.num_scenes, old.shard_scenes, old.fingerprint, old.fit) != (
+        info.size, info.num_scenes, info.shard_scenes, info.fingerprint, info.fit
     ):
         log.info("%s: cache of other settings or scenes; rebuilding", path)
         for f in path.glob("shard_*"):

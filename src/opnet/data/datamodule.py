@@ -22,9 +22,11 @@ from torch.utils.data import DataLoader, Dataset
 
 from opnet.data.augment import DepthAugmenter
 from opnet.data.cache import build_scene_cache, default_cache_dir
+from opnet.data.preprocess import CANVAS_FITS, square_canvas
 from opnet.data.sample import Batch, Sample, collate, make_sample, random_interpolation
 from opnet.datasets import open_dataset
 from opnet.datasets.record import SceneRecord
+from opnet.geometry.camera import Camera
 from opnet.objects.model import ObjectModel
 
 log = logging.getLogger(__name__)
@@ -47,8 +49,10 @@ class SceneSamples(Dataset):
         train: bool = False,
         augmenter: DepthAugmenter | None = None,
         random_resize: bool = True,
+        fit: str = "pad",
     ) -> None:
         self.source = source
+        self.fit = fit
         self.indices = list(indices)
         self.input_size = input_size
         self.train = train
@@ -65,7 +69,7 @@ class SceneSamples(Dataset):
     def __getitem__(self, i: int) -> Sample:
         if not self.train:
             if i not in self._fixed:
-                self._fixed[i] = make_sample(self.record(i), self.input_size, cv2.INTER_AREA)
+                self._fixed[i] = make_sample(self.record(i), self.input_size, cv2.INTER_AREA, fit=self.fit)
             return self._fixed[i]
         # torch's global generator is seeded by Lightning (main process and each worker), so the
         # augmentation stream is reproducible for a seed and differs between epochs
@@ -76,7 +80,7 @@ class SceneSamples(Dataset):
             interp = self.augmenter.draw_interpolation(rng)
         else:
             interp = random_interpolation(rng)
-        return make_sample(self.record(i), self.input_size, interp, self.augmenter, rng)
+        return make_sample(self.record(i), self.input_size, interp, self.augmenter, rng, fit=self.fit)
 
 
 class ConcatScenes:
@@ -139,6 +143,16 @@ def split_groups(
     return train, val, test
 
 
+def cache_fit(source: Any, fit: str) -> str:
+    """The framing a dataset's cache is stored under: ``pad`` when the dataset has one camera whose
+    ``fit`` canvas is the ``pad`` canvas (a centred principal point: the caches made before other
+    framings existed stay valid), else ``fit``."""
+    camera = getattr(source, "camera", None)
+    if isinstance(camera, Camera) and square_canvas(camera, fit) == square_canvas(camera, "pad"):
+        return "pad"
+    return fit
+
+
 class OPNetDataModule(L.LightningDataModule):
     """Serves depth scenes as network samples.
 
@@ -158,7 +172,8 @@ class OPNetDataModule(L.LightningDataModule):
         cache: read the scenes from a scene cache (:mod:`opnet.data.cache`: built once, after
             generation; bounded memory, fast reads) instead of the dataset files.
         cache_size: side of the cached canvas in pixels; None = twice ``input_size``.
-        cache_dir: where the cache lives; None = ``<root>/cache_s<size>``.
+        cache_dir: where the cache lives; None = ``<root>/cache_s<size>`` (``_<fit>`` appended for a
+            framing whose canvases differ from ``pad``'s, see :func:`cache_fit`).
         cache_workers: processes that build the cache.
         test_root: a separate dataset (or a list) whose scenes, all of them, form the test split;
             the ``test_fraction`` of ``root`` is then not held out.
@@ -167,6 +182,11 @@ class OPNetDataModule(L.LightningDataModule):
             validated) or ``"off"``. A problem stops the run at once, naming the file.
         object_id: for a BOP split folder: the ``obj_id`` whose instances are the ground truth.
         clip: for BOP data: (near, far) working range in metres (None: from the first image).
+        fit: how an image becomes the square network input (:data:`opnet.data.preprocess.CANVAS_FITS`):
+            ``image`` (centred on the image, short side padded: the configs' default), ``pad``
+            (centred on the principal point: this argument's default, the framing of checkpoints
+            without the key), ``crop``, ``image_crop``. The checkpoint keeps it: eval.py,
+            predict.py and the ONNX export frame images the same way.
     """
 
     def __init__(
@@ -192,8 +212,12 @@ class OPNetDataModule(L.LightningDataModule):
         check: str = "fast",
         object_id: int | None = None,
         clip: Sequence[float] | None = None,
+        fit: str = "pad",
     ) -> None:
         super().__init__()
+        if fit not in CANVAS_FITS:
+            raise ValueError(f"data.fit={fit!r}, expected one of {CANVAS_FITS}")
+        self.fit = fit
         if check not in CHECK_MODES:
             raise ValueError(f"data.check={check!r}, expected one of {CHECK_MODES}")
         self.check = check
@@ -217,7 +241,7 @@ class OPNetDataModule(L.LightningDataModule):
         self.object_config = dict(object_config) if object_config is not None else None
         self.cache = bool(cache)
         self.cache_size = int(cache_size) if cache_size is not None else 2 * int(input_size)
-        self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir(self.root, self.cache_size)
+        self.cache_dir = Path(cache_dir) if cache_dir is not None else None  # None: per dataset, by its framing
         self.cache_workers = int(cache_workers)
         self.test_roots = as_paths(test_root)
         self.test_root = self.test_roots[0] if self.test_roots else None
@@ -263,8 +287,9 @@ class OPNetDataModule(L.LightningDataModule):
             source = open_dataset(root, object_id=self.object_id, clip=self.clip)
             if self.cache:
                 single = root == self.root and len(self.roots) == 1
-                cache_dir = self.cache_dir if single else default_cache_dir(root, self.cache_size)
-                source = build_scene_cache(source, cache_dir, self.cache_size, workers=self.cache_workers)
+                fit = cache_fit(source, self.fit)
+                cache_dir = self.cache_dir if single and self.cache_dir is not None else default_cache_dir(root, self.cache_size, fit)
+                source = build_scene_cache(source, cache_dir, self.cache_size, workers=self.cache_workers, fit=fit)
             sources.append(source)
         return sources[0] if len(sources) == 1 else ConcatScenes(sources)
 
@@ -278,7 +303,8 @@ class OPNetDataModule(L.LightningDataModule):
         test_fraction = 0.0 if self.test_root is not None else self.test_fraction
         tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, test_fraction, self.seed)
         pick = lambda idx: [keep[i] for i in idx]  # noqa: E731
-        common = dict(input_size=self.input_size)
+        # a cached scene is already framed (its canvas is the image): framing it again is the identity
+        common = dict(input_size=self.input_size, fit=self.fit)
         self.splits = {
             "train": SceneSamples(source, pick(tr), train=True, augmenter=self.augmenter,
                                   random_resize=self.random_interpolation, **common),

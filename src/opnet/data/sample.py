@@ -65,22 +65,25 @@ def make_sample(
     interpolation: int = cv2.INTER_AREA,
     augmenter: DepthAugmenter | None = None,
     rng: np.random.Generator | None = None,
+    fit: str = "pad",
 ) -> Sample:
     """Preprocess one scene: crop to the canvas, resize, fill missing depth, normalize, augment.
 
     With an augmenter, its random view (zoom window, clip planes) comes first and the sample's
-    camera is the camera of that view, so the targets stay consistent with the image.
+    camera is the camera of that view, so the targets stay consistent with the image. ``fit`` is
+    the framing rule (:func:`opnet.data.preprocess.square_canvas`).
     """
     camera, canvas = record.camera, None
     if augmenter is not None:
         rng = rng if rng is not None else np.random.default_rng()
-        camera, canvas = augmenter.view(record.depth, record.camera, rng)
-    image, net_camera = to_network_input(record.depth, camera, size=size, interpolation=interpolation, canvas=canvas)
+        camera, canvas = augmenter.view(record.depth, record.camera, rng, fit)
+    image, net_camera = to_network_input(record.depth, camera, size=size, interpolation=interpolation, fit=fit,
+                                         canvas=canvas)
     if augmenter is not None:
         image = augmenter(image, rng)
     seg = None
     if record.segmentation is not None:
-        seg = resize_segmentation(record.segmentation, camera, size, canvas=canvas).astype(np.int64)
+        seg = resize_segmentation(record.segmentation, camera, size, fit=fit, canvas=canvas).astype(np.int64)
     return Sample(
         image=image[None].astype(np.float32),
         camera=net_camera,

@@ -13,6 +13,7 @@ use it.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -24,6 +25,8 @@ from opnet.datasets.files import read_json
 from opnet.geometry.camera import Camera
 
 PARAMETER_FILE = "parameter.json"
+#: opnet's optional key: exact [fx, fy, cx, cy] of a camera the IPA fields cannot express
+INTRINSICS_KEY = "opnet_intrinsics"
 
 #: Python field -> (parameter.json key, kind); kinds: "float", "int", "vec3", "quat"
 _FIELDS: dict[str, tuple[str, str]] = {
@@ -64,6 +67,10 @@ class IPAParameters:
             (``shapeDropLimit``).
         location: camera position in the world, metres.
         rotation: camera orientation in the world, unit quaternion (w, x, y, z).
+        intrinsics: (fx, fy, cx, cy) of a camera the IPA fields cannot express exactly (non-square
+            pixels, a principal point off the half-pixel grid): opnet's optional
+            ``opnet_intrinsics`` key, which :meth:`camera` prefers; the IPA fields then hold the
+            nearest IPA camera, for tools that only know them. None = the IPA fields are exact.
     """
 
     perspective_angle: float
@@ -78,6 +85,7 @@ class IPAParameters:
     shape_drop_limit: int
     location: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rotation: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    intrinsics: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 < self.perspective_angle < 180.0:
@@ -107,6 +115,9 @@ class IPAParameters:
         gives ``x = (u - cx) z / f`` with ``cx = c - pixel_offset_x``,
         ``c = resolution_big / 2 - 0.5``.
         """
+        if self.intrinsics is not None:
+            fx, fy, cx, cy = self.intrinsics
+            return Camera(fx, fy, cx, cy, self.resolution_x, self.resolution_y, self.clip_start, self.clip_end)
         c = self.resolution_big / 2.0 - 0.5
         f = self.focal_length
         return Camera(
@@ -183,12 +194,32 @@ class IPAParameters:
             rotation=tuple(float(x) for x in rotation),  # type: ignore[arg-type]
         )
 
+    @classmethod
+    def for_any_camera(cls, camera: Camera, number_cycles: int, shape_drop_limit: int,
+                       location: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                       rotation: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)) -> IPAParameters:
+        """Parameters whose :meth:`camera` is ``camera`` exactly: :meth:`from_camera` when the IPA
+        fields can express it, else the nearest IPA camera (mean focal length, principal point on
+        the half-pixel grid) plus ``intrinsics`` with the exact values."""
+        try:
+            return cls.from_camera(camera, number_cycles, shape_drop_limit, location, rotation)
+        except ValueError:
+            pass
+        kx, ky = round(2 * camera.cx + 1), round(2 * camera.cy + 1)
+        ky += (kx - ky) % 2  # same parity: both integer or both half-integer
+        f = 0.5 * (camera.fx + camera.fy)
+        near = Camera(f, f, (kx - 1) / 2, (ky - 1) / 2, camera.width, camera.height, camera.clip_start, camera.clip_end)
+        params = cls.from_camera(near, number_cycles, shape_drop_limit, location, rotation)
+        return dataclasses.replace(params, intrinsics=(float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)))
+
     def to_json_dict(self) -> dict[str, Any]:
-        """The ``parameter.json`` content (IPA key names)."""
+        """The ``parameter.json`` content (IPA key names, plus ``opnet_intrinsics`` when set)."""
         out: dict[str, Any] = {}
         for name, (key, kind) in _FIELDS.items():
             value = getattr(self, name)
             out[key] = list(value) if kind in ("vec3", "quat") else value
+        if self.intrinsics is not None:
+            out[INTRINSICS_KEY] = list(self.intrinsics)
         return out
 
 
@@ -218,6 +249,11 @@ def read_parameters(path: str | Path) -> IPAParameters:
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object, got a JSON {type(data).__name__}")
     values = {name: _field(data, key, kind, path) for name, (key, kind) in _FIELDS.items()}
+    if INTRINSICS_KEY in data:
+        k = data[INTRINSICS_KEY]
+        if not (isinstance(k, list) and len(k) == 4 and all(_is_number(x) for x in k) and k[0] > 0 and k[1] > 0):
+            raise ValueError(f"{path}: field {INTRINSICS_KEY!r} is {k!r}, expected [fx, fy, cx, cy] (pixels, fx and fy > 0)")
+        values["intrinsics"] = tuple(float(x) for x in k)
     try:
         params = IPAParameters(**values)
     except ValueError as e:

@@ -15,6 +15,8 @@ from typing import Any
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
+#: fields added after the first datasets were made (left out of to_dict at their defaults)
+_LATER_FIELDS = ("camera_file", "camera_file_clip")
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,16 @@ class SceneConfig:
         max_redrops: attempts per drop when parts leave the bin (the world is restored each time).
         max_cycle_restarts: whole-cycle restarts (fresh random stream) when a drop exhausts its attempts.
 
+    Camera from a file (then ``resolution``, ``width``, ``height`` and ``fov_deg`` are not used):
+        camera_file: a Siléane ``camera_params.txt``, an IPA ``parameter.json`` or a YAML with
+            ``fx fy cx cy width height clip_start clip_end``: the intrinsics and image size of the
+            generated images (non-square pixels and any principal point on the image).
+        camera_file_clip: use the file's clip planes (a real rig at a known ``camera_height``);
+            default: derived from the bin like for the built-in camera.
+        Domain randomization around the camera: ``camera_jitter_m`` (position, height included)
+        and ``camera_jitter_deg`` (tilt) per cycle; the intrinsics stay those of the file (one
+        camera per dataset; the training's zoom augmentation varies the apparent focal length).
+
     Rendering:
         solo_cache_mm, solo_cache_deg: an object's solo pixel count (the visibility denominator) is
             reused within a cycle while its pose moved less than this since it was counted.
@@ -106,6 +118,8 @@ class SceneConfig:
     max_cycle_restarts: int = 3
     solo_cache_mm: float = 0.3
     solo_cache_deg: float = 0.3
+    camera_file: str | None = None
+    camera_file_clip: bool = False
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -136,6 +150,7 @@ class SceneConfig:
         for key in ("vhacd_resolution", "solver_iterations", "settle_checks", "check_every", "max_redrops"):
             need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
         need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
+        need(isinstance(self.camera_file_clip, bool), "camera_file_clip", "true or false")
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -153,5 +168,10 @@ class SceneConfig:
         return cls(**values)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict (the inverse of :meth:`from_dict`)."""
-        return dataclasses.asdict(self)
+        """Plain JSON-able dict (the inverse of :meth:`from_dict`); fields added after datasets
+        existed are left out at their defaults, so those datasets' ``generation.json`` still match."""
+        out = dataclasses.asdict(self)
+        for key in _LATER_FIELDS:
+            if out[key] == getattr(SceneConfig, key):
+                del out[key]
+        return out

@@ -19,6 +19,7 @@ from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout
 from opnet.synthesis.physics import BinSimulator, CycleStats
 from opnet.synthesis.rendering import SceneRenderer
+from opnet.synthesis.sensor import SensorModel, sensor_rng
 
 #: the ground plate is this many bin widths wide (it fills the view around the bin)
 GROUND_SCALE = 10.0
@@ -67,6 +68,7 @@ class CycleGenerator:
         scene: camera, bin and physics settings; default :class:`SceneConfig()`.
         cycles: number of cycles of the dataset (only recorded in ``rig.params``).
         collision: a prepared collision model (default: built here, V-HACD cached on disk).
+        sensor: the depth sensor applied to every rendered depth image (default ideal: exact).
     """
 
     def __init__(
@@ -76,11 +78,13 @@ class CycleGenerator:
         scene: SceneConfig | None = None,
         cycles: int = 1,
         collision: CollisionModel | None = None,
+        sensor: SensorModel | None = None,
     ) -> None:
         if drops < 0:
             raise ValueError(f"drops must be >= 0, got {drops}")
         self.obj, self.drops = obj, int(drops)
         self.scene = scene or SceneConfig()
+        self.sensor = sensor or SensorModel()
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects
         self.collision = collision or build_collision_model(obj.mesh, self.scene)
@@ -121,7 +125,7 @@ class CycleGenerator:
             records.append(
                 SceneRecord(
                     name=scene_name(cycle, n),
-                    depth=out.depth,
+                    depth=self.sensor.apply(out.depth, self.rig.camera, sensor_rng(seed, cycle, n)),
                     camera=self.rig.camera,
                     segmentation=out.segmentation,
                     R_cam_obj=T_cam_obj[:, :3, :3].copy(),

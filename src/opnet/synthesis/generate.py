@@ -27,6 +27,7 @@ from opnet.synthesis.collision import CollisionModel, build_collision_model, che
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.cycle import CycleGenerator
 from opnet.synthesis.layout import make_rig
+from opnet.synthesis.sensor import SensorModel
 from opnet.synthesis.writer import (
     clear_cycle,
     cycle_complete,
@@ -93,6 +94,7 @@ class _Job:
     scene: SceneConfig
     collision: CollisionModel
     previews: frozenset[int]
+    sensor: SensorModel
 
 
 @dataclass(frozen=True)
@@ -111,7 +113,7 @@ class _CycleDone:
 class _Worker:
     def __init__(self, job: _Job) -> None:
         self.job = job
-        self.generator = CycleGenerator(job.obj, job.drops, job.scene, job.cycles, job.collision)
+        self.generator = CycleGenerator(job.obj, job.drops, job.scene, job.cycles, job.collision, job.sensor)
         self.ready_at = time.time()
 
     def run(self, cycle: int) -> _CycleDone:
@@ -150,6 +152,7 @@ def generate_dataset(
     progress: bool = True,
     previews: int = 4,
     object_config: Mapping[str, Any] | None = None,
+    sensor: SensorModel | Mapping[str, Any] | None = None,
 ) -> GenerationReport:
     """Generate (or complete) an IPA-layout dataset of ``cycles`` x (``drops`` + 1) scenes.
 
@@ -166,6 +169,8 @@ def generate_dataset(
             full scene.
         object_config: the object config to store in ``object.json`` (keys of conf/object/*.yaml);
             default: the built-in's name, or a copy of the mesh in ``out``.
+        sensor: the depth sensor's artefacts (:mod:`opnet.synthesis.sensor`; a model or the
+            ``sensor`` config node); default ideal (exact depth).
     Returns:
         What was done, with timings.
     Raises:
@@ -175,6 +180,7 @@ def generate_dataset(
         raise ValueError(f"need cycles >= 0, 0 <= drops <= 254 and workers >= 1; got {cycles}, {drops}, {workers}")
     start, wall_start = time.perf_counter(), time.time()
     out, scene = Path(out), scene or SceneConfig()
+    sensor = sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)
     rig = make_rig(obj, drops, cycles, scene)
     config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)
     if obj.mesh is not None:
@@ -188,7 +194,7 @@ def generate_dataset(
         # a re-run with fewer cycles leaves the dataset's other cycles in place: parameter.json
         # must keep counting them (number_cycles = cycle folders), not shrink below the folders
         params = dataclasses.replace(params, number_cycles=present[-1] + 1)
-    write_root_files(out, obj, config, params, scene, seed, drops)
+    write_root_files(out, obj, config, params, scene, seed, drops, sensor)
     todo = [c for c in range(cycles) if not cycle_complete(out, c, drops)]
     for c in todo:
         clear_cycle(out, c)
@@ -196,7 +202,7 @@ def generate_dataset(
     if todo:
         assert obj.mesh is not None
         job = _Job(obj, out, drops, cycles, seed, scene, build_collision_model(obj.mesh, scene),
-                   frozenset(preview_cycles(cycles, previews)))
+                   frozenset(preview_cycles(cycles, previews)), sensor)
         with tqdm(total=len(todo) * (drops + 1), unit="scene", disable=not progress, desc=f"generating {out.name}") as bar:
             for done in _run(job, todo, min(workers, len(todo))):
                 bar.update(drops + 1)

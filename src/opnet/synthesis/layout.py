@@ -13,6 +13,9 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
 - wall height ``bin_wall_factor * D``;
 - camera height: the smallest at which the outer rim of the walls, grown by ``view_margin``, fits
   into the smaller image side;
+- a camera from a file (``camera_file``: its intrinsics and image size, any principal point):
+  the camera moves sideways so that the image centre, not the optical axis, looks at the bin
+  centre; its clip planes are used with ``camera_file_clip``, else derived as below;
 - clip planes: ``clip_start`` one diameter above the wall tops (parts rarely pile higher than the
   walls; closer points are written as missing depth), ``clip_end`` past the ground plane at the
   image corners under the worst camera tilt.
@@ -26,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from opnet.datasets.camera_file import read_camera_file
 from opnet.datasets.ipa_params import IPAParameters
 from opnet.geometry.camera import Camera
 from opnet.objects.model import ObjectModel
@@ -58,6 +62,8 @@ def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
     """(3, 3) rotation drawn uniformly on SO(3) (normalized Gaussian quaternion)."""
+    # kept inline: np.linalg.norm of a vector (BLAS dot) and along an axis round differently in the
+    # last bit, and the generated datasets' bytes must not change
     w, x, y, z = (q := rng.standard_normal(4)) / np.linalg.norm(q)
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -148,34 +154,52 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
     bin_geom = BinGeometry(inner, wall, cfg.bin_wall_thickness)
 
-    width, height = cfg.image_size
-    f = cfg.resolution / (2.0 * math.tan(math.radians(cfg.fov_deg) / 2.0))
-    tan_half_image = (min(width, height) / 2.0) / f
+    given = read_camera_file(cfg.camera_file) if cfg.camera_file else None
+    if given is None:
+        width, height = cfg.image_size
+        fx = fy = cfg.resolution / (2.0 * math.tan(math.radians(cfg.fov_deg) / 2.0))
+        corner_tan = math.hypot(width, height) / 2.0 / fx
+    else:
+        width, height, fx, fy = given.width, given.height, given.fx, given.fy
+        corner_tan = max(math.hypot((u - given.cx) / fx, (v - given.cy) / fy)
+                         for u in (-0.5, width - 0.5) for v in (-0.5, height - 0.5))
+    tan_half_image = min(width / 2.0 / fx, height / 2.0 / fy)
     h = cfg.camera_height or wall + (bin_geom.outer / 2.0) * (1.0 + cfg.view_margin) / tan_half_image
     tilt = math.tan(math.radians(cfg.camera_jitter_deg))
-    tan_half_diag = math.hypot(width, height) / 2.0 / f
     clip_start = cfg.clip_start or max(h - wall - D - cfg.camera_jitter_m, 0.1 * h)
-    clip_end = cfg.clip_end or (h + bin_geom.thickness) * (1.0 + tilt * tan_half_diag) * 1.02 + cfg.camera_jitter_m
+    clip_end = cfg.clip_end or (h + bin_geom.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m
+    if given is not None and cfg.camera_file_clip:
+        clip_start, clip_end = cfg.clip_start or given.clip_start, cfg.clip_end or given.clip_end
     if clip_start >= clip_end:
         raise ValueError(f"scene config: clip_start={clip_start} must be below clip_end={clip_end}")
 
-    off_x, off_y = (cfg.resolution - width) // 2, (cfg.resolution - height) // 2
-    params = IPAParameters(
-        perspective_angle=float(cfg.fov_deg),
-        clip_start=float(clip_start),
-        clip_end=float(clip_end),
-        resolution_x=width,
-        resolution_y=height,
-        resolution_big=cfg.resolution,
-        pixel_offset_x=off_x,
-        pixel_offset_y=off_y,
-        number_cycles=int(cycles),
-        shape_drop_limit=int(drops),
-        location=(0.0, 0.0, float(h)),
-        rotation=(0.0, 1.0, 0.0, 0.0),  # w, x, y, z of R_WORLD_CAM_DOWN
-    )
+    if given is None:
+        off_x, off_y = (cfg.resolution - width) // 2, (cfg.resolution - height) // 2
+        params = IPAParameters(
+            perspective_angle=float(cfg.fov_deg),
+            clip_start=float(clip_start),
+            clip_end=float(clip_end),
+            resolution_x=width,
+            resolution_y=height,
+            resolution_big=cfg.resolution,
+            pixel_offset_x=off_x,
+            pixel_offset_y=off_y,
+            number_cycles=int(cycles),
+            shape_drop_limit=int(drops),
+            location=(0.0, 0.0, float(h)),
+            rotation=(0.0, 1.0, 0.0, 0.0),  # w, x, y, z of R_WORLD_CAM_DOWN
+        )
+    else:
+        # the camera moves so that the image centre (not the optical axis) looks at the bin centre:
+        # an off-centre principal point still sees the whole bin
+        sx = -h * ((width - 1) / 2.0 - given.cx) / fx
+        sy = h * ((height - 1) / 2.0 - given.cy) / fy  # image y runs along -world y
+        camera = Camera(fx, fy, given.cx, given.cy, width, height, float(clip_start), float(clip_end))
+        params = IPAParameters.for_any_camera(camera, int(cycles), int(drops), location=(sx, sy, float(h)),
+                                              rotation=(0.0, 1.0, 0.0, 0.0))
+    location = np.array(params.location)
     radius = float(np.linalg.norm(obj.mesh.vertices, axis=1).max())
-    return Rig(bin_geom, params, params.camera(), homogeneous(R_WORLD_CAM_DOWN, np.array([0.0, 0.0, h])), radius)
+    return Rig(bin_geom, params, params.camera(), homogeneous(R_WORLD_CAM_DOWN, location), radius)
 
 
 def sample_layout(rig: Rig, cfg: SceneConfig, rng: np.random.Generator) -> CycleLayout:

@@ -30,6 +30,7 @@ from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.cycle import CycleResult
 from opnet.synthesis.preview import write_preview
+from opnet.synthesis.sensor import SensorModel
 
 OBJECT_FILE = "object.json"
 POSEUTILS_FILE = "poseutils.json"
@@ -66,7 +67,7 @@ def normalized_object_config(config: Mapping[str, Any]) -> dict[str, Any]:
 
 def write_root_files(
     root: Path, obj: ObjectModel, object_config: Mapping[str, Any], params: IPAParameters, scene: SceneConfig,
-    seed: int, drops: int,
+    seed: int, drops: int, sensor: SensorModel | None = None,
 ) -> None:
     """Write (or check and rewrite) the dataset's root files before any scene.
 
@@ -76,13 +77,16 @@ def write_root_files(
     """
     generation = {"format": _FORMAT, "seed": int(seed), "drops": int(drops), "scene": scene.to_dict(),
                   "object": dict(object_config)}
+    if sensor is not None and not sensor.is_ideal:  # ideal datasets keep the files of before sensors existed
+        generation["sensor"] = sensor.to_dict()
     existing_file = root / GENERATION_FILE
     if existing_file.exists():
         try:
             existing = json.loads(existing_file.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError) as e:
             raise ValueError(f"{existing_file}: unreadable ({e}); delete the folder or choose another 'out'") from e
-        differing = sorted(k for k in set(generation) | set(existing) if existing.get(k) != json.loads(_json_text(generation))[k])
+        expected = json.loads(_json_text(generation))
+        differing = sorted(k for k in set(expected) | set(existing) if existing.get(k) != expected.get(k))
         if differing:
             raise ValueError(
                 f"{existing_file}: the folder holds a dataset generated with other settings (keys {differing} differ); "
