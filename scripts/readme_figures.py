@@ -130,7 +130,7 @@ def block_inference(results: Path) -> str:
              f"paper network's {float(head['forward_gflop']):.2f} GFLOP forward has a floor of "
              f"{1000 * float(head['forward_gflop']) / float(head['roofline_gflops']):.1f} ms per image.", ""]
     table = [[r["batch"], r["stage"], r["ms_batch"], r["ms_image"], r["gflops_per_s"], r["x_floor"]]
-             for r in rows if not r["stage"].startswith("end-to-end ") or r["stage"] == "end-to-end (default path)"]
+             for r in rows if not r["stage"].endswith("/ forward")]
     lines.append(_table(["batch", "stage", "ms / batch", "ms / image", "GFLOP/s", "× floor"], table))
     e2e = [r for r in rows if r["stage"].endswith("/ forward")]
     lines += ["", "End-to-end (preprocess + forward + decode + averaging) / forward, batch 1, default path: "
@@ -149,11 +149,51 @@ def block_benchmarks(results: Path) -> str:
     return _table(["script", "what", "figure", "target"], rows) + "\n"
 
 
+def block_sensor(results: Path) -> str:
+    def pct(x: str) -> str:
+        return "–" if x in ("", "nan") else f"{100 * float(x):.0f} %"
+
+    rows = []
+    for r in _csv(results / "sensor" / "holes.csv"):
+        run = "–" if r["run_px"] in ("", "nan") else f"{float(r['run_px']):.0f} px"
+        rows.append([r["source"], r["scenes"], f"{100 * float(r['missing']):.1f} %", f"{100 * float(r['missing_lit']):.1f} %",
+                     pct(r["edge_runs"]), pct(r["right_nearer"]), run, pct(r["speckle"])])
+    lines = [_table(["depth", "scenes", "missing", "missing, lit columns", "holes at depth edges",
+                     "of those, right side nearer", "median hole run", "speckle (holes ≤ 4 px)"], rows), ""]
+    ab = _csv(results / "sensor" / "ab.csv")
+    sensors = list(dict.fromkeys(r["test_sensor"] for r in ab))
+    ap = {(r["train_sensor"], r["test_sensor"]): float(r["ap"]) for r in ab}
+    lines += [f"A/B on the same budget ({ab[0]['object']}, quickstart recipe, seed 0; test AP on {ab[0]['scenes']} "
+              f"held-out scenes of seed 1 per column, [`results/sensor/ab.csv`](results/sensor/ab.csv)):", ""]
+    lines.append(_table(["trained on ↓ / tested on →", *sensors],
+                        [[f"`sensor={t}`", *(f"{ap[(t, s)]:.4f}" for s in sensors)] for t in sensors]))
+    return "\n".join(lines) + "\n"
+
+
+def block_real_frame(results: Path) -> str:
+    s = json.loads((results / "real_frame" / "summary.json").read_text())
+    cam = s["camera"]
+    return (f"camera from its `camera_params.txt` (fx {cam['fx']:g}, principal point ({cam['cx']:g}, {cam['cy']:g}), "
+            f"{cam['width']} × {cam['height']}); **{s['hypotheses']} hypotheses, {s['above_min_score']} with a score "
+            f"above {s['min_score']:g}** (top scores {', '.join(f'{x:.2f}' for x in s['top_scores'][:s['above_min_score']])}; "
+            f"depths {', '.join(f'{x:.2f}' for x in s['depths_above_m'])} m).\n")
+
+
+def block_framing(results: Path) -> str:
+    rows = [[f"`{r['fit']}`", f"{100 * float(r['input_share']):.0f} %", f"{100 * float(r['image_share']):.0f} %",
+             f"{float(r['image_px_per_input_px']):.2f}", f"**{float(r['ap']):.4f}**"]
+            for r in _csv(results / "framing" / "framing.csv")]
+    return _table(["data.fit", "input showing image", "image reaching the input", "image px per input px",
+                   "test AP"], rows) + "\n"
+
+
 PICTURES = [
     ("quickstart/overlay.png", "Quickstart: the densest held-out scene, each estimated part's model drawn on the depth image"),
     ("quickstart/pr_curve.png", "Quickstart: the test split's precision-recall curve (Brégier protocol)"),
     ("learning/curves.png", "Learning benchmark: held-out AP against training minutes, four objects"),
     ("ceiling/ceiling.png", "Parameterization ceiling: the AP of a perfect network per parameterization and object"),
+    ("real_frame/overlay.png", "The real Siléane structured-light frame: the bunny model's detections above 0.5 drawn on it"),
+    ("sensor/holes.png", "Missing depth (red): the real frame, then generated scenes with sensor=ideal, structured_light, tof"),
 ]
 
 
@@ -163,13 +203,14 @@ def block_pictures(results: Path) -> str:
         if not (results / rel).is_file():
             raise FileNotFoundError(f"{results / rel}: picture missing (python scripts/readme_figures.py [--run-quickstart])")
         cells.append(f'<img src="results/{rel}" width="420" alt="{caption}"><br><sub>{caption}</sub>')
-    return ("<table><tr>" + "".join(f"<td>{c}</td>" for c in cells[:2]) + "</tr>\n<tr>"
-            + "".join(f"<td>{c}</td>" for c in cells[2:]) + "</tr></table>\n")
+    rows = ["<tr>" + "".join(f"<td>{c}</td>" for c in cells[i : i + 2]) + "</tr>" for i in range(0, len(cells), 2)]
+    return "<table>" + "\n".join(rows) + "</table>\n"
 
 
 BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning": block_learning, "ab": block_ab,
           "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures,
-          "inference": block_inference}
+          "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
+          "real_frame": block_real_frame}
 
 
 def render(readme: str, results: Path = RESULTS) -> str:

@@ -8,6 +8,7 @@ row without a runner here fails the test, so the table and this test cannot part
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -112,6 +113,22 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
     gen = ws / "generated"
     run("generate data", [("<dir>", str(gen))], ["cycles=2", "drops=3", "scene.resolution=128", "previews=0"])
     assert (gen / "parameter.json").is_file()
+
+    cam = ws / "camera.yaml"  # an off-centre camera of non-square pixels
+    cam.write_text("fx: 140.0\nfy: 142.0\ncx: 50.3\ncy: 44.6\nwidth: 128\nheight: 96\nclip_start: 0.3\nclip_end: 2.0\n")
+    run("generate with your camera and a depth-sensor model",
+        [("<camera.yaml or camera_params.txt>", str(cam)), ("<dir>", str(ws / "gen_camera"))],
+        ["cycles=1", "drops=3", "previews=0"])
+    assert json.loads((ws / "gen_camera" / "parameter.json").read_text())["opnet_intrinsics"] == [140.0, 142.0, 50.3, 44.6]
+    run("generate bulk piles (70–80 parts, many hidden)", [("<dir>", str(ws / "gen_bulk"))],
+        ["drops=10", "cycles=1", "workers=1", "scene.resolution=96", "previews=0"])
+    model = ws / "model.onnx"
+    printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
+    assert model.is_file() and "ONNX Runtime vs PyTorch" in printed
+    run("estimate poses without PyTorch", [("<model.onnx>", str(model)),
+                                           ("<depth png, .npy, or folder>", str(data / "p_depth" / "cycle_0000")),
+                                           ("<dir>", str(ws / "pred_onnx"))])
+    assert len(list((ws / "pred_onnx" / "results").glob("*.json"))) == len(list((data / "p_depth" / "cycle_0000").glob("*.png")))
 
     run("score any results", [("<dir>", str(qs_dir / "test" / "gt")), ("<dir>", str(qs_dir / "test" / "results")),
                               ("<json>", str(data / "poseutils.json"))],

@@ -20,7 +20,7 @@ centred on the *image* (side = the longer image side: only the short side is pad
 ``fit="image_crop"`` the centred square of the shorter side (the long side is cut); the input
 camera's principal point is then off-centre, which the decoding handles (it back-projects with
 the input camera). ``scripts/framing_table.py`` measures the input pixels each uses and the AP:
-on a Siléane-like camera ``image`` scored 0.78 against 0.58 for ``pad``, so the configs default to
+on a Siléane-like camera ``image`` scored 0.78 against 0.61 for ``pad``, so the configs default to
 ``image`` (identical canvases for centred principal points); the functions here keep ``pad`` as
 their default, the framing of checkpoints trained before ``data.fit`` existed.
 """
