@@ -41,8 +41,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 
 from opnet.datasets.ipa import IPADataset  # noqa: E402
-from opnet.datasets.png import decode_depth, read_png  # noqa: E402
-from opnet.datasets.sileane import read_camera_params  # noqa: E402
+from opnet.datasets.depth_inputs import load_depth_image  # noqa: E402
 from opnet.paths import shared_dir  # noqa: E402
 
 EDGE_JUMP_M = 0.01
@@ -108,8 +107,7 @@ def main() -> None:
     real = None
     camera_args: list[str] = ["scene.resolution=512"]
     if frame is not None and (frame / "camera_params.txt").is_file():
-        cam = read_camera_params(frame / "camera_params.txt")[0]
-        real = decode_depth(read_png(frame / "depth.PNG", np.uint16, (cam.height, cam.width)), cam.clip_start, cam.clip_end)
+        real = load_depth_image(frame / "depth.PNG", None).depth  # predict.py's reader: its camera_params.txt
         # the real frame's geometry: its camera, 0.92 m above the floor (its 99th depth percentile)
         camera_args = [f"scene.camera_file={frame / 'camera_params.txt'}", f"scene.camera_height={args.camera_height}"]
     obj = args.object or ("bunny" if shared is not None else "shaft")

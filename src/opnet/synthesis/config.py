@@ -19,6 +19,16 @@ COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 _LATER_FIELDS = ("camera_file", "camera_file_clip")
 
 
+def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -> Any:
+    """``cls(**values)`` for a dataclass; keys that are not its fields are an error naming ``section``."""
+    values = dict(values or {})
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"{section}: unknown keys {unknown}; expected some of {sorted(known)}")
+    return cls(**values)
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Camera, bin and physics settings of a generated dataset.
@@ -160,12 +170,7 @@ class SceneConfig:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> SceneConfig:
         """Build from a mapping (a Hydra ``scene`` node or a plain dict); unknown keys are errors."""
-        values = dict(values or {})
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"scene config: unknown keys {unknown}; expected some of {sorted(known)}")
-        return cls(**values)
+        return from_known_keys(cls, values, "scene config")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (the inverse of :meth:`from_dict`); fields added after datasets

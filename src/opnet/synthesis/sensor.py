@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 
 from opnet.geometry.camera import Camera
+from opnet.synthesis.config import from_known_keys
 
 #: entropy tag of the sensor's random stream (SeedSequence([seed, cycle, scene, SENSOR_STREAM]))
 SENSOR_STREAM = 0x5E45
@@ -105,11 +106,7 @@ class SensorModel:
         """From a mapping (the Hydra ``sensor`` node); None = ideal; unknown keys are errors."""
         values = dict(values or {})
         values.pop("tag", None)  # the dataset-folder suffix of the preset (conf/sensor/*.yaml)
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ValueError(f"sensor: unknown keys {unknown}; expected some of {sorted(known)}")
-        return cls(**values)
+        return from_known_keys(cls, values, "sensor")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -122,9 +119,9 @@ class SensorModel:
     # ---- the model ---------------------------------------------------------------------------
     def apply(self, depth: np.ndarray, camera: Camera, rng: np.random.Generator) -> np.ndarray:
         """The sensor's depth for the exact z-depth ``depth`` ((H, W) metres, NaN = none)."""
-        z = np.asarray(depth, dtype=np.float64)
         if self.is_ideal:
             return np.asarray(depth, dtype=np.float32)
+        z = np.asarray(depth, dtype=np.float64)
         H, W = z.shape
         valid = np.isfinite(z) & (z > 0)
         z = np.where(valid, z, np.nan)
