@@ -1,15 +1,30 @@
-"""The fast inference path of ``predict.py`` and ``eval.py``: memory format, precision, compilation.
+"""The fast inference path of ``predict.py`` and ``eval.py``: network form, memory format,
+precision, compilation.
 
-Measured on this 2-core CPU (AVX512-BF16), paper network, batch 1 (``scripts/bench_infer.py``):
-fp32 eager ≈ 80 ms, fp32 channels-last ≈ 76 ms, bf16 autocast channels-last ≈ 54 ms,
-bf16 channels-last under ``torch.compile`` ≈ 36 ms (after a one-off compilation of ≈ 45 s).
+Measured on this 2-core CPU (AVX512-BF16), paper network, batch 1, same run
+(``scripts/bench_infer.py``, README "Inference speed"): fp32 eager ≈ 68 ms, fp32 channels-last
+≈ 67 ms, the fused fp32 form ≈ 50-54 ms (≈ 1.0 x the matrix-product roofline time of its 10
+GFLOP), bf16 autocast channels-last ≈ 36 ms.
 
-``inference.precision``: ``32`` (the default: the poses of fp32 eager, bit for bit with
-channels-last on this CPU), ``bf16`` (autocast), or ``auto`` = bf16 where the hardware computes it
-natively (CPUs with AVX512-BF16 / AMX, CUDA GPUs), fp32 elsewhere.
+``inference.precision``: ``32`` (the default: the poses of fp32 eager, to float32 rounding),
+``bf16`` (autocast), or ``auto`` = bf16 where the hardware computes it natively (CPUs with
+AVX512-BF16 / AMX, CUDA GPUs), fp32 elsewhere.
+``inference.fused``: ``auto`` = on for fp32 on the CPU: :class:`opnet.models.fused.FusedDenseNet`,
+the network rewritten for inference (block buffers instead of concatenations, batch norms folded,
+prepacked oneDNN convolutions, transitions pooled first); ``false`` = the training module as it is.
 ``inference.channels_last``: ``auto`` = on (faster on CPUs and GPUs alike for this network).
-``inference.compile``: ``torch.compile`` the backbone (worth it for long runs or a service: the
-first call compiles for tens of seconds).
+``inference.compile``: ``torch.compile`` the (unfused) backbone (worth it for long runs or a
+service: the first call compiles for tens of seconds).
+``inference.max_batch``: larger batches run in chunks of this many images; ``auto`` = 8 for the
+unfused paths; for the fused form as many images as keep its largest block buffer within
+``CHUNK_BYTES`` (8 MiB), at most 8: 1 for the paper network (6.5 MB per image; per image 60 ms in
+chunks of 1 or 2, 64 ms of 4, 65 ms of 8, 70 ms of 16), 8 for the small and tiny presets (small:
+3.2 ms per image in chunks of 1, 2.5 of 2, 2.25 of 8, 2.95 of 32).
+``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
+core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
+cores) otherwise. Two images on two cores beat two cores on each image in turn here (fused, batch
+32, per image: paper network 57-60 ms vs 63-67 ms, small preset 2.5-2.7 vs 3.0-3.2 ms); a batch
+of one chunk runs on all cores.
 
 bf16 changes the network output by a few 1e-3, so its poses are not those of fp32:
 ``scripts/check_inference.py`` measured on the quickstart model's 150 test scenes p99 differences
@@ -26,6 +41,11 @@ from typing import Any
 import torch
 
 PRECISIONS = ("auto", "32", "bf16")
+AUTO_BOOL = ("auto", True, False)
+KEYS = ("precision", "fused", "channels_last", "compile", "max_batch", "workers")
+#: the fused form's automatic chunk keeps its largest block buffer within this many bytes
+CHUNK_BYTES = 8 << 20
+MAX_CHUNK = 8
 
 
 @dataclass(frozen=True)
@@ -33,30 +53,38 @@ class InferenceSettings:
     precision: str = "32"
     channels_last: bool | str = "auto"
     compile: bool = False
-    #: larger batches run in chunks of this many images: the DenseNet's concatenated activations of
-    #: a batch of 32 no longer fit the caches (measured per image at batch 32: fp32 122 ms whole,
-    #: 75 ms in chunks of 8; bf16 43 ms whole, 33 ms in chunks of 8); same outputs (eval mode)
-    max_batch: int = 8
+    #: larger batches run in chunks of this many images ("auto": see the module docstring): the
+    #: DenseNet's activations of a large batch no longer fit the caches (measured per image at
+    #: batch 32, unfused: fp32 122 ms whole, 75 ms in chunks of 8; bf16 43 ms whole, 33 ms)
+    max_batch: int | str = "auto"
+    fused: bool | str = "auto"
+    workers: int | str = "auto"
 
     @classmethod
     def from_config(cls, cfg: Any) -> InferenceSettings:
         cfg = dict(cfg or {})
-        unknown = set(cfg) - {"precision", "channels_last", "compile", "max_batch"}
+        unknown = set(cfg) - set(KEYS)
         if unknown:
-            raise ValueError(f"inference: unknown keys {sorted(unknown)}; expected precision, channels_last, compile, max_batch")
+            raise ValueError(f"inference: unknown keys {sorted(unknown)}; expected {', '.join(KEYS)}")
         precision = str(cfg.get("precision", "32"))
         if precision not in PRECISIONS:
             raise ValueError(f"inference.precision={precision!r}, expected one of {PRECISIONS}")
-        cl = cfg.get("channels_last", "auto")
-        if cl not in ("auto", True, False):
-            raise ValueError(f"inference.channels_last={cl!r}, expected auto, true or false")
-        max_batch = cfg.get("max_batch", 8)
-        if isinstance(max_batch, bool) or not isinstance(max_batch, int) or max_batch < 1:
-            raise ValueError(f"inference.max_batch={max_batch!r}, expected a positive integer")
-        return cls(precision, cl, bool(cfg.get("compile", False)), max_batch)
+        for key in ("channels_last", "fused"):
+            if cfg.get(key, "auto") not in AUTO_BOOL:
+                raise ValueError(f"inference.{key}={cfg[key]!r}, expected auto, true or false")
+        for key in ("max_batch", "workers"):
+            value = cfg.get(key, "auto")
+            if value != "auto" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise ValueError(f"inference.{key}={value!r}, expected a positive integer or auto")
+        return cls(precision, cfg.get("channels_last", "auto"), bool(cfg.get("compile", False)),
+                   cfg.get("max_batch", "auto"), cfg.get("fused", "auto"), cfg.get("workers", "auto"))
 
-    def resolved(self, device: torch.device) -> tuple[bool, bool]:
-        """(bf16, channels_last) for ``device``."""
+    def resolved(self, device: torch.device, backbone: torch.nn.Module | None = None) -> tuple[bool, bool, bool]:
+        """(bf16, channels_last, fused) for ``device`` (and ``backbone``: whether it can be fused).
+
+        Raises:
+            ValueError: ``fused=true`` with bf16, ``compile`` or a network the fused form does not cover.
+        """
         if self.precision == "auto":
             from opnet.cli.train import cpu_has_native_bf16
 
@@ -64,25 +92,77 @@ class InferenceSettings:
         else:
             bf16 = self.precision == "bf16"
         cl = True if self.channels_last == "auto" else bool(self.channels_last)
-        return bf16, cl
+        why_not = _why_not_fused(device, backbone, bf16, self.compile)
+        if self.fused is True and why_not:
+            raise ValueError(f"inference.fused=true: {why_not}; use inference.fused=auto or false")
+        fused = self.fused is not False and not why_not
+        return bf16, cl, fused
 
-    def describe(self, device: torch.device) -> str:
-        bf16, cl = self.resolved(device)
-        return (f"{'bf16 autocast' if bf16 else 'fp32'}, {'channels-last' if cl else 'contiguous'}"
-                f"{', compiled' if self.compile else ''} on {device.type}")
+    def chunk(self, bytes_per_image: int | None = None) -> int:
+        """Images per forward call; ``bytes_per_image``: the fused form's largest block buffer."""
+        if self.max_batch != "auto":
+            return int(self.max_batch)
+        if bytes_per_image is None:
+            return MAX_CHUNK
+        return max(1, min(MAX_CHUNK, CHUNK_BYTES // max(1, bytes_per_image)))
+
+    def describe(self, device: torch.device, backbone: torch.nn.Module | None = None) -> str:
+        bf16, cl, fused = self.resolved(device, backbone)
+        form = "fused fp32" if fused else ("bf16 autocast" if bf16 else "fp32")
+        layout = "channels-last" if cl or fused else "contiguous"
+        per_image = None
+        if fused and backbone is not None:
+            from opnet.models.fused import largest_block_bytes
+
+            per_image = largest_block_bytes(backbone)
+        workers = self.threads(fused)
+        return (f"{form}, {layout}{', compiled' if self.compile else ''}, chunks of {self.chunk(per_image)}"
+                f"{f' on {workers} workers' if workers > 1 else ''} on {device.type}")
+
+    def threads(self, fused: bool) -> int:
+        """Worker threads for the chunks of a batch (each computing with one core)."""
+        if self.workers == "auto":
+            return torch.get_num_threads() if fused else 1
+        return int(self.workers)
+
+
+def _why_not_fused(device: torch.device, backbone: torch.nn.Module | None, bf16: bool, compile: bool) -> str:
+    """Why the fused form cannot run here ('' when it can)."""
+    from opnet.models.densenet import DenseNetBC
+
+    if device.type != "cpu":
+        return f"the fused form is for the CPU, not {device.type}"
+    if bf16:
+        return "the fused form computes in float32 (inference.precision=32)"
+    if compile:
+        return "the fused form is not compiled (torch.compile fuses the plain network itself)"
+    if backbone is not None and not isinstance(backbone, DenseNetBC):
+        return f"the fused form covers DenseNetBC, not {type(backbone).__name__}"
+    return ""
 
 
 def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Callable[[torch.Tensor], torch.Tensor]:
-    """A function (B, 1, S, S) -> fp32 output running ``backbone`` (in eval mode) the fast way."""
+    """A function (B, 1, S, S) -> fp32 output running ``backbone`` (in eval mode) the fast way.
+
+    The fused form is built from the backbone's weights now: later changes to them are not seen.
+    """
     device = next(backbone.parameters()).device
-    bf16, cl = settings.resolved(device)
+    bf16, cl, fused = settings.resolved(device, backbone)
     backbone.eval()
-    if cl:
-        backbone = backbone.to(memory_format=torch.channels_last)
-    module: Callable[[torch.Tensor], torch.Tensor] = torch.compile(backbone) if settings.compile else backbone
+    module: Callable[[torch.Tensor], torch.Tensor]
+    step, workers = settings.chunk(), settings.threads(fused)
+    if fused:
+        from opnet.models.fused import FusedDenseNet
+
+        module = FusedDenseNet(backbone)
+        step = settings.chunk(module.block_bytes_per_image)
+    else:
+        if cl:
+            backbone = backbone.to(memory_format=torch.channels_last)
+        module = torch.compile(backbone) if settings.compile else backbone
 
     def one(x: torch.Tensor) -> torch.Tensor:
-        if cl:
+        if cl and not fused:
             x = x.contiguous(memory_format=torch.channels_last)
         if bf16:
             with torch.autocast(device.type, dtype=torch.bfloat16):
@@ -92,8 +172,42 @@ def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Call
     @torch.inference_mode()
     def run(images: torch.Tensor) -> torch.Tensor:
         x = images.to(device)
-        step = settings.max_batch
-        outs = [one(x[i : i + step]) for i in range(0, len(x), step)] if len(x) > step else [one(x)]
-        return torch.cat(outs).contiguous() if len(outs) > 1 else outs[0].contiguous()
+        chunks = [x[i : i + step] for i in range(0, len(x), step)]
+        if len(chunks) == 1:
+            return one(x).contiguous()
+        if workers > 1 and device.type == "cpu":
+            outs = _on_workers(one, chunks, workers)
+        else:
+            outs = [one(c) for c in chunks]
+        return torch.cat(outs).contiguous()
 
     return run
+
+
+def _on_workers(fn: Callable[[torch.Tensor], torch.Tensor], chunks: list[torch.Tensor], workers: int) -> list[torch.Tensor]:
+    """``[fn(c) for c in chunks]`` on ``workers`` threads at once, each computing with one core
+    (the first error is raised after all threads have ended)."""
+    import threading
+
+    outs: list[torch.Tensor | None] = [None] * len(chunks)
+    errors: list[BaseException] = []
+    main_threads = torch.get_num_threads()
+
+    def work(first: int) -> None:
+        torch.set_num_threads(1)  # this thread's own OpenMP / MKL setting
+        try:
+            with torch.inference_mode():
+                for i in range(first, len(chunks), workers):
+                    outs[i] = fn(chunks[i])
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(k,), daemon=True) for k in range(min(workers, len(chunks)))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    torch.set_num_threads(main_threads)  # the default for threads started later, as before
+    if errors:
+        raise errors[0]
+    return outs  # type: ignore[return-value]

@@ -78,7 +78,7 @@ class OPNetSystem(L.LightningModule):
         if not isinstance(settings, InferenceSettings):
             settings = InferenceSettings.from_config(settings)
         self._fast = fast_forward(self.backbone, settings)
-        return settings.describe(self.device)
+        return settings.describe(self.device, self.backbone)
 
     def infer(self, images: torch.Tensor) -> torch.Tensor:
         """The network output for prediction: the fast path if configured (eval mode), else forward."""

@@ -1,5 +1,5 @@
-"""The fast inference path gives the network's fp32 output (channels-last, chunked batches), and
-its settings are validated."""
+"""The fast inference path gives the network's fp32 output (fused or channels-last, chunked
+batches), and its settings are validated."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from opnet.inference import InferenceSettings, fast_forward
+from opnet.inference import InferenceSettings, _on_workers, fast_forward
+from opnet.models.fused import largest_block_bytes
 from opnet.paths import config_dir
 
 
@@ -24,14 +25,37 @@ def _net() -> torch.nn.Module:
     return net.eval()
 
 
-def test_default_path_equals_fp32_eager_for_chunked_batches() -> None:
+@pytest.mark.parametrize("settings", [
+    InferenceSettings(),  # the default: fused, chunks of 8 (tiny network)
+    InferenceSettings(max_batch=1),
+    InferenceSettings(max_batch=3, workers=2),  # chunks on two threads at once
+    InferenceSettings(fused=False, max_batch=5, workers=3),
+    InferenceSettings(fused=False),  # channels-last, chunks of 8
+    InferenceSettings(fused=True, max_batch=8),
+])  # fmt: skip
+def test_fp32_paths_equal_fp32_eager_for_chunked_batches(settings: InferenceSettings) -> None:
     net = _net()
     x = torch.rand(19, 1, 128, 128)  # 19 images: chunks of 8, 8 and 3
     with torch.inference_mode():
         ref = net(x)
-    out = fast_forward(copy.deepcopy(net), InferenceSettings())(x)
+    out = fast_forward(copy.deepcopy(net), settings)(x)
     assert out.dtype == torch.float32 and out.shape == ref.shape
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
+
+
+def test_the_default_on_the_cpu_is_the_fused_form_and_says_so() -> None:
+    net, cpu = _net(), torch.device("cpu")
+    assert InferenceSettings().resolved(cpu, net) == (False, True, True)
+    assert InferenceSettings().describe(cpu, net).startswith("fused fp32, channels-last, chunks of 8")  # tiny
+    paper = instantiate(OmegaConf.load(config_dir() / "model" / "paper.yaml"), out_channels=8, out_grid=16)
+    assert largest_block_bytes(paper) == 4 * 400 * 64 * 64  # block 1: 100 + 6 x 50 channels at 64 x 64
+    assert InferenceSettings(workers=2).describe(cpu, paper).startswith("fused fp32, channels-last, chunks of 1 on 2 workers")
+    assert InferenceSettings(max_batch=3).chunk(largest_block_bytes(paper)) == 3
+    assert InferenceSettings("bf16", True).resolved(cpu, net) == (True, True, False)  # auto: bf16 not fused
+    assert InferenceSettings(compile=True).resolved(cpu, net)[2] is False
+    assert InferenceSettings().resolved(cpu, torch.nn.Conv2d(1, 1, 1))[2] is False
+    with pytest.raises(ValueError, match="inference.fused=true: the fused form computes in float32"):
+        InferenceSettings("bf16", fused=True).resolved(cpu, net)
 
 
 def test_bf16_path_is_close_but_not_exact() -> None:
@@ -48,8 +72,32 @@ def test_bf16_path_is_close_but_not_exact() -> None:
     ({"precision": "fp16"}, "inference.precision='fp16'"),
     ({"channels_last": "yes"}, "inference.channels_last='yes'"),
     ({"max_batch": 0}, "inference.max_batch=0"),
+    ({"max_batch": "big"}, "inference.max_batch='big'"),
+    ({"fused": "yes"}, "inference.fused='yes'"),
+    ({"workers": -1}, "inference.workers=-1"),
     ({"threads": 4}, "unknown keys"),
 ])  # fmt: skip
 def test_bad_inference_settings_are_refused(cfg: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         InferenceSettings.from_config(cfg)
+
+
+def test_settings_from_a_config() -> None:
+    cfg = {"precision": "32", "fused": False, "channels_last": "auto", "compile": False, "max_batch": 4, "workers": 2}
+    assert InferenceSettings.from_config(cfg) == InferenceSettings("32", "auto", False, 4, False, 2)
+    assert InferenceSettings.from_config(None) == InferenceSettings()
+
+
+def test_chunks_on_workers_keep_their_order_and_raise_errors() -> None:
+    chunks = [torch.full((1,), float(i)) for i in range(7)]
+    assert [int(c) for c in _on_workers(lambda c: c * 2, chunks, 3)] == [0, 2, 4, 6, 8, 10, 12]
+    threads = torch.get_num_threads()
+
+    def fail(c: torch.Tensor) -> torch.Tensor:
+        if int(c) == 5:
+            raise RuntimeError("chunk 5 failed")
+        return c
+
+    with pytest.raises(RuntimeError, match="chunk 5 failed"):
+        _on_workers(fail, chunks, 2)
+    assert torch.get_num_threads() == threads  # the caller's threads are as before

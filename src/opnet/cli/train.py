@@ -90,7 +90,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         system = comps.system
         if best:
             system, _ = load_checkpoint(best)
-        system.configure_inference(cfg.get("inference"))  # fp32 channels-last: the poses of fp32 eager, faster
+        system.configure_inference(cfg.get("inference"))  # fused fp32: the poses of fp32 eager, faster
         out = output_dir / "test"
         result = evaluate_split(system, datamodule, "test", out, examples=int(cfg.get("example_predictions", 0)))
         result["checkpoint"] = best
