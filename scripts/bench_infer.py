@@ -3,10 +3,15 @@
     python scripts/bench_infer.py [--model paper] [--batches 1,32] [--repeats 10] [--threads N]
                                   [--device cpu|cuda] [--compile] [--out results/speed/infer.csv]
 
-In one run: the roofline (a 2048^2 fp32 matrix product's GFLOP/s), then per batch size the
-preprocessing, the forward pass on each inference path (fp32 eager, the default fp32
-channels-last, bf16 autocast channels-last, optionally compiled) with its achieved GFLOP/s and its
-time as a multiple of the roofline floor, decoding + averaging, and end-to-end on the default path;
+In one run, per batch size: the preprocessing, the forward pass on each inference path (fp32
+eager, fp32 channels-last, the default fused fp32 form, bf16 autocast channels-last, optionally
+compiled) with its achieved GFLOP/s (the network's 9.97 GFLOP per image over the best time) and its
+time as a multiple of the roofline floor, decoding + averaging, and end-to-end on the default path.
+The roofline is a 2048^2 fp32 matrix product's GFLOP/s, timed right before every repeat of every
+forward (each warm: the second of two runs): each repeat's forward is divided by the floor of the
+product timed beside it (the network's GFLOP at that moment's rate) and the median of those ratios
+is the row's "x floor", so a slow moment of this shared machine slows both sides of a ratio
+instead of skewing it.
 then the same network exported to ONNX in ONNX Runtime (``--onnx``, default on when onnxruntime is
 installed): the forward alone, and end-to-end on the torch-free deployment path
 (:class:`opnet.deploy.runtime.OnnxPoseEstimator`: preprocess, graph with dense decoding,
@@ -44,8 +49,17 @@ from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 
+#: the last :func:`timeit`'s median, printed beside its best
+LAST_MEDIAN = [0.0]
+
+
 def timeit(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> float:
-    """Median milliseconds of ``fn`` over ``repeats`` runs after two warm-up calls."""
+    """Best (smallest) milliseconds of ``fn`` over ``repeats`` runs after two warm-up calls.
+
+    The best of several runs is the one least disturbed by the rest of the machine (timeit's
+    convention); the roofline is measured the same way, so the ratio compares like with like.
+    The median is kept in ``LAST_MEDIAN`` for the table.
+    """
     for _ in range(2):
         fn()
     sync()
@@ -55,7 +69,8 @@ def timeit(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = la
         fn()
         sync()
         times.append(1000 * (time.perf_counter() - t0))
-    return statistics.median(times)
+    LAST_MEDIAN[0] = statistics.median(times)
+    return min(times)
 
 
 def depth_image(camera: Camera, rng: np.random.Generator) -> np.ndarray:
@@ -68,11 +83,31 @@ def depth_image(camera: Camera, rng: np.random.Generator) -> np.ndarray:
     return depth
 
 
-def roofline_gflops(device: torch.device, repeats: int = 5) -> float:
-    """Measured GFLOP/s of a 2048 x 2048 fp32 matrix product: this machine's compute ceiling."""
+def paired_with_roofline(fn: Callable[[], object], repeats: int, gflop: float, device: torch.device,
+                         sync: Callable[[], None] = lambda: None) -> tuple[float, float, float, list[float]]:
+    """(best ms, median ms, median of forward / floor, the roofline GFLOP/s of each repeat).
+
+    Every repeat runs a 2048^2 fp32 matrix product twice and ``fn`` (``gflop`` GFLOP) twice, back
+    to back, and times the second of each: both warm in the caches, measured within a second of
+    each other. The floor of a repeat is ``gflop`` at its product's rate.
+    """
     a, b = torch.randn(2048, 2048, device=device), torch.randn(2048, 2048, device=device)
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    return 2 * 2048**3 / timeit(lambda: a @ b, repeats, sync) / 1e6
+
+    def second(f: Callable[[], object]) -> float:
+        f()
+        sync()
+        t0 = time.perf_counter()
+        f()
+        sync()
+        return time.perf_counter() - t0
+
+    fn()
+    times, ratios, rates = [], [], []
+    for _ in range(repeats):
+        rates.append(2 * 2048**3 / second(lambda: a @ b) / 1e9)
+        times.append(1000 * second(fn))
+        ratios.append(times[-1] / 1000 / (gflop / rates[-1]))
+    return min(times), statistics.median(times), statistics.median(ratios), rates
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -98,25 +133,31 @@ def main(argv: list[str] | None = None) -> None:
     obj = builtin_object(args.object)
     camera = Camera.from_fov(50.0, 512, 512, 0.6, 1.2)
     net_cam = to_network_input(np.full((512, 512), 1.0, np.float32), camera)[1]
-    roof = roofline_gflops(device)
+    roofs: list[float] = []
     param, model, noisy = _setup(args.parameterization, args.model, obj, net_cam, device)
     gflop = gflops_per_image(model)
     print(f"model {args.model} ({sum(p.numel() for p in model.parameters()) / 1e6:.3f} M params, {gflop:.2f} GFLOP "
           f"per image), device {device}, torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print(f"roofline: 2048^2 fp32 matmul {roof:.1f} GFLOP/s -> forward floor {1000 * gflop / roof:.1f} ms per image")
-    header = f"{'batch':>5} {'stage':<34} {'ms/batch':>9} {'ms/image':>9} {'GFLOP/s':>8} {'x floor':>8}"
-    print(header)
-    rows: list[tuple[int, str, float, float | None]] = []
+    print(f"{'batch':>5} {'stage':<38} {'ms/batch':>9} {'ms/image':>9} {'median':>9} {'GFLOP/s':>8} {'x floor':>8}")
+    rows: list[tuple[int, str, float, float, float | None, float | None]] = []
 
-    def record(b: int, name: str, ms: float, flops: bool) -> None:
-        rate = gflop * b / (ms / 1000) if flops else None
-        rows.append((b, name, ms, rate))
-        extra = f"{rate:>8.1f} {roof / rate:>8.2f}" if rate else f"{'':>8} {'':>8}"
-        print(f"{b:>5} {name:<34} {ms:>9.2f} {ms / b:>9.2f} {extra}", flush=True)
+    def record(b: int, name: str, ms: float) -> None:
+        rows.append((b, name, ms, LAST_MEDIAN[0], None, None))
+        print(f"{b:>5} {name:<38} {ms:>9.2f} {ms / b:>9.2f} {LAST_MEDIAN[0] / b:>9.2f}", flush=True)
 
-    fast = InferenceSettings()  # the default of predict.py / eval.py
+    def record_forward(b: int, name: str, fn: Callable[[], object], repeats: int) -> None:
+        best, median, x_floor, rates = paired_with_roofline(fn, repeats, gflop * b, device, sync)
+        roofs.extend(rates)
+        rate = gflop * b / (best / 1000)
+        rows.append((b, name, best, median, rate, x_floor))
+        print(f"{b:>5} {name:<38} {best:>9.2f} {best / b:>9.2f} {median / b:>9.2f} {rate:>8.1f} {x_floor:>8.3f}",
+              flush=True)
+
+    fast = InferenceSettings()  # the default of predict.py / eval.py: the fused fp32 form on the CPU
     onnx = None if args.no_onnx or device.type != "cpu" else onnx_paths(model, param)
-    paths = {"forward fp32 eager": InferenceSettings("32", False), "forward fp32 channels-last (default)": fast,
+    paths = {"forward fp32 eager": InferenceSettings("32", False, fused=False),
+             "forward fp32 channels-last": InferenceSettings("32", True, fused=False),
+             f"forward {fast.describe(device, model).split(',')[0]} (default)": fast,
              "forward bf16 autocast channels-last": InferenceSettings("bf16", True)}
     if args.compile:
         paths["forward bf16 channels-last compiled"] = InferenceSettings("bf16", True, compile=True)
@@ -126,24 +167,24 @@ def main(argv: list[str] | None = None) -> None:
         x = torch.from_numpy(np.stack([p[0] for p in pre()]))[:, None].to(device)
         out = noisy.expand(b, -1, -1, -1).contiguous().to(device)
         cams = [net_cam] * b
-        record(b, "preprocess", timeit(pre, args.repeats, sync), False)
+        record(b, "preprocess", timeit(pre, args.repeats, sync))
         for name, settings in paths.items():
             run = fast_forward(copy.deepcopy(model), settings)
-            record(b, name, timeit(lambda: run(x), args.repeats if b == 1 else max(3, args.repeats // 3), sync), True)
-        record(b, "decode + averaging", timeit(lambda: param.decode(out, cams), args.repeats, sync), False)
+            record_forward(b, name, lambda: run(x), args.repeats if b == 1 else max(3, args.repeats // 3))
+        record(b, "decode + averaging", timeit(lambda: param.decode(out, cams), args.repeats, sync))
         run = fast_forward(copy.deepcopy(model), fast)
 
         def end_to_end() -> object:
             xs = torch.from_numpy(np.stack([p[0] for p in pre()]))[:, None].to(device)
             return param.decode(run(xs), cams)
 
-        record(b, "end-to-end (default path)", timeit(end_to_end, args.repeats if b == 1 else 3, sync), False)
+        record(b, "end-to-end (default path)", timeit(end_to_end, args.repeats if b == 1 else 3, sync))
         if onnx is not None:
             forward, estimator = onnx
             xn = x.cpu().numpy()
-            record(b, "forward ONNX Runtime fp32", timeit(lambda: forward(xn), args.repeats if b == 1 else 3), True)
+            record_forward(b, "forward ONNX Runtime fp32", lambda: forward(xn), args.repeats if b == 1 else 3)
             record(b, "end-to-end ONNX Runtime (no torch)",
-                   timeit(lambda: estimator.predict_batch(depths, [camera] * b), args.repeats if b == 1 else 3), False)
+                   timeit(lambda: estimator.predict_batch(depths, [camera] * b), args.repeats if b == 1 else 3))
     e2e_rows = []
     for name in [p for p in args.parameterizations.split(",") if p]:
         p_param, p_model, _ = _setup(name, args.model, obj, net_cam, device)
@@ -158,11 +199,21 @@ def main(argv: list[str] | None = None) -> None:
         fwd = timeit(lambda: run(torch.rand(1, 1, 128, 128, device=device)), args.repeats, sync)
         e2e_rows.append((name, ms, fwd))
         print(f"    end-to-end {name:<8} batch 1: {ms:7.2f} ms, forward {fwd:7.2f} ms, ratio {ms / fwd:.3f}", flush=True)
+    roof = statistics.median(roofs)
+    print(f"\nroofline: 2048^2 fp32 matmul beside every forward repeat: median {roof:.1f} GFLOP/s (range "
+          f"{min(roofs):.1f}-{max(roofs):.1f}, {len(roofs)} products) -> floor {1000 * gflop / roof:.1f} ms per image")
+    print(f"{'batch':>5} {'stage':<38} {'ms/image':>9} {'median':>9} {'GFLOP/s':>8} {'x floor':>8}")
+    for b, n, ms, med, r, xf in rows:
+        if r:
+            print(f"{b:>5} {n:<38} {ms / b:>9.2f} {med / b:>9.2f} {r:>8.1f} {xf:>8.3f}")
     if args.out is not None:
-        lines = ["batch,stage,ms_batch,ms_image,gflops_per_s,x_floor,roofline_gflops,forward_gflop"]
-        lines += [f"{b},{n},{ms:.2f},{ms / b:.2f},{'' if r is None else f'{r:.1f}'},{'' if r is None else f'{roof / r:.3f}'},"
-                  f"{roof:.1f},{gflop:.3f}" for b, n, ms, r in rows]
-        lines += [f"1,end-to-end {n} / forward,{ms:.2f},{ms:.2f},,{ms / f:.3f},{roof:.1f},{gflop:.3f}" for n, ms, f in e2e_rows]
+        span = f"{min(roofs):.1f}-{max(roofs):.1f}"
+        lines = ["batch,stage,ms_batch,ms_image,ms_image_median,gflops_per_s,x_floor,roofline_gflops,forward_gflop,"
+                 "roofline_range"]
+        lines += [f"{b},{n},{ms:.2f},{ms / b:.2f},{med / b:.2f},{'' if r is None else f'{r:.1f}'},"
+                  f"{'' if xf is None else f'{xf:.3f}'},{roof:.1f},{gflop:.3f},{span}" for b, n, ms, med, r, xf in rows]
+        lines += [f"1,end-to-end {n} / forward,{ms:.2f},{ms:.2f},,,{ms / f:.3f},{roof:.1f},{gflop:.3f},{span}"
+                  for n, ms, f in e2e_rows]
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text("\n".join(lines) + "\n")
     if device.type == "cuda":

@@ -2,7 +2,8 @@
 
     python scripts/check_inference.py --ckpt <run>/checkpoints/<best>.ckpt [--split test] [--out results/speed/inference_check.csv]
 
-For each path (fp32 channels-last, bf16 autocast channels-last, the configured default) it decodes
+For each path (fp32 channels-last, bf16 autocast channels-last, the default: the fused fp32 form
+on the CPU) it decodes
 the split, pairs every hypothesis with the reference's (same scene, nearest pose), and reports:
 hypotheses per path, the share paired within 0.1 mm and 0.05 deg, the largest and 99th-percentile
 translation / rotation differences of the pairs, and the AP of both. Prints a table.
@@ -26,9 +27,9 @@ from opnet.metrics.bregier import evaluate_scenes
 
 PATHS = {
     "fp32 eager (reference)": None,
-    "fp32 channels-last": InferenceSettings("32", True),
+    "fp32 channels-last": InferenceSettings("32", True, fused=False),
     "bf16 channels-last": InferenceSettings("bf16", True),
-    "default (fp32 channels-last, chunks of 8)": InferenceSettings(),
+    "default": InferenceSettings(),  # named by what it resolves to for the checkpoint's network
 }
 
 
@@ -63,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     space, occ = system.parameterization.obj.pose_space, system.hparams.max_occlusion
     results, rows = {}, []
     for name, settings in PATHS.items():
+        if name == "default":
+            name = f"default ({settings.describe(system.device, system.backbone)})"
         if settings is None:
             system._fast = None
         else:

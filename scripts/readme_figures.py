@@ -126,12 +126,15 @@ def block_speed(results: Path) -> str:
 def block_inference(results: Path) -> str:
     rows = _csv(results / "speed" / "infer.csv")
     head = rows[0]
-    lines = [f"Roofline of this run: a 2048² fp32 matrix product at {float(head['roofline_gflops']):.1f} GFLOP/s, so the "
+    lines = [f"Roofline of this run: a 2048² fp32 matrix product, timed (warm) right before every repeat of every forward, "
+             f"ran at {float(head['roofline_gflops']):.1f} GFLOP/s (median; range {head['roofline_range']}), so the "
              f"paper network's {float(head['forward_gflop']):.2f} GFLOP forward has a floor of "
-             f"{1000 * float(head['forward_gflop']) / float(head['roofline_gflops']):.1f} ms per image.", ""]
-    table = [[r["batch"], r["stage"], r["ms_batch"], r["ms_image"], r["gflops_per_s"], r["x_floor"]]
-             for r in rows if not r["stage"].endswith("/ forward")]
-    lines.append(_table(["batch", "stage", "ms / batch", "ms / image", "GFLOP/s", "× floor"], table))
+             f"{1000 * float(head['forward_gflop']) / float(head['roofline_gflops']):.1f} ms per image. × floor = the "
+             "median over the repeats of each forward's time over the floor at the rate measured beside it; "
+             "ms are the best repeat and the median; GFLOP/s of the best.", ""]
+    table = [[r["batch"], r["stage"], r["ms_batch"], r["ms_image"], r.get("ms_image_median", ""), r["gflops_per_s"],
+              r["x_floor"]] for r in rows if not r["stage"].endswith("/ forward")]
+    lines.append(_table(["batch", "stage", "ms / batch", "ms / image", "median ms / image", "GFLOP/s", "× floor"], table))
     e2e = [r for r in rows if r["stage"].endswith("/ forward")]
     lines += ["", "End-to-end (preprocess + forward + decode + averaging) / forward, batch 1, default path: "
               + ", ".join(f"{r['stage'].split()[1]} {float(r['x_floor']):.3f}" for r in e2e) + "."]
