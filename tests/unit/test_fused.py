@@ -10,7 +10,13 @@ from omegaconf import OmegaConf
 from torch import nn
 
 from opnet.models.densenet import DenseNetBC
-from opnet.models.fused import FusedDenseNet, PackedConv, fold_bn_relu_into_1x1, mkldnn_ops_available
+from opnet.models.fused import (
+    FusedDenseNet,
+    PackedConv,
+    export_form,
+    fold_bn_relu_into_1x1,
+    mkldnn_ops_available,
+)
 from opnet.paths import config_dir
 
 
@@ -60,6 +66,7 @@ def test_fused_equals_the_network(preset: str, grid: int, kw: dict) -> None:
     _close(out, ref)
     _close(FusedDenseNet(net, use_mkldnn=False)(x), ref)  # the plain-PyTorch fallback
     _close(FusedDenseNet(net, channel_block=1)(x), ref)  # no channel padding
+    _close(FusedDenseNet(net, use_mkldnn=False, concat=True)(x), ref)  # the export form
 
 
 def test_fused_paper_network_equals_it() -> None:
@@ -133,3 +140,16 @@ def test_three_by_three_forms_are_chosen_by_width_and_side() -> None:
     sides = [[layer.conv.split for layer in stage.layers] for stage in paper.stages if hasattr(stage, "layers")]
     assert sides == [[True] * 6, [True] * 6, [False] * 6]  # 64 and 32 a side split, 16 padded to 64
     assert paper.stages[-1].layers[0].conv.conv.weight.shape[0] == 64
+
+
+def test_the_export_form_runs_in_onnx_runtime_as_the_network(tmp_path) -> None:
+    ort = pytest.importorskip("onnxruntime")
+    net = _net("tiny", growth_rate=18)  # the split 3x3 convolution, BN scales of both signs
+    x = torch.rand(2, 1, 128, 128, generator=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        ref = net(x)
+        torch.onnx.export(export_form(net), x, str(tmp_path / "net.onnx"), input_names=["x"], opset_version=17,
+                          dynamo=False)
+    out = ort.InferenceSession(str(tmp_path / "net.onnx"), providers=["CPUExecutionProvider"]).run(None, {"x": x.numpy()})[0]
+    _close(torch.from_numpy(out), ref)
+    assert export_form(nn.Conv2d(1, 1, 1)).__class__ is nn.Conv2d  # other networks as they are

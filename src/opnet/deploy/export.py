@@ -6,7 +6,10 @@ camera ``fx fy cx cy width height clip_start clip_end``. It returns, for every c
 (N = slots x S x S, the order of ``Parameterization.decode``): ``presence`` (B, N),
 ``visibility`` (B, N), ``translation`` (B, N, 3) metres in the camera frame and ``rotation``
 (B, N, 3, 3), all float64: the parameterization's own decoding of every cell, traced from the
-same code. What stays outside the graph needs no PyTorch (:mod:`opnet.deploy.runtime`): the
+same code. The network is traced in its fused inference arithmetic
+(:func:`opnet.models.fused.export_form`: batch norms folded, transitions pooled first, the paper
+network's 3x3 convolutions split 48 + 2; the same function, faster in ONNX Runtime too); the
+export's self-check compares it with the network as trained. What stays outside the graph needs no PyTorch (:mod:`opnet.deploy.runtime`): the
 preprocessing, the presence threshold, the score, and the pose averaging (DBSCAN).
 
 The metadata (ONNX ``metadata_props``, key ``opnet``, JSON) holds what those steps need: input
@@ -26,6 +29,7 @@ import torch
 
 from opnet import __version__
 from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.models.fused import export_form
 from opnet.parameterizations.base import Parameterization
 from opnet.parameterizations.positions import CameraBatch
 
@@ -101,7 +105,7 @@ def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET
 
     meta = export_metadata(system, cfg, ckpt)
     size = meta["input"]["size"]
-    model = DenseDecodingNetwork(system.backbone, system.parameterization).eval()
+    model = DenseDecodingNetwork(export_form(system.backbone), system.parameterization).eval()
     depth = torch.rand(2, 1, size, size)
     cam = torch.tensor([[size * 1.2, size * 1.2, (size - 1) / 2, (size - 1) / 2, size, size, 0.5, 1.5]] * 2,
                        dtype=torch.float64)
@@ -124,7 +128,7 @@ def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET
 
 
 def reference_outputs(system: Any, depth: np.ndarray, camera: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The dense outputs of the PyTorch model (for the export's self-check)."""
+    """The dense outputs of the PyTorch model as trained (for the export's self-check)."""
     model = DenseDecodingNetwork(system.backbone, system.parameterization).eval()
     with torch.no_grad():
         return tuple(x.numpy() for x in model(torch.from_numpy(depth), torch.from_numpy(camera)))

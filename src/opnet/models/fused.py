@@ -115,6 +115,8 @@ class _Clamp(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         if self.one_sided:  # every BN scale positive (the usual case): one bound
             return torch.maximum(x, self.lo)
+        if torch.jit.is_tracing():  # ONNX's Clip takes scalar bounds only
+            return torch.minimum(torch.maximum(x, self.lo), self.hi)
         return torch.clamp(x, self.lo, self.hi)
 
 
@@ -183,19 +185,30 @@ class _ThreeByThree(nn.Module):
         else:
             self.conv = PackedConv(_padded(weight, block), None, padding=padding, use_mkldnn=use_mkldnn)
 
-    def forward(self, h: Tensor, out: Tensor) -> None:
+    def forward(self, h: Tensor, out: Tensor | None = None) -> Tensor:
+        """The ``growth`` new channels of ``h``, written into ``out`` when given (a buffer slice)."""
         if self.taps is None:
-            out.copy_(self.conv(h)[:, : self.growth])
-            return
-        out[:, : self.main] = self.conv(h)
+            y = self.conv(h)[:, : self.growth]
+            return y if out is None else out.copy_(y)
+        main = self.conv(h)
+        if out is None:
+            return torch.cat([main, self._tap_sum(h, None)], 1)
+        out[:, : self.main] = main
+        self._tap_sum(h, out[:, self.main :])
+        return out
+
+    def _tap_sum(self, h: Tensor, out: Tensor | None) -> Tensor:
+        """The last ``rest`` channels: the 1x1 convolution to one channel per tap, summed over the
+        nine shifts (zero padding of the 3x3 convolution = the padded tap maps)."""
         rest = self.growth - self.main
         hh, ww = h.shape[-2:]
         t = F.pad(self.taps(h), (1, 1, 1, 1))
-        o = out[:, self.main :]
-        torch.add(t[:, 0:rest, 0:hh, 0:ww], t[:, rest : 2 * rest, 0:hh, 1 : ww + 1], out=o)
+        first, second = t[:, 0:rest, 0:hh, 0:ww], t[:, rest : 2 * rest, 0:hh, 1 : ww + 1]
+        acc = first + second if out is None else torch.add(first, second, out=out)
         for tap in range(2, 9):
             dy, dx = divmod(tap, 3)
-            o.add_(t[:, tap * rest : (tap + 1) * rest, dy : dy + hh, dx : dx + ww])
+            acc.add_(t[:, tap * rest : (tap + 1) * rest, dy : dy + hh, dx : dx + ww])
+        return acc
 
 
 class _FusedLayer(nn.Module):
@@ -214,18 +227,23 @@ class _FusedLayer(nn.Module):
         self.growth = conv2.out_channels
         self.conv = _ThreeByThree(conv2.weight.detach(), conv2.padding[0], side, block, use_mkldnn)
 
-    def forward(self, features: Tensor, out: Tensor) -> None:
-        """Reads the block's first channels ``features``, writes the new ones into ``out``."""
-        self.conv(self.reduce(self.pre(features)), out)
+    def forward(self, features: Tensor, out: Tensor | None = None) -> Tensor:
+        """The new channels from the block's features so far (written into ``out`` when given)."""
+        return self.conv(self.reduce(self.pre(features)), out)
 
 
 class _FusedBlock(nn.Module):
-    def __init__(self, block: _DenseBlock, use_mkldnn: bool, channel_block: int, side: int):
+    def __init__(self, block: _DenseBlock, use_mkldnn: bool, channel_block: int, side: int, concat: bool):
         super().__init__()
         self.layers = nn.ModuleList(_FusedLayer(layer, use_mkldnn, channel_block, side) for layer in block.layers)
         self.out_channels = block.out_channels
+        self.concat = concat
 
     def forward(self, x: Tensor) -> Tensor:
+        if self.concat:  # out-of-place, for export: each layer's channels appended
+            for layer in self.layers:
+                x = torch.cat([x, layer(x)], 1)
+            return x
         b, c, h, w = x.shape
         buf = torch.empty(b, self.out_channels, h, w, dtype=x.dtype, device=x.device,
                           memory_format=torch.channels_last)
@@ -271,9 +289,12 @@ class FusedDenseNet(nn.Module):
         net: the trained network.
         use_mkldnn: use oneDNN's prepacked, fused convolutions where this build has them.
         channel_block: pad the 3x3 convolutions' output channels to a multiple of this (1: none).
+        concat: concatenate each layer's channels out of place instead of writing into block
+            buffers (slower here; for tracing into ONNX, see :func:`export_form`).
     """
 
-    def __init__(self, net: DenseNetBC, use_mkldnn: bool = True, channel_block: int = CHANNEL_BLOCK):
+    def __init__(self, net: DenseNetBC, use_mkldnn: bool = True, channel_block: int = CHANNEL_BLOCK,
+                 concat: bool = False):
         super().__init__()
         if not isinstance(net, DenseNetBC):
             raise TypeError(f"FusedDenseNet: expected a DenseNetBC, got {type(net).__name__}")
@@ -286,7 +307,7 @@ class FusedDenseNet(nn.Module):
         side = net.in_size // stem.stride[0]
         for stage in net.features:
             if isinstance(stage, _DenseBlock):
-                stages.append(_FusedBlock(stage, use_mkldnn, channel_block, side))
+                stages.append(_FusedBlock(stage, use_mkldnn, channel_block, side, concat))
             else:
                 stages.append(_FusedTransition(stage, use_mkldnn))
                 side //= 2
@@ -297,7 +318,6 @@ class FusedDenseNet(nn.Module):
         self.head = PackedConv(w, b, use_mkldnn=use_mkldnn)
         self.eval()
 
-    @torch.inference_mode()
     def forward(self, x: Tensor) -> Tensor:
         if x.ndim != 4 or x.shape[1] != self.in_channels:
             raise ValueError(
@@ -311,7 +331,16 @@ class FusedDenseNet(nn.Module):
         return torch.sigmoid(y) if self.output_activation == "sigmoid" else y
 
 
+def export_form(net: torch.nn.Module) -> torch.nn.Module:
+    """The network to trace into ONNX: a DenseNetBC's fused arithmetic in plain operators (no oneDNN
+    operators, no buffer writes), which ONNX Runtime also runs faster (README "Inference speed");
+    any other module as it is."""
+    if not isinstance(net, DenseNetBC):
+        return net
+    return FusedDenseNet(net, use_mkldnn=False, concat=True)
+
+
 __all__ = [
-    "CHANNEL_BLOCK", "FusedDenseNet", "PackedConv", "bn_affine", "fold_bn_relu_into_1x1", "largest_block_bytes",
+    "CHANNEL_BLOCK", "FusedDenseNet", "PackedConv", "bn_affine", "export_form", "fold_bn_relu_into_1x1", "largest_block_bytes",
     "mkldnn_ops_available",
 ]
