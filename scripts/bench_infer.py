@@ -234,10 +234,12 @@ def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndar
     from opnet.deploy.export import export_onnx
     from opnet.deploy.runtime import OnnxPoseEstimator
 
+    from opnet.models.fused import export_form
+
     folder = Path(tempfile.mkdtemp(prefix="opnet_bench_onnx_"))
     net = folder / "network.onnx"
-    with torch.no_grad():
-        torch.onnx.export(model.cpu().eval(), torch.rand(1, 1, 128, 128), str(net), input_names=["x"],
+    with torch.no_grad():  # the network as export.py traces it
+        torch.onnx.export(export_form(model.cpu().eval()), torch.rand(1, 1, 128, 128), str(net), input_names=["x"],
                           dynamic_axes={"x": {0: "batch"}}, opset_version=17, dynamo=False)
     session = ort.InferenceSession(str(net), providers=["CPUExecutionProvider"])
     system = types.SimpleNamespace(backbone=model, parameterization=param)
