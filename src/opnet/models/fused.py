@@ -40,7 +40,7 @@ from torch import Tensor, nn
 from opnet.models.densenet import DenseNetBC, _DenseBlock, _DenseLayer
 
 #: output channels of the 3x3 convolutions are padded to a multiple of this (oneDNN's AVX-512
-#: channel block; measured faster for growth rate 50 -> 64)
+#: channel block; 64 channels ran faster than 50 here) unless split (SPLIT_REST)
 CHANNEL_BLOCK = 16
 #: a 3x3 convolution whose output channels exceed a multiple of CHANNEL_BLOCK by at most this many
 #: runs split (see _ThreeByThree) on feature maps of at least SPLIT_SIDE pixels a side (measured
@@ -73,9 +73,9 @@ def bn_affine(bn: nn.BatchNorm2d) -> tuple[Tensor, Tensor]:
 class PackedConv(nn.Module):
     """A convolution (+ bias, + optional ReLU) whose weights are prepacked for oneDNN once.
 
-    ``keep`` < the weight's output channels: the extra (zero-padded) channels are computed and
-    dropped by the caller. Falls back to ``F.conv2d`` without oneDNN operators, or for inputs
-    that are not float32 on the CPU.
+    The packed copy is made at the first call (for its input shape; other shapes still compute
+    correctly) and dropped by a move or cast. Falls back to ``F.conv2d`` without oneDNN operators,
+    or for inputs that are not float32 on the CPU.
     """
 
     def __init__(self, weight: Tensor, bias: Tensor | None, stride: int = 1, padding: int = 0,
