@@ -22,9 +22,10 @@ chunks of 1 or 2, 64 ms of 4, 65 ms of 8, 70 ms of 16), 8 for the small and tiny
 3.2 ms per image in chunks of 1, 2.5 of 2, 2.25 of 8, 2.95 of 32).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
-cores) otherwise. Two images on two cores beat two cores on each image in turn here (fused, batch
-32, per image: paper network 57-60 ms vs 63-67 ms, small preset 2.5-2.7 vs 3.0-3.2 ms); a batch
-of one chunk runs on all cores.
+cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
+network at batch 16, 58.4 / 59.4 ms on two workers vs 60.5 / 64.2 ms one chunk after the other;
+small preset at batch 64, 2.81 / 2.87 vs 2.79 / 3.00 ms (a tie). A batch of one chunk runs on all
+cores.
 
 bf16 changes the network output by a few 1e-3, so its poses are not those of fp32:
 ``scripts/check_inference.py`` measured on the quickstart model's 150 test scenes p99 differences
