@@ -17,9 +17,10 @@ prepacked oneDNN convolutions, transitions pooled first); ``false`` = the traini
 service: the first call compiles for tens of seconds).
 ``inference.max_batch``: larger batches run in chunks of this many images; ``auto`` = 8 for the
 unfused paths; for the fused form as many images as keep its largest block buffer within
-``CHUNK_BYTES`` (8 MiB), at most 8: 1 for the paper network (6.5 MB per image; per image 60 ms in
-chunks of 1 or 2, 64 ms of 4, 65 ms of 8, 70 ms of 16), 8 for the small and tiny presets (small:
-3.2 ms per image in chunks of 1, 2.5 of 2, 2.25 of 8, 2.95 of 32).
+``CHUNK_BYTES`` (8 MiB), at most 8: 1 for the paper network (6.5 MB per image; batch 16 on one
+worker, per image best / median of 3: 55.5 / 55.8 ms in chunks of 1, 57.5 / 60.0 of 2, 56.5 / 60.5
+of 4, 65.2 / 65.8 of 8, 71.7 / 73.0 of 16), 8 for the small and tiny presets (small: 3.2 ms per
+image in chunks of 1, 2.5 of 2, 2.25 of 8, 2.95 of 32).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
 cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
