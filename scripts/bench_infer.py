@@ -49,16 +49,11 @@ from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 
-#: the last :func:`timeit`'s median, printed beside its best
-LAST_MEDIAN = [0.0]
-
-
-def timeit(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> float:
-    """Best (smallest) milliseconds of ``fn`` over ``repeats`` runs after two warm-up calls.
+def timeit(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> tuple[float, float]:
+    """(best, median) milliseconds of ``fn`` over ``repeats`` runs after two warm-up calls.
 
     The best of several runs is the one least disturbed by the rest of the machine (timeit's
-    convention); the roofline is measured the same way, so the ratio compares like with like.
-    The median is kept in ``LAST_MEDIAN`` for the table.
+    convention); the median is printed beside it.
     """
     for _ in range(2):
         fn()
@@ -69,8 +64,7 @@ def timeit(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = la
         fn()
         sync()
         times.append(1000 * (time.perf_counter() - t0))
-    LAST_MEDIAN[0] = statistics.median(times)
-    return min(times)
+    return min(times), statistics.median(times)
 
 
 def depth_image(camera: Camera, rng: np.random.Generator) -> np.ndarray:
@@ -141,9 +135,10 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'batch':>5} {'stage':<38} {'ms/batch':>9} {'ms/image':>9} {'median':>9} {'GFLOP/s':>8} {'x floor':>8}")
     rows: list[tuple[int, str, float, float, float | None, float | None]] = []
 
-    def record(b: int, name: str, ms: float) -> None:
-        rows.append((b, name, ms, LAST_MEDIAN[0], None, None))
-        print(f"{b:>5} {name:<38} {ms:>9.2f} {ms / b:>9.2f} {LAST_MEDIAN[0] / b:>9.2f}", flush=True)
+    def record(b: int, name: str, times: tuple[float, float]) -> None:
+        ms, median = times
+        rows.append((b, name, ms, median, None, None))
+        print(f"{b:>5} {name:<38} {ms:>9.2f} {ms / b:>9.2f} {median / b:>9.2f}", flush=True)
 
     def record_forward(b: int, name: str, fn: Callable[[], object], repeats: int) -> None:
         best, median, x_floor, rates = paired_with_roofline(fn, repeats, gflop * b, device, sync)
@@ -195,8 +190,8 @@ def main(argv: list[str] | None = None) -> None:
             xs = torch.from_numpy(to_network_input(depth, camera, 128, cv2.INTER_AREA)[0])[None, None].to(device)
             return p_param.decode(run(xs), [net_cam])
 
-        ms = timeit(e2e, args.repeats, sync)
-        fwd = timeit(lambda: run(torch.rand(1, 1, 128, 128, device=device)), args.repeats, sync)
+        ms = timeit(e2e, args.repeats, sync)[0]
+        fwd = timeit(lambda: run(torch.rand(1, 1, 128, 128, device=device)), args.repeats, sync)[0]
         e2e_rows.append((name, ms, fwd))
         print(f"    end-to-end {name:<8} batch 1: {ms:7.2f} ms, forward {fwd:7.2f} ms, ratio {ms / fwd:.3f}", flush=True)
     roof = statistics.median(roofs)
@@ -300,7 +295,7 @@ def train_throughput(model: torch.nn.Module, channels: int, device: torch.device
         loss.backward()
         opt.step()
 
-    ms = timeit(step, steps, torch.cuda.synchronize)
+    ms = timeit(step, steps, torch.cuda.synchronize)[1]
     return batch * 1000 / ms
 
 

@@ -267,15 +267,20 @@ class _FusedTransition(nn.Module):
         return self.conv(F.avg_pool2d(self.pre(x), 2))
 
 
+def stages_with_sides(net: DenseNetBC) -> list[tuple[nn.Module, int]]:
+    """Each stage of ``net.features`` (dense block or transition) with the side of its input maps."""
+    side, out = net.in_size // net.stem.stride[0], []
+    for stage in net.features:
+        out.append((stage, side))
+        if not isinstance(stage, _DenseBlock):
+            side //= 2
+    return out
+
+
 def largest_block_bytes(net: DenseNetBC) -> int:
     """Bytes of the largest dense block's float32 features (its buffer) for one image."""
-    side, largest = net.in_size // net.stem.stride[0], 0
-    for stage in net.features:
-        if isinstance(stage, _DenseBlock):
-            largest = max(largest, 4 * stage.out_channels * side * side)
-        else:
-            side //= 2
-    return largest
+    return max((4 * stage.out_channels * side * side for stage, side in stages_with_sides(net)
+                if isinstance(stage, _DenseBlock)), default=0)
 
 
 class FusedDenseNet(nn.Module):
@@ -303,15 +308,11 @@ class FusedDenseNet(nn.Module):
         self.output_activation = net.output_activation
         stem = net.stem
         self.stem = PackedConv(stem.weight, stem.bias, stem.stride[0], stem.padding[0], use_mkldnn=use_mkldnn)
-        stages: list[nn.Module] = []
-        side = net.in_size // stem.stride[0]
-        for stage in net.features:
-            if isinstance(stage, _DenseBlock):
-                stages.append(_FusedBlock(stage, use_mkldnn, channel_block, side, concat))
-            else:
-                stages.append(_FusedTransition(stage, use_mkldnn))
-                side //= 2
-        self.stages = nn.ModuleList(stages)
+        self.stages = nn.ModuleList(
+            _FusedBlock(stage, use_mkldnn, channel_block, side, concat) if isinstance(stage, _DenseBlock)
+            else _FusedTransition(stage, use_mkldnn)
+            for stage, side in stages_with_sides(net)
+        )
         self.block_bytes_per_image = largest_block_bytes(net)
         bn, _, conv = net.head
         self.head_pre, w, b = fold_bn_relu_into_1x1(bn, conv.weight, conv.bias)
