@@ -11,6 +11,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from opnet.cli.trusted import saved_config, short
 from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
@@ -71,8 +72,13 @@ def build_datamodule(cfg: DictConfig, obj: ObjectModel, train: bool = True) -> A
     return make(obj=obj, augmenter=augmenter, object_config=plain(cfg.object))
 
 
-def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
-    """Rebuild a trained system from a checkpoint written by ``train.py``."""
+def read_checkpoint(path: str | Path, map_location: str = "cpu") -> dict[str, Any]:
+    """The contents of a checkpoint file, read as data: tensors and plain values only.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: naming ``path``: not a PyTorch checkpoint, unreadable, or holding other objects.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
@@ -91,11 +97,32 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
             "(loading it could run arbitrary code); opnet checkpoints never do"
         ) from e
     except Exception as e:  # corrupt or foreign file
-        raise ValueError(f"{path}: cannot read checkpoint ({type(e).__name__}: {e})") from e
-    config = ckpt.get("hyper_parameters", {}).get("config")
+        raise ValueError(f"{path}: cannot read checkpoint ({type(e).__name__}: {short(str(e), 200)})") from e
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"{path}: not an opnet checkpoint (holds a {type(ckpt).__name__}, not a dict)")
+    return ckpt
+
+
+def checkpoint_config(ckpt: dict[str, Any], path: str | Path) -> DictConfig:
+    """The run config saved in a checkpoint (``hyper_parameters.config``), checked to name only
+    opnet's own components (:func:`opnet.cli.trusted.saved_config`): a checkpoint is data.
+
+    Raises:
+        ValueError: naming ``path``: no run config, or one that names anything else.
+    """
+    hparams = ckpt.get("hyper_parameters")
+    config = hparams.get("config") if isinstance(hparams, dict) else None
     if not config:
         raise ValueError(f"{path}: checkpoint holds no opnet run config (was it written by train.py?)")
-    cfg = OmegaConf.create(config)
+    return saved_config(config, path)
+
+
+def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
+    """Rebuild a trained system from a checkpoint written by ``train.py``."""
+    ckpt = read_checkpoint(path, map_location)
+    cfg = checkpoint_config(ckpt, path)
+    if not isinstance(ckpt.get("state_dict"), dict):
+        raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     system = build_components(cfg).system
     system.load_state_dict(ckpt["state_dict"])
     system.eval()

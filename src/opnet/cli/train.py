@@ -13,7 +13,14 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from opnet.cli.build import absolutize_paths, build_components, build_datamodule, load_checkpoint
+from opnet.cli.build import (
+    absolutize_paths,
+    build_components,
+    build_datamodule,
+    checkpoint_config,
+    load_checkpoint,
+    read_checkpoint,
+)
 from opnet.cli.console import format_duration, report, result_summary
 from opnet.cli.eval import evaluate_split
 
@@ -37,7 +44,8 @@ def resolve_ckpt_path(ckpt_path: str | None, output_dir: Path) -> str | None:
 
 def check_checkpoint_file(path: Path) -> str:
     """``path`` if it is a complete checkpoint archive (torch's zip format, every member's CRC
-    intact); a file cut off by a crash or a full disk is named instead of failing deep in torch."""
+    intact) whose saved config names only opnet's own components; a file cut off by a crash or a
+    full disk is named instead of failing deep in torch, an altered one is refused."""
     try:
         with zipfile.ZipFile(path) as archive:
             bad = archive.testzip()
@@ -46,6 +54,7 @@ def check_checkpoint_file(path: Path) -> str:
                          "or delete it to start from scratch") from None
     if bad is not None:
         raise ValueError(f"{path}: corrupt checkpoint (member {bad} fails its CRC check)")
+    checkpoint_config(read_checkpoint(path), path)  # resuming restores no config, but a checkpoint is data
     return str(path)
 
 
@@ -83,7 +92,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     comps = build_components(cfg)
     datamodule = build_datamodule(cfg, comps.obj, train=True)
     trainer = build_trainer(cfg)
-    trainer.fit(comps.system, datamodule=datamodule, ckpt_path=resolve_ckpt_path(cfg.get("ckpt_path"), output_dir))
+    trainer.fit(comps.system, datamodule=datamodule, ckpt_path=resolve_ckpt_path(cfg.get("ckpt_path"), output_dir),
+                weights_only=True)  # explicit: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
     result: dict[str, Any] = {}
     if cfg.get("test", True) and trainer.is_global_zero:
         best = _best_checkpoint(trainer)
