@@ -68,20 +68,28 @@ def main() -> None:
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--breakdown", action="store_true")
     ap.add_argument("--scene", default="default", help="conf/scene preset (e.g. bulk)")
+    ap.add_argument("--camera-file", default=None, help="camera YAML / camera_params.txt (its clip planes used)")
+    ap.add_argument("--camera-height", type=float, default=None)
+    ap.add_argument("--set", action="append", default=[], help="scene key=value override (repeatable)")
+    ap.add_argument("--keep", default=None, help="keep the generated datasets in this folder (for pile_stats.py)")
+    ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    scene = scene_preset(args.scene, resolution=args.resolution)
+    scene = scene_preset(args.scene, resolution=args.resolution,
+                         **scene_overrides(args.camera_file, args.camera_height, args.set))
     rows = []
-    with tempfile.TemporaryDirectory(prefix="bench_generate_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="bench_generate_") as tmp_dir:
+        tmp = args.keep or tmp_dir
         for name in args.objects.split(","):
             obj = resolve_object(name)
             if args.breakdown:
                 print(breakdown(obj, args.drops, scene, Path(tmp) / f"{name}_breakdown"))
             for workers in (int(w) for w in args.workers.split(",")):
                 out = Path(tmp) / f"{name}_w{workers}"
-                r = generate_dataset(obj, out, args.cycles, args.drops, workers=workers, seed=0, scene=scene,
+                r = generate_dataset(obj, out, args.cycles, args.drops, workers=workers, seed=args.seed, scene=scene,
                                      progress=False, previews=0)
                 rows.append((name, workers, r, occlusion(out, args.drops)))
-    print(f"\nscene={args.scene}, {args.resolution} x {args.resolution}, {args.drops} drops per cycle, {os.cpu_count()} CPUs. "
+    print(f"\nscene={args.scene} {' '.join(args.set)}, camera {args.camera_file or f'{args.resolution} x {args.resolution}'}, "
+          f"{args.drops} drops per cycle, {getattr(scene, 'views', 1)} view(s) per pile, {os.cpu_count()} CPUs. "
           "scenes/s: after the first worker is ready; steady: sum over workers of scenes / busy time\n")
     print("| object | workers | cycles | scenes | start-up s | total s | scenes/s | steady scenes/s "
           "| re-drops | unsettled | solo renders/scene | fully hidden | < 50 % visible |")
@@ -90,6 +98,24 @@ def main() -> None:
         print(f"| {name} | {workers} | {r.cycles_generated} | {r.scenes_written} | {r.startup_seconds:.1f} | "
               f"{r.seconds:.1f} | {r.scenes_per_second:.2f} | {r.steady_scenes_per_second:.2f} | {r.redrops} | "
               f"{r.unsettled} | {r.solo_renders / max(r.scenes_written, 1):.1f} | {100 * hidden:.0f} % | {100 * half:.0f} % |")
+
+
+def scene_overrides(camera_file: str | None, camera_height: float | None, sets: list[str]) -> dict[str, object]:
+    """Scene overrides of the command line: a camera file (its clip planes used), its height, and
+    ``key=value`` pairs (values parsed as YAML: numbers, booleans, null)."""
+    import yaml
+
+    out: dict[str, object] = {}
+    if camera_file:
+        out.update(camera_file=str(Path(camera_file).resolve()), camera_file_clip=True)
+    if camera_height is not None:
+        out["camera_height"] = camera_height
+    for item in sets:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--set {item!r}: expected key=value")
+        out[key.strip()] = yaml.safe_load(value)
+    return out
 
 
 def scene_preset(name: str, **overrides: object) -> SceneConfig:

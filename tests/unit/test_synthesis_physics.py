@@ -76,7 +76,7 @@ def test_a_cycle_does_not_depend_on_what_the_client_simulated_before() -> None:
 
 def test_parts_that_cannot_stay_in_the_bin_end_in_a_clear_error() -> None:
     # a 4 mm pedestal instead of a bin, hit from 30 cm: every drop falls off
-    cfg = SceneConfig(collision="convex_hull", bin_inner=0.002, bin_wall_height=0.001, bin_wall_thickness=0.001,
+    cfg = SceneConfig(collision="convex_hull", bin_inner=0.002, bin_wall_height=0.001, bin_wall_thickness=0.001, camera_height=0.5,
                       drop_gap=0.3, max_redrops=2, max_cycle_restarts=1, settle_time_cap=1.0)
     with pytest.raises(RuntimeError, match="bin_inner"):
         _simulate("pin", 1, 0, cfg)

@@ -27,6 +27,8 @@ import cv2
 import numpy as np
 
 from opnet.data.preprocess import RESIZE_INTERPOLATIONS, fill_missing_depth, square_canvas
+from opnet.data.rotate import rotate_record
+from opnet.datasets.record import SceneRecord
 from opnet.geometry.camera import Camera
 
 Range = tuple[float, float]
@@ -81,6 +83,9 @@ class DepthAugmenter:
             the far plane likewise behind the farthest valid depth, so the normalized depth
             contrast varies as it does between sensors and set-ups.
         clip_margin: range of those margins, as fractions of the scene's clip range.
+        p_rotate: probability of an in-plane rotation (:meth:`turn`): the camera turned about its
+            optical axis, the labels turned with it, exact for any pinhole camera.
+        rotate_deg: range of the turn's angle, degrees.
     """
 
     def __init__(
@@ -104,6 +109,8 @@ class DepthAugmenter:
         zoom: Sequence[float] = (0.6, 1.0),
         p_clip: float = 0.0,
         clip_margin: Sequence[float] = (0.0, 0.6),
+        p_rotate: float = 0.0,
+        rotate_deg: Sequence[float] = (-180.0, 180.0),
     ):
         self.p_elastic = _probability("p_elastic", p_elastic)
         self.p_blur = _probability("p_blur", p_blur)
@@ -141,6 +148,8 @@ class DepthAugmenter:
         if self.zoom[1] > 1.0:
             raise ValueError(f"DepthAugmenter: zoom={tuple(zoom)}, expected a range within (0, 1]")
         self.clip_margin = _range("clip_margin", clip_margin)
+        self.p_rotate = _probability("p_rotate", p_rotate)
+        self.rotate_deg = _range("rotate_deg", rotate_deg, low=-360.0)
         border = cv2.BORDER_REFLECT_101  # a constant border would add depth 0 (the near plane)
         self._elastic = A.ElasticTransform(
             alpha=self.elastic_alpha[0], sigma=float(elastic_sigma), approximate=True,
@@ -177,6 +186,14 @@ class DepthAugmenter:
                 far = float(valid.max()) + rng.uniform(*self.clip_margin) * span
                 camera = dataclasses.replace(camera, clip_start=max(near, 1e-3), clip_end=far)
         return camera, canvas
+
+    def turn(self, record: SceneRecord, rng: np.random.Generator) -> SceneRecord:
+        """With probability ``p_rotate``, the scene seen by its camera turned about the optical
+        axis by an angle drawn from ``rotate_deg`` (exact, labels turned too:
+        :mod:`opnet.data.rotate`). Draws nothing when ``p_rotate`` is 0."""
+        if self.p_rotate == 0 or rng.random() >= self.p_rotate:
+            return record
+        return rotate_record(record, rng.uniform(*self.rotate_deg))
 
     def draw_interpolation(self, rng: np.random.Generator) -> int:
         """An OpenCV resize flag drawn uniformly from ``resize_interpolations``."""

@@ -113,6 +113,16 @@ class ConcatScenes:
         return out
 
 
+def generated_views(root: Path) -> int:
+    """``scene.views`` of a dataset made by opnet's generator (1 for any other dataset)."""
+    path = Path(root) / "generation.json"
+    try:
+        views = json.loads(path.read_text(encoding="utf-8")).get("scene", {}).get("views", 1)
+    except (OSError, ValueError, AttributeError):
+        return 1
+    return views if isinstance(views, int) and not isinstance(views, bool) and views >= 1 else 1
+
+
 def as_paths(value: Any) -> list[Path]:
     """One folder or a list of folders (a Hydra list too) as a list of paths."""
     if value is None or value == "":
@@ -187,6 +197,8 @@ class OPNetDataModule(L.LightningDataModule):
             (centred on the principal point: this argument's default, the framing of checkpoints
             without the key), ``crop``, ``image_crop``. The checkpoint keeps it: eval.py,
             predict.py and the ONNX export frame images the same way.
+        test_min_objects: score only the scenes of ``test_root`` with at least this many parts
+            (e.g. 70 for the Siléane-like bulk piles of 70-80 parts); 0 = every scene.
     """
 
     def __init__(
@@ -213,6 +225,7 @@ class OPNetDataModule(L.LightningDataModule):
         object_id: int | None = None,
         clip: Sequence[float] | None = None,
         fit: str = "pad",
+        test_min_objects: int = 0,
     ) -> None:
         super().__init__()
         if fit not in CANVAS_FITS:
@@ -244,6 +257,9 @@ class OPNetDataModule(L.LightningDataModule):
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None  # None: per dataset, by its framing
         self.cache_workers = int(cache_workers)
         self.test_roots = as_paths(test_root)
+        if isinstance(test_min_objects, bool) or int(test_min_objects) < 0:
+            raise ValueError(f"data.test_min_objects={test_min_objects!r}, expected an integer >= 0")
+        self.test_min_objects = int(test_min_objects)
         self.test_root = self.test_roots[0] if self.test_roots else None
         self.splits: dict[str, SceneSamples] = {}
 
@@ -299,7 +315,7 @@ class OPNetDataModule(L.LightningDataModule):
         for root in (*self.roots, *self.test_roots):
             self._check_object(root)
         source = self._open_sources(self.roots)
-        keys, keep = self._scene_keys(source)
+        keys, keep = self._scene_keys(source, self.roots)
         test_fraction = 0.0 if self.test_root is not None else self.test_fraction
         tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, test_fraction, self.seed)
         pick = lambda idx: [keep[i] for i in idx]  # noqa: E731
@@ -313,7 +329,8 @@ class OPNetDataModule(L.LightningDataModule):
         }
         if self.test_roots:  # held-out datasets of their own (other seed, other generator)
             test_source = self._open_sources(self.test_roots)
-            self.splits["test"] = SceneSamples(test_source, self._scene_keys(test_source)[1], **common)
+            keep = self._scene_keys(test_source, self.test_roots, self.test_min_objects)[1]
+            self.splits["test"] = SceneSamples(test_source, keep, **common)
         log.info("dataset %s: %s", ", ".join(map(str, self.roots)), {k: len(v) for k, v in self.splits.items()})
 
     def _check_object(self, root: Path) -> None:
@@ -331,15 +348,27 @@ class OPNetDataModule(L.LightningDataModule):
                 f"{self.obj.name!r}; set object={name} or point data.root at a dataset of {self.obj.name!r}"
             )
 
-    def _scene_keys(self, source: Any) -> tuple[list[Any], list[int]]:
-        """Group key per scene (its cycle for IPA-layout keys ``(..., cycle, objects)``, the scene
-        name otherwise) and the scenes to keep (scenes with objects, unless ``include_empty``)."""
+    def _scene_keys(self, source: Any, roots: Sequence[Path], min_objects: int = 0) -> tuple[list[Any], list[int]]:
+        """Group key per scene and the scenes to keep (scenes with objects, unless
+        ``include_empty``; with at least ``min_objects`` parts where the count is known).
+
+        The group is what splits must not cut: the cycle of IPA-layout keys ``(cycle, objects)``,
+        the pile (``cycle // views``) of a dataset generated with several views per pile, the BOP
+        scene of ``(scene, image, objects)``, the scene name otherwise; with several datasets the
+        dataset index comes first."""
         scenes = source.scenes() if hasattr(source, "scenes") else list(range(len(source)))
+        views = [generated_views(root) for root in roots]
+        concat = len(roots) > 1
         keys, keep = [], []
         for i, s in enumerate(scenes):
             is_ipa = isinstance(s, tuple)  # (group, ..., objects): IPA (cycle, objects), BOP (scene, image, objects)
-            keys.append(s[:1] if is_ipa else s)
-            if self.include_empty or not is_ipa or s[-1] > 0:
+            if is_ipa:
+                k, inner = (s[0], s[1:]) if concat else (0, s)
+                group = inner[0] // views[k] if isinstance(inner[0], int) else inner[0]
+                keys.append((k, group) if concat else (group,))
+            else:
+                keys.append(s)
+            if (self.include_empty or not is_ipa or s[-1] > 0) and (not is_ipa or s[-1] >= min_objects):
                 keep.append(i)
         return keys, keep
 

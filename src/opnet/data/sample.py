@@ -69,13 +69,15 @@ def make_sample(
 ) -> Sample:
     """Preprocess one scene: crop to the canvas, resize, fill missing depth, normalize, augment.
 
-    With an augmenter, its random view (zoom window, clip planes) comes first and the sample's
+    With an augmenter, its in-plane rotation (labels turned too) and random view (zoom window,
+    clip planes) come first and the sample's
     camera is the camera of that view, so the targets stay consistent with the image. ``fit`` is
     the framing rule (:func:`opnet.data.preprocess.square_canvas`).
     """
     camera, canvas = record.camera, None
     if augmenter is not None:
         rng = rng if rng is not None else np.random.default_rng()
+        record = augmenter.turn(record, rng)
         camera, canvas = augmenter.view(record.depth, record.camera, rng, fit)
     image, net_camera = to_network_input(record.depth, camera, size=size, interpolation=interpolation, fit=fit,
                                          canvas=canvas)

@@ -16,7 +16,7 @@ from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
-_LATER_FIELDS = ("camera_file", "camera_file_clip")
+_LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "freeze_depth")
 
 
 def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -> Any:
@@ -74,6 +74,10 @@ class SceneConfig:
         settle_time_cap: simulated seconds after which a drop is recorded even if still moving.
         max_redrops: attempts per drop when parts leave the bin (the world is restored each time).
         max_cycle_restarts: whole-cycle restarts (fresh random stream) when a drop exhausts its attempts.
+        freeze_depth: after each drop, parts whose top lies more than this many object diameters
+            (2 x the part's radius about its origin) below the pile top become static: they keep
+            their pose and carry the pile but are no longer simulated (bulk piles: the buried
+            layers). 0 = never (every part simulated to the end).
 
     Camera from a file (then ``resolution``, ``width``, ``height`` and ``fov_deg`` are not used):
         camera_file: a Siléane ``camera_params.txt``, an IPA ``parameter.json`` or a YAML with
@@ -84,6 +88,12 @@ class SceneConfig:
         Domain randomization around the camera: ``camera_jitter_m`` (position, height included)
         and ``camera_jitter_deg`` (tilt) per cycle; the intrinsics stay those of the file (one
         camera per dataset; the training's zoom augmentation varies the apparent focal length).
+
+    Several views per pile:
+        views: each settled pile is rendered from this many cameras, each written as a cycle of
+            its own (cycle ``pile * views + k``); every view's camera is placed relative to the
+            bin as in an independent cycle (the jitters above), so one physics simulation yields
+            ``views`` cycles of the same distribution. 1 = one camera per pile (as before).
 
     Rendering:
         solo_cache_mm, solo_cache_deg: an object's solo pixel count (the visibility denominator) is
@@ -130,6 +140,8 @@ class SceneConfig:
     solo_cache_deg: float = 0.3
     camera_file: str | None = None
     camera_file_clip: bool = False
+    views: int = 1
+    freeze_depth: float = 0.0
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -152,7 +164,7 @@ class SceneConfig:
         # as on real cells where the camera sees only the middle of the bin
         need(math.isfinite(self.view_margin) and self.view_margin > -0.9, "view_margin", "a number > -0.9")
         for key in ("camera_jitter_m", "camera_jitter_deg", "bin_jitter_m", "bin_jitter_deg",
-                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg"):
+                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg", "freeze_depth"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) >= 0, key, "a number >= 0")
         for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
                     "settle_angular", "settle_time_cap", "convexity_threshold"):
@@ -161,6 +173,9 @@ class SceneConfig:
             need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
         need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
         need(isinstance(self.camera_file_clip, bool), "camera_file_clip", "true or false")
+        need(isinstance(self.views, int) and not isinstance(self.views, bool) and 1 <= self.views <= 1000, "views",
+             "an integer in 1..1000 (views per settled pile)")
+        need(self.camera_jitter_deg < 45.0, "camera_jitter_deg", "degrees in [0, 45) (the camera must still see the bin)")
 
     @property
     def image_size(self) -> tuple[int, int]:

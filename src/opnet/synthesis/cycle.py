@@ -8,6 +8,7 @@ a cycle is the same whichever worker makes it and whatever was made before.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Iterable, Iterator
 from typing import Self
 
 import numpy as np
@@ -16,8 +17,8 @@ from opnet.datasets.record import SceneRecord
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.collision import CollisionModel, build_collision_model
 from opnet.synthesis.config import SceneConfig
-from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout
-from opnet.synthesis.physics import BinSimulator, CycleStats
+from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, view_layout
+from opnet.synthesis.physics import BinSimulator, CycleStates, CycleStats
 from opnet.synthesis.rendering import SceneRenderer
 from opnet.synthesis.sensor import SensorModel, sensor_rng
 
@@ -29,6 +30,11 @@ def cycle_rngs(seed: int, cycle: int) -> tuple[np.random.Generator, np.random.Ge
     """(layout generator, drop generator) of a cycle, from ``SeedSequence([seed, cycle])``."""
     layout_seq, drop_seq = np.random.SeedSequence([int(seed), int(cycle)]).spawn(2)
     return np.random.default_rng(layout_seq), np.random.default_rng(drop_seq)
+
+
+def view_rng(seed: int, pile: int, view: int) -> np.random.Generator:
+    """Camera generator of view ``view`` > 0 of pile ``pile`` (``scene.views``)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(pile), int(view)]))
 
 
 def scene_name(cycle: int, n: int) -> str:
@@ -110,10 +116,32 @@ class CycleGenerator:
         self.close()
 
     def generate(self, seed: int, cycle: int) -> CycleResult:
-        """Simulate and render cycle ``cycle`` of the dataset with seed ``seed``."""
-        layout_rng, drop_rng = cycle_rngs(seed, cycle)
+        """Simulate and render cycle ``cycle`` of the dataset with seed ``seed`` (with
+        ``scene.views`` > 1: view ``cycle % views`` of pile ``cycle // views``)."""
+        views = self.scene.views
+        return next(self.generate_views(seed, cycle // views, (cycle % views,)))
+
+    def generate_views(self, seed: int, pile: int, views: Iterable[int] | None = None) -> Iterator[CycleResult]:
+        """Simulate pile ``pile`` once and render it from each of ``views`` (default all
+        ``scene.views``); view k is written as cycle ``pile * scene.views + k``.
+
+        Random numbers: the pile (bin jitter, drops) and view 0 come from ``cycle_rngs(seed,
+        pile)`` exactly as a cycle without views (``views=1`` gives the same bytes as before);
+        view k > 0 draws its camera from ``SeedSequence([seed, pile, k])`` (:func:`view_layout`).
+        Views are rendered one after another, each with its own visibility cache.
+        """
+        K = self.scene.views
+        wanted = sorted(set(range(K) if views is None else views))
+        if not wanted or wanted[0] < 0 or wanted[-1] >= K:
+            raise ValueError(f"views {wanted} outside 0..{K - 1} (scene.views={K})")
+        layout_rng, drop_rng = cycle_rngs(seed, pile)
         layout = sample_layout(self.rig, self.scene, layout_rng)
         states = self.simulator.simulate(layout, self.drops, drop_rng)
+        for k in wanted:
+            view = layout if k == 0 else view_layout(self.rig, self.scene, layout, view_rng(seed, pile, k))
+            yield self._render_view(seed, pile * K + k, view, states)
+
+    def _render_view(self, seed: int, cycle: int, layout: CycleLayout, states: CycleStates) -> CycleResult:
         T_cam_world = layout.T_cam_world
         T_cam_bin = T_cam_world @ layout.T_world_bin
         self.renderer.begin_cycle(T_cam_bin)
@@ -137,4 +165,3 @@ class CycleGenerator:
             )
         return CycleResult(cycle, records, T_cam_bin[:3, :3].copy(), T_cam_bin[:3, 3].copy(), layout,
                            states.stats, solo_renders)
-

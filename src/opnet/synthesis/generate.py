@@ -46,13 +46,14 @@ class GenerationReport:
     Attributes:
         out: the dataset folder.
         cycles: cycles the dataset has; cycles_generated: made by this call; cycles_skipped:
-            already complete.
+            already complete; piles_simulated: physics simulations run (one pile gives up to
+            ``scene.views`` cycles).
         scenes_written: scenes written by this call (``cycles_generated * (drops + 1)``).
         seconds: wall time of the call; startup_seconds: until the first worker was ready
             (process start, imports, EGL and pybullet set-up).
         scenes_per_second: ``scenes_written`` / (``seconds`` - ``startup_seconds``).
         redrops, unsettled, restarts, physics_steps, solo_renders: totals over generated cycles.
-        per_cycle_seconds: time each generated cycle took (simulate, render, write).
+        per_cycle_seconds: time each simulated pile took (simulate, render and write its views).
         worker_busy: per worker process id, (scenes written, seconds spent on them).
     """
 
@@ -60,6 +61,7 @@ class GenerationReport:
     cycles: int
     cycles_generated: int = 0
     cycles_skipped: int = 0
+    piles_simulated: int = 0
     scenes_written: int = 0
     seconds: float = 0.0
     startup_seconds: float = 0.0
@@ -99,7 +101,9 @@ class _Job:
 
 @dataclass(frozen=True)
 class _CycleDone:
-    cycle: int
+    """One finished pile: the cycles (views) it wrote."""
+
+    cycles: tuple[int, ...]
     seconds: float
     ready_at: float
     redrops: int
@@ -116,14 +120,18 @@ class _Worker:
         self.generator = CycleGenerator(job.obj, job.drops, job.scene, job.cycles, job.collision, job.sensor)
         self.ready_at = time.time()
 
-    def run(self, cycle: int) -> _CycleDone:
+    def run(self, pile: tuple[int, tuple[int, ...]]) -> _CycleDone:
+        """Simulate pile ``pile[0]`` and write its views ``pile[1]`` (each a cycle)."""
         start = time.perf_counter()
-        job = self.job
-        result = self.generator.generate(job.seed, cycle)
-        write_cycle(job.root, result, (job.drops,) if cycle in job.previews else ())
+        job, (index, views) = self.job, pile
+        written, solo = [], 0
+        for result in self.generator.generate_views(job.seed, index, views):
+            write_cycle(job.root, result, (job.drops,) if result.cycle in job.previews else ())
+            written.append(result.cycle)
+            solo += result.solo_renders
         s = result.stats
-        return _CycleDone(cycle, time.perf_counter() - start, self.ready_at, s.redrops, s.unsettled, s.restarts,
-                          s.steps, result.solo_renders, os.getpid())
+        return _CycleDone(tuple(written), time.perf_counter() - start, self.ready_at, s.redrops, s.unsettled,
+                          s.restarts, s.steps, solo, os.getpid())
 
 
 _WORKER: _Worker | None = None
@@ -136,9 +144,9 @@ def _init_worker(job: _Job, threads: int) -> None:
     _WORKER = _Worker(job)
 
 
-def _run_cycle(cycle: int) -> _CycleDone:
+def _run_pile(pile: tuple[int, tuple[int, ...]]) -> _CycleDone:
     assert _WORKER is not None, "worker not initialized"
-    return _WORKER.run(cycle)
+    return _WORKER.run(pile)
 
 
 def generate_dataset(
@@ -203,9 +211,10 @@ def generate_dataset(
         assert obj.mesh is not None
         job = _Job(obj, out, drops, cycles, seed, scene, build_collision_model(obj.mesh, scene),
                    frozenset(preview_cycles(cycles, previews)), sensor)
+        piles = piles_to_make(todo, scene.views)
         with tqdm(total=len(todo) * (drops + 1), unit="scene", disable=not progress, desc=f"generating {out.name}") as bar:
-            for done in _run(job, todo, min(workers, len(todo))):
-                bar.update(drops + 1)
+            for done in _run(job, piles, min(workers, len(piles))):
+                bar.update(len(done.cycles) * (drops + 1))
                 _account(report, done, drops, done.ready_at - wall_start)
     report.seconds = time.perf_counter() - start
     report.startup_seconds = min(report.startup_seconds, report.seconds)
@@ -220,31 +229,41 @@ def _cycles_present(root: Path) -> list[int]:
     return sorted(int(p.name[6:]) for p in gt.iterdir() if p.is_dir() and p.name.startswith("cycle_") and p.name[6:].isdigit())
 
 
-def _run(job: _Job, todo: list[int], workers: int) -> Iterator[_CycleDone]:
-    """Yield finished cycles, in this process (workers == 1) or from a spawn pool."""
+def piles_to_make(cycles: list[int], views: int) -> list[tuple[int, tuple[int, ...]]]:
+    """The piles that ``cycles`` come from, each with the views (cycle % views) to write."""
+    piles: dict[int, list[int]] = {}
+    for c in cycles:
+        piles.setdefault(c // views, []).append(c % views)
+    return [(p, tuple(v)) for p, v in sorted(piles.items())]
+
+
+def _run(job: _Job, piles: list[tuple[int, tuple[int, ...]]], workers: int) -> Iterator[_CycleDone]:
+    """Yield finished piles, in this process (workers == 1) or from a spawn pool."""
     if workers == 1:
         worker = _Worker(job)
         try:
-            for c in todo:
-                yield worker.run(c)
+            for p in piles:
+                yield worker.run(p)
         finally:
             worker.generator.close()
         return
     threads = max(1, (os.cpu_count() or 1) // workers)
     with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(job, threads)) as pool:
-        yield from pool.imap_unordered(_run_cycle, todo, chunksize=1)
+        yield from pool.imap_unordered(_run_pile, piles, chunksize=1)
 
 
 def _account(report: GenerationReport, done: _CycleDone, drops: int, ready_after: float) -> None:
     first = report.cycles_generated == 0
-    report.cycles_generated += 1
-    report.scenes_written += drops + 1
+    scenes = len(done.cycles) * (drops + 1)
+    report.cycles_generated += len(done.cycles)
+    report.piles_simulated += 1
+    report.scenes_written += scenes
     report.redrops += done.redrops
     report.unsettled += done.unsettled
     report.restarts += done.restarts
     report.physics_steps += done.steps
     report.solo_renders += done.solo_renders
     report.per_cycle_seconds.append(done.seconds)
-    scenes, seconds = report.worker_busy.get(done.worker, (0, 0.0))
-    report.worker_busy[done.worker] = (scenes + drops + 1, seconds + done.seconds)
+    busy_scenes, seconds = report.worker_busy.get(done.worker, (0, 0.0))
+    report.worker_busy[done.worker] = (busy_scenes + scenes, seconds + done.seconds)
     report.startup_seconds = ready_after if first else min(report.startup_seconds, ready_after)

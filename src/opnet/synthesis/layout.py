@@ -165,6 +165,7 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
                          for u in (-0.5, width - 0.5) for v in (-0.5, height - 0.5))
     tan_half_image = min(width / 2.0 / fx, height / 2.0 / fy)
     h = cfg.camera_height or wall + (bin_geom.outer / 2.0) * (1.0 + cfg.view_margin) / tan_half_image
+    _check_jitter(cfg, h, wall, math.degrees(math.atan(tan_half_image)))
     tilt = math.tan(math.radians(cfg.camera_jitter_deg))
     clip_start = cfg.clip_start or max(h - wall - D - cfg.camera_jitter_m, 0.1 * h)
     clip_end = cfg.clip_end or (h + bin_geom.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m
@@ -202,6 +203,17 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     return Rig(bin_geom, params, params.camera(), homogeneous(R_WORLD_CAM_DOWN, location), radius)
 
 
+def _check_jitter(cfg: SceneConfig, height: float, wall: float, half_fov_deg: float) -> None:
+    """Refuse camera jitters no camera can take: reaching down to the wall tops, or tilting the
+    bin centre out of the image."""
+    if cfg.camera_jitter_m >= height - wall:
+        raise ValueError(f"scene config: camera_jitter_m={cfg.camera_jitter_m} m would move the camera down to the bin "
+                         f"walls (camera {height:.3f} m above the floor, walls {wall:.3f} m); expected < {height - wall:.3f}")
+    if cfg.camera_jitter_deg >= half_fov_deg:
+        raise ValueError(f"scene config: camera_jitter_deg={cfg.camera_jitter_deg} would tilt the bin centre out of the "
+                         f"image (half field of view {half_fov_deg:.1f} degrees); expected less")
+
+
 def sample_layout(rig: Rig, cfg: SceneConfig, rng: np.random.Generator) -> CycleLayout:
     """Jitter the bin (x, y, yaw) and the camera (position, small tilt) for one cycle."""
     dx, dy = rng.uniform(-1.0, 1.0, 2) * cfg.bin_jitter_m
@@ -212,3 +224,14 @@ def sample_layout(rig: Rig, cfg: SceneConfig, rng: np.random.Generator) -> Cycle
     shift = rng.uniform(-1.0, 1.0, 3) * cfg.camera_jitter_m
     T_jitter = homogeneous(rotation_about(axis, angle), shift)
     return CycleLayout(T_world_bin, T_jitter @ rig.T_world_cam)
+
+
+def view_layout(rig: Rig, cfg: SceneConfig, pile: CycleLayout, rng: np.random.Generator) -> CycleLayout:
+    """Another view of a settled pile: the camera placed relative to the pile's bin as in a fresh,
+    independent cycle (bin jitter and camera jitter drawn anew, then the camera carried along with
+    the bin onto the pile's bin pose). Each view's bin-to-camera pose thus has exactly the
+    distribution of a cycle's; only the pile is shared (``scene.views``)."""
+    fresh = sample_layout(rig, cfg, rng)
+    T_bin_cam = inverse_pose(fresh.T_world_bin) @ fresh.T_world_cam
+    return CycleLayout(pile.T_world_bin, pile.T_world_bin @ T_bin_cam)
+

@@ -29,7 +29,23 @@ if not hasattr(np, "infty"):
 
 import pyrender  # noqa: E402
 import pyrender.renderer  # noqa: E402
-from OpenGL.GL import GL_COLOR_LOGIC_OP, GL_DEPTH_TEST, GL_OR, glDisable, glEnable, glLogicOp  # noqa: E402
+from OpenGL.GL import (  # noqa: E402
+    GL_COLOR_BUFFER_BIT,
+    GL_COLOR_LOGIC_OP,
+    GL_DEPTH_TEST,
+    GL_DRAW_FRAMEBUFFER,
+    GL_NEAREST,
+    GL_OR,
+    GL_READ_FRAMEBUFFER,
+    GL_RGB,
+    GL_UNSIGNED_BYTE,
+    glBindFramebuffer,
+    glBlitFramebuffer,
+    glDisable,
+    glEnable,
+    glLogicOp,
+    glReadPixels,
+)
 
 #: objects per union pass (bits of an RGB8 pixel)
 UNION_BITS = 24
@@ -72,8 +88,24 @@ def _wrap_viewport_setup(renderer: pyrender.OffscreenRenderer) -> None:
         else:
             glDisable(GL_COLOR_LOGIC_OP)
 
+    read_both = inner._read_main_framebuffer
+
+    def read(scene: pyrender.Scene, flags: int) -> tuple[np.ndarray, np.ndarray | None]:
+        # a union pass needs the colour bits only: skip pyrender's depth read-back and its
+        # linearization (a third of a pass over a 3 x 3-window canvas)
+        if not _UNION["on"]:
+            return read_both(scene, flags)
+        width, height = inner._main_fb_dims
+        glBindFramebuffer(GL_READ_FRAMEBUFFER, inner._main_fb_ms)
+        glBindFramebuffer(GL_DRAW_FRAMEBUFFER, inner._main_fb)
+        glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, GL_COLOR_BUFFER_BIT, GL_NEAREST)
+        glBindFramebuffer(GL_READ_FRAMEBUFFER, inner._main_fb)
+        buf = glReadPixels(0, 0, width, height, GL_RGB, GL_UNSIGNED_BYTE)
+        return np.flip(np.frombuffer(buf, dtype=np.uint8).reshape(height, width, 3), axis=0), None
+
     inner._configure_forward_pass_viewport = configure
     inner._configure_main_framebuffer = single_sample_framebuffer
+    inner._read_main_framebuffer = read
 
 
 @contextlib.contextmanager

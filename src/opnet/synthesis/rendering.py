@@ -16,6 +16,10 @@ Decisions:
   outside the image must count too: an object whose projected bounding box leaves the image is
   also drawn in the neighbouring image-sized windows of the unbounded canvas (the same pixel
   grid shifted by whole images, the principal point moving with it) and its counts are summed.
+- Only what can cover a pixel is drawn: the scene pass leaves out parts whose projected bounding
+  box misses the image, and solo counts are made only for parts with a visible pixel (the others
+  have visibility 0 whatever their count). Both are exact; in bulk piles they save about half of
+  the rendering.
 - Solo counts are cached within a cycle and reused while an object moved less than
   ``solo_cache_mm`` and ``solo_cache_deg`` since it was counted (at 0.3 mm and 0.3 degree the
   count changes by well under 1 %); a reused count may then be a pixel short, so visibility is
@@ -43,6 +47,8 @@ from opnet.synthesis.offscreen import (
 #: OpenCV camera axes expressed in the OpenGL camera frame pyrender uses (and back: it is its own inverse)
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 _BLACK = (0, 0, 0)
+#: a visibility pass covers at most this many pixels a side in one viewport
+MAX_CANVAS = 2048
 
 
 @dataclass
@@ -129,16 +135,22 @@ class SceneRenderer:
         """Render the bin with objects at ``T_cam_obj`` (N, 4, 4) model-to-camera poses, metres."""
         n = len(T_cam_obj)
         self._set_objects(T_cam_obj)
-        seg_map = {node: (k + 1, 0, 0) for k, node in enumerate(self._objects[:n])}
-        seg_map.update({node: _BLACK for node in self._statics})
-        color, z = self._render_seg(seg_map, (0, 0))
-        seg = color[..., 0].astype(np.int32)
-        depth = np.where(z > 0, z, np.nan).astype(np.float32)
+        boxes = [self._pixel_box(T) for T in T_cam_obj]
+        depth, seg = self._scene_pass([k for k, box in enumerate(boxes) if _in_window(box, (0, 0), self.camera)])
         visible = np.bincount(seg.ravel(), minlength=n + 1)[1 : n + 1]
-        solo, renders = self._solo_counts(T_cam_obj)
+        # a part with no visible pixel has visibility 0 whatever its solo count: not counted
+        solo, renders = self._solo_counts(T_cam_obj, boxes, visible > 0)
         # a reused solo count may be a pixel short of the moved object's: never report more than 1
         vis = np.minimum(visible / np.maximum(solo, 1), 1.0) * (solo > 0)
         return RenderedScene(depth, seg, vis.astype(np.float64), solo, renders)
+
+    def _scene_pass(self, drawn: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(depth (H, W) float32 metres, NaN = nothing; segmentation (H, W) int32) with objects
+        ``drawn`` (indices; the others lie outside the image and would not cover a pixel)."""
+        seg_map = {self._objects[k]: (k + 1, 0, 0) for k in drawn}
+        seg_map.update({node: _BLACK for node in self._statics})
+        color, z = self._render_seg(seg_map, (0, 0))
+        return np.where(z > 0, z, np.nan).astype(np.float32), color[..., 0].astype(np.int32)
 
     def _set_objects(self, T_cam_obj: np.ndarray) -> None:
         while len(self._objects) < len(T_cam_obj):
@@ -146,37 +158,59 @@ class SceneRenderer:
         for node, T in zip(self._objects, T_cam_obj):
             self._scene.set_pose(node, np.asarray(T, dtype=np.float64))
 
-    def _render_seg(self, seg_map: dict, window: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """SEG pass over the image-sized window whose top-left pixel is ``window`` (ox, oy)."""
-        self._cam_node.camera = self._gl_camera(*window)
-        renderer = shared_renderer(self.camera.width, self.camera.height)
-        return renderer.render(self._scene, pyrender.RenderFlags.SEG, seg_node_map=seg_map)
+    def _render_seg(self, seg_map: dict, origin: tuple[int, int], size: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """SEG pass over the ``size`` (w, h; default the image's) rectangle of the unbounded canvas
+        whose top-left pixel is ``origin`` (ox, oy): the image's pixel grid, another viewport."""
+        self._cam_node.camera = self._gl_camera(*origin)
+        w, h = size or (self.camera.width, self.camera.height)
+        return shared_renderer(w, h).render(self._scene, pyrender.RenderFlags.SEG, seg_node_map=seg_map)
 
     # ---- visibility denominators -------------------------------------------------------------
-    def _solo_counts(self, T_cam_obj: np.ndarray) -> tuple[np.ndarray, int]:
+    def _solo_counts(self, T_cam_obj: np.ndarray, boxes: list, wanted: np.ndarray) -> tuple[np.ndarray, int]:
+        """Solo pixel counts of the objects ``wanted`` ((N,) bool; 0 for the others) and the passes
+        made; ``boxes`` are their projected bounding boxes (:meth:`_pixel_box`).
+
+        The objects to count are rendered over one viewport: the rectangle of the canvas pixel
+        grid that holds all their boxes, so a part reaching out of the image costs no extra
+        pass. Beyond ``MAX_CANVAS`` pixels a side, image-sized window by window."""
         n = len(T_cam_obj)
         counts = np.zeros(n, dtype=np.int64)
-        by_window: dict[tuple[int, int], list[int]] = {}
-        for k in range(n):
+        todo: list[int] = []
+        for k in np.flatnonzero(wanted):
             cached = self._cache.get(k)
             if cached is not None and self._same_pose(cached[0], T_cam_obj[k]):
                 counts[k] = cached[1]
-                continue
-            box = self._pixel_box(T_cam_obj[k])
-            for window in _windows(box, self.camera.width, self.camera.height) if box is not None else []:
-                by_window.setdefault(window, []).append(k)
+            elif boxes[k] is not None:
+                todo.append(int(k))
         renders = 0
         with union_mode():
-            for window, members in sorted(by_window.items()):
+            for (origin, size), members in self._canvas_passes([boxes[k] for k in todo], todo):
                 for chunk in range(0, len(members), UNION_BITS):
                     group = members[chunk : chunk + UNION_BITS]
                     seg_map = {self._objects[k]: bit_color(j) for j, k in enumerate(group)}
-                    color, _ = self._render_seg(seg_map, window)
+                    color, _ = self._render_seg(seg_map, origin, size)
                     counts[group] += count_bits(color, len(group))
                     renders += 1
-        for k in sorted({k for members in by_window.values() for k in members}):
+        for k in todo:
             self._cache[k] = (np.array(T_cam_obj[k], dtype=np.float64), int(counts[k]))
         return counts, renders
+
+    def _canvas_passes(self, boxes: list, todo: list[int]) -> list:
+        """[((origin, size), objects)]: one rectangle of pixels around every box (1 pixel to
+        spare) when it is at most ``MAX_CANVAS`` a side, else the image-sized windows each box
+        touches."""
+        if not todo:
+            return []
+        lo = np.floor(np.min([b[:2] for b in boxes], axis=0) + 0.5).astype(int) - 1
+        hi = np.floor(np.max([b[2:] for b in boxes], axis=0) + 0.5).astype(int) + 1
+        size = hi - lo + 1
+        if size.max() <= MAX_CANVAS:
+            return [(((int(lo[0]), int(lo[1])), (int(size[0]), int(size[1]))), todo)]
+        by_window: dict[tuple[int, int], list[int]] = {}
+        for k, box in zip(todo, boxes):
+            for window in _windows(box, self.camera.width, self.camera.height):
+                by_window.setdefault(window, []).append(k)
+        return [((window, None), members) for window, members in sorted(by_window.items())]
 
     def _same_pose(self, T_a: np.ndarray, T_b: np.ndarray) -> bool:
         if np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > self._tol_t:
@@ -191,6 +225,14 @@ class SceneRenderer:
             return None
         uv = self.camera.project(p)
         return float(uv[:, 0].min()), float(uv[:, 1].min()), float(uv[:, 0].max()), float(uv[:, 1].max())
+
+
+def _in_window(box: tuple[float, float, float, float] | None, window: tuple[int, int], camera: Camera) -> bool:
+    """Whether a projected box may cover a pixel of the image-sized ``window`` (a box crossing the
+    near plane, None, always may)."""
+    if box is None:
+        return True
+    return window in _windows(box, camera.width, camera.height)
 
 
 def _windows(box: tuple[float, float, float, float], W: int, H: int) -> list[tuple[int, int]]:
