@@ -4,7 +4,7 @@ pass, the visibility passes), the sensor model, PNG encoding and writing.
     python scripts/profile_generate.py --objects bunny,ring_screw --scene bulk --drops 75 \
         --camera-file conf/cameras/sileane_bunny.yaml --camera-height 1.5 --cycles 2
 
-Runs in this process (one worker), after a warm-up cycle; each stage is timed by wrapping the
+Runs in this process (one worker), after a warm-up render; each stage is timed by wrapping the
 function that does it, so the table adds up to the cycle's wall time (the rest is "other"). The
 percentages are of the whole cycle. ``--set key=value`` overrides any scene setting (repeatable;
 ``--set views=4`` renders four views of every settled pile). Objects are built-in names or conf/object names
@@ -23,6 +23,8 @@ from collections import defaultdict
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -36,7 +38,7 @@ STAGES = (
     ("physics: spawn", "opnet.synthesis.physics", "BinSimulator", "_spawn"),
     ("physics: settle (step + checks)", "opnet.synthesis.physics", "BinSimulator", "_settle"),
     ("physics: world set-up", "opnet.synthesis.physics", "BinSimulator", "_build_world"),
-    ("render: scene pass (depth + segmentation)", "opnet.synthesis.rendering", "SceneRenderer", "_scene_pass"),
+    ("render: scene pass (depth + segmentation)", "opnet.synthesis.rendering", "SceneRenderer", "render"),
     ("render: visibility passes", "opnet.synthesis.rendering", "SceneRenderer", "_solo_counts"),
     ("sensor model", "opnet.synthesis.sensor", "SensorModel", "apply"),
     ("write: PNG encoding + file", "opnet.datasets.ipa", None, "write_png"),
@@ -90,19 +92,21 @@ class StageClock:
 
 
 def profile_object(name: str, drops: int, scene: SceneConfig, piles: int) -> tuple[dict[str, float], float, int]:
-    """(seconds per stage, wall seconds, scenes) over ``piles`` piles after one warm-up pile."""
+    """(seconds per stage, wall seconds, scenes) over ``piles`` piles after a warm-up render."""
     import opnet.synthesis.writer as writer_module
 
     obj = resolve_object(name)
     clock = StageClock()
     with tempfile.TemporaryDirectory(prefix="profile_generate_") as tmp, CycleGenerator(obj, drops, scene) as gen:
-        for _ in gen.generate_views(0, 10_000):  # warm-up: GL programs, collision shapes
-            pass
+        gen.renderer.begin_cycle(np.eye(4))  # warm-up: GL programs
+        gen.renderer.render(np.zeros((0, 4, 4)))
+        # the library before scene.views existed has generate(seed, cycle) only (a "before" profile)
+        views = gen.generate_views if hasattr(gen, "generate_views") else lambda seed, p: [gen.generate(seed, p)]
         scenes = 0
         with clock.installed():
             t0 = time.perf_counter()
             for p in range(piles):
-                for result in gen.generate_views(0, p):
+                for result in views(0, p):
                     writer_module.write_cycle(Path(tmp), result)
                     scenes += len(result.records)
             wall = time.perf_counter() - t0
@@ -114,14 +118,14 @@ def main() -> None:
     ap.add_argument("--objects", default="bunny,ring_screw")
     ap.add_argument("--scene", default="bulk", help="conf/scene preset")
     ap.add_argument("--drops", type=int, default=75)
-    ap.add_argument("--cycles", type=int, default=2, help="piles timed per object (after a warm-up pile)")
+    ap.add_argument("--cycles", type=int, default=1, help="piles timed per object")
     ap.add_argument("--camera-file", default=None)
     ap.add_argument("--camera-height", type=float, default=None)
     ap.add_argument("--set", action="append", default=[], help="scene key=value override (repeatable)")
     args = ap.parse_args()
     scene = scene_preset(args.scene, **scene_overrides(args.camera_file, args.camera_height, args.set))
     print(f"scene={args.scene} {' '.join(args.set)}, camera {args.camera_file or 'built-in'}, {args.drops} drops, "
-          f"{scene.views} view(s) per pile, {args.cycles} pile(s) timed per object, 1 process\n")
+          f"{getattr(scene, 'views', 1)} view(s) per pile, {args.cycles} pile(s) timed per object, 1 process\n")
     print("| object | stage | s per pile | ms per scene | share |")
     print("|---|---|---|---|---|")
     for name in args.objects.split(","):

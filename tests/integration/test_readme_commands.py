@@ -122,6 +122,13 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
     assert json.loads((ws / "gen_camera" / "parameter.json").read_text())["opnet_intrinsics"] == [140.0, 142.0, 50.3, 44.6]
     run("generate bulk piles (70–80 parts, many hidden)", [("<dir>", str(ws / "gen_bulk"))],
         ["drops=10", "cycles=1", "workers=1", "scene.resolution=96", "previews=0"])
+    dense = run("train on dense bulk piles seen by your camera (generates them first)",
+                [("<o>", "bracket"), ("<camera.yaml or camera_params.txt>", str(cam)), ("<m>", "1.0")],
+                ["data.generate.cycles=6", "data.generate.drops=4", "data.generate.workers=1", "scene.views=2",
+                 "model=tiny", *TINY_FIT, f"hydra.run.dir={ws / 'dense_run'}"]).stdout
+    assert "run directory : " in dense
+    dense_data = next((ws / "outputs" / "data").glob("dense_bracket_c6_v2_d4_s0*"))
+    assert json.loads((dense_data / "generation.json").read_text())["scene"]["views"] == 2
     model = ws / "model.onnx"
     printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
     assert model.is_file() and "ONNX Runtime vs PyTorch" in printed

@@ -1,0 +1,158 @@
+"""The dense-pile benchmark: Siléane-like bulk piles of 70-80 parts seen by the Siléane bunny
+camera from above; per object, generate the training piles, train, and score piles of another
+seed, all within one budget on this machine.
+
+    python scripts/bench_dense.py --objects bunny ring_screw --gen-cycles 96 --views 8 --minutes 40
+
+Per object: training piles (``--gen-cycles`` cycles = ``--gen-cycles / --views`` simulated piles
+of ``--drops`` parts, seed 0, ``scene=bulk``, ``--camera-file`` at ``--camera-height``) and test
+piles of another seed (seed 1, one view per pile, ``--test-piles`` piles) are generated (or
+completed) under ``--data-dir``; ``train.py experiment=dense`` trains on the training piles for
+``--minutes`` (at the throughput calibrated on this machine, or ``--steps``) and is scored on
+the test piles' scenes with at least ``--test-min-objects`` parts (default 70: the benchmark's
+70-80-part piles). Generation minutes are measured while generating (a dataset that was already
+complete counts the minutes recorded when it was made, in ``<data>/bench_generation.json``).
+
+Writes ``dense.csv`` and ``README.md`` under ``--out`` (default ``results/dense``): per object and
+configuration the held-out AP with the diagnostics and the budget split (generation minutes,
+training minutes). Rows of earlier invocations (other objects or configurations) are kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_learning import calibrate_steps, fmt, merge_csv, summarize, train  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+CAMERA = REPO / "conf" / "cameras" / "sileane_bunny.yaml"
+TARGET = 0.5
+ROW_FIELDS = (
+    "object", "config", "gen_minutes", "train_minutes", "total_minutes", "train_scenes", "piles", "views",
+    "test_scenes", "steps", "ap", "map", "f1", "target", "found", "no_hypothesis", "position", "orientation",
+    "conflict", "confident_fp_per_scene", "duplicates_per_scene", "t_err_mm_p50", "r_err_deg_p50", "run",
+)  # fmt: skip
+
+
+def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int, camera: Path, height: float,
+             workers: int = 2) -> float:
+    """Generate (or complete) dense piles; returns the minutes it took to make them (recorded)."""
+    from opnet.cli.evaluate import resolve_object
+    from opnet.synthesis import generate_dataset
+
+    record = out / "bench_generation.json"
+    done = json.loads(record.read_text()) if record.is_file() else {"minutes": 0.0}
+    scene = dense_scene(camera, height, views)
+    print(f"[{obj}] data: {out} ({cycles} cycles = {-(-cycles // views)} piles x {views} views, {drops} drops, "
+          f"seed {seed})", flush=True)
+    start = time.perf_counter()
+    report = generate_dataset(resolve_object(obj), out, cycles, drops, workers=workers, seed=seed, scene=scene,
+                              progress=False, previews=2)
+    if report.cycles_generated:
+        done["minutes"] += (time.perf_counter() - start) / 60.0
+        done["scenes_per_second"] = report.scenes_per_second
+        record.write_text(json.dumps(done, indent=2) + "\n")
+    print(f"[{obj}]   {report.cycles_generated} cycles made, {report.cycles_skipped} present; "
+          f"{done['minutes']:.1f} generation minutes in all", flush=True)
+    return float(done["minutes"])
+
+
+def dense_scene(camera: Path, height: float, views: int) -> Any:
+    """The generator's scene of ``experiment=dense`` (conf/experiment/dense.yaml: the bulk preset
+    with its jitters) with this camera, height and views."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from opnet.paths import config_dir
+    from opnet.synthesis import SceneConfig
+
+    overrides = ["experiment=dense", f"scene.camera_file={camera.resolve()}", f"scene.camera_height={height}",
+                 f"scene.views={views}"]
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        cfg = compose("train", overrides=overrides)
+    return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
+
+
+def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:
+    lines = [
+        "# Dense-pile benchmark", "",
+        "Siléane-like bulk piles (70-80 parts, most of them more than half hidden) seen from above by the camera of "
+        "the Siléane bunny dataset (`conf/cameras/sileane_bunny.yaml`, 1.5 m above the floor). Per object, on this "
+        "2-core CPU: training piles generated and a model trained within the budget; held-out AP (Brégier, max "
+        "occlusion 0.5) on the scenes with at least 70 parts of piles of another seed. Diagnostics as in "
+        "[the learning benchmark](../learning/README.md).", "",
+        f"Command: `{command}`", "",
+        "| object | config | gen min | train min | total min | train scenes (piles x views) | test scenes | "
+        "**test AP** | target | MAP | F1 | found % | no hyp % | position % | orientation % | conflict % | "
+        "conf. FP/scene | dup/scene | t p50 mm | r p50 ° |",
+        "|" + "---|" * 20,
+    ]  # fmt: skip
+    for r in rows:
+        lines.append(
+            f"| {r['object']} | {r['config']} | {fmt(r['gen_minutes'], 'f1')} | {fmt(r['train_minutes'], 'f1')} | "
+            f"{fmt(r['total_minutes'], 'f1')} | {r['train_scenes']} ({r['piles']} x {r['views']}) | {r['test_scenes']} | "
+            f"**{fmt(r['ap'])}** | {r['target']} | {fmt(r['map'])} | {fmt(r['f1'])} | {fmt(r['found'], 'pct')} | "
+            f"{fmt(r['no_hypothesis'], 'pct')} | {fmt(r['position'], 'pct')} | {fmt(r['orientation'], 'pct')} | "
+            f"{fmt(r['conflict'], 'pct')} | {fmt(r['confident_fp_per_scene'], 'f1')} | "
+            f"{fmt(r['duplicates_per_scene'], 'f1')} | {fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} |"
+        )
+    (out / "README.md").write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", nargs="+", default=["bunny", "ring_screw"])
+    ap.add_argument("--config", default="dense", help="name of this configuration in the table")
+    ap.add_argument("--gen-cycles", type=int, default=96)
+    ap.add_argument("--views", type=int, default=8)
+    ap.add_argument("--drops", type=int, default=75)
+    ap.add_argument("--test-piles", type=int, default=12)
+    ap.add_argument("--test-min-objects", type=int, default=70)
+    ap.add_argument("--camera-file", type=Path, default=CAMERA)
+    ap.add_argument("--camera-height", type=float, default=1.5)
+    ap.add_argument("--minutes", type=float, default=40.0)
+    ap.add_argument("--steps", type=int, default=None, help="fixed step budget (skips the calibration)")
+    ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "dense")
+    ap.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "dense")
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "dense")
+    ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
+    args = ap.parse_args(argv)
+    command = "python scripts/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    rows = []
+    for obj in args.objects:
+        train_root = args.data_dir / f"{obj}_train_c{args.gen_cycles}_v{args.views}_d{args.drops}_s0"
+        test_root = args.data_dir / f"{obj}_test_p{args.test_piles}_d{args.drops}_s1"
+        gen_minutes = generate(obj, train_root, args.gen_cycles, args.drops, 0, args.views, args.camera_file,
+                               args.camera_height)
+        generate(obj, test_root, args.test_piles, args.drops, 1, 1, args.camera_file, args.camera_height)
+        overrides = ["experiment=dense", f"object={obj}", "data=ipa", f"data.root={train_root}", "data.generate=null",
+                     f"data.test_root={test_root}", f"data.test_min_objects={args.test_min_objects}", *args.extra]
+        steps = args.steps or calibrate_steps(overrides, args.minutes)
+        run_dir = args.runs_dir / f"{obj}_{args.config}"
+        print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
+        train(overrides, run_dir, steps, test_every=4)
+        row, _ = summarize(obj, args.config, run_dir, steps)
+        summary = json.loads((run_dir / "test" / "summary.json").read_text())
+        row.update(gen_minutes=gen_minutes, total_minutes=gen_minutes + float(row["train_minutes"]),
+                   train_scenes=args.gen_cycles * args.drops, piles=-(-args.gen_cycles // args.views),
+                   views=args.views, test_scenes=summary["num_scenes"], target=TARGET)
+        print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
+              f"training minutes)", flush=True)
+        rows.append(row)
+    all_rows = merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config"))
+    write_readme(args.out, all_rows, command)
+    print((args.out / "README.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
