@@ -125,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "dense")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "dense")
     ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
+    ap.add_argument("--generate-only", action="store_true", help="make (or complete) the datasets, then stop")
     args = ap.parse_args(argv)
     command = "python scripts/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
@@ -134,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         gen_minutes = generate(obj, train_root, args.gen_cycles, args.drops, 0, args.views, args.camera_file,
                                args.camera_height)
         generate(obj, test_root, args.test_piles, args.drops, 1, 1, args.camera_file, args.camera_height)
+        if args.generate_only:
+            continue
         overrides = ["experiment=dense", f"object={obj}", "data=ipa", f"data.root={train_root}", "data.generate=null",
                      f"data.test_root={test_root}", f"data.test_min_objects={args.test_min_objects}", *args.extra]
         steps = args.steps or calibrate_steps(overrides, args.minutes)
@@ -148,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
               f"training minutes)", flush=True)
         rows.append(row)
+    if args.generate_only:
+        return 0
     all_rows = merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config"))
     write_readme(args.out, all_rows, command)
     print((args.out / "README.md").read_text())

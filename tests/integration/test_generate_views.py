@@ -93,6 +93,19 @@ def test_views_read_back_through_bop(two_views: Path, tmp_path: Path) -> None:
     assert t_bop == t_ipa
 
 
+def test_views_read_back_as_sileane_ground_truth(two_views: Path, tmp_path: Path) -> None:
+    from opnet.datasets.convert import convert_dataset
+    from opnet.datasets.sileane_json import read_gt_json
+
+    files = convert_dataset(two_views, tmp_path / "gt")
+    ipa = IPADataset(two_views)
+    assert len(files) == len(ipa)
+    for c in (0, 1):  # the two views of pile 0: one scene each, its own camera-frame poses
+        record = ipa.read(c, DROPS)
+        gt = read_gt_json(tmp_path / "gt" / f"{record.name}.json")
+        np.testing.assert_allclose(np.sort(gt.t[:, 2]), np.sort(record.t_cam_obj[:, 2]), atol=1e-6)
+
+
 @pytest.mark.parametrize("key, value", [("views", 0), ("views", -2), ("views", True), ("views", 1.5),
                                         ("camera_jitter_deg", 60.0)])
 def test_bad_views_and_jitter_name_the_key(key: str, value: object) -> None:
@@ -119,3 +132,19 @@ def test_splits_keep_the_views_of_a_pile_together(two_views: Path) -> None:
     assert sorted(dm.splits["test"].record(i).name for i in range(len(dm.splits["test"]))) == [f"cycle_{c:04d}_{DROPS:03d}" for c in range(6)]
     with pytest.raises(ValueError, match="test_min_objects"):
         OPNetDataModule(builtin_object("bracket"), two_views, test_min_objects=-1)
+
+
+def test_rotation_refused_for_data_without_segmentation(two_views: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from opnet.data.augment import DepthAugmenter
+    from opnet.data.datamodule import OPNetDataModule
+
+    bare = tmp_path / "bare"
+    shutil.copytree(two_views, bare)
+    shutil.rmtree(bare / "p_segmentation")
+    make = lambda deg: OPNetDataModule(builtin_object("bracket"), bare, cache=False, check="off",  # noqa: E731
+                                       augmenter=DepthAugmenter(p_rotate=0.5, rotate_deg=deg))
+    with pytest.raises(ValueError, match=r"bare: augmentation.p_rotate=0.5 .* no segmentation"):
+        make((-30.0, 30.0)).setup()
+    make((180.0, 180.0)).setup()  # the exact half turn needs none

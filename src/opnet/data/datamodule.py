@@ -314,6 +314,7 @@ class OPNetDataModule(L.LightningDataModule):
             return
         for root in (*self.roots, *self.test_roots):
             self._check_object(root)
+        self._check_rotation()
         source = self._open_sources(self.roots)
         keys, keep = self._scene_keys(source, self.roots)
         test_fraction = 0.0 if self.test_root is not None else self.test_fraction
@@ -332,6 +333,21 @@ class OPNetDataModule(L.LightningDataModule):
             keep = self._scene_keys(test_source, self.test_roots, self.test_min_objects)[1]
             self.splits["test"] = SceneSamples(test_source, keep, **common)
         log.info("dataset %s: %s", ", ".join(map(str, self.roots)), {k: len(v) for k, v in self.splits.items()})
+
+    def _check_rotation(self) -> None:
+        """Refuse in-plane rotations a training dataset cannot follow exactly: turns other than
+        180 degrees need the segmentation to recount visibilities (:mod:`opnet.data.rotate`)."""
+        aug = self.augmenter
+        if aug is None or aug.p_rotate == 0 or aug.rotate_deg == (180.0, 180.0):
+            return
+        for root in self.roots:
+            dataset = open_dataset(root, object_id=self.object_id, clip=self.clip)
+            if len(dataset) and dataset[0].segmentation is None:
+                raise ValueError(
+                    f"{root}: augmentation.p_rotate={aug.p_rotate} turns scenes by {aug.rotate_deg} degrees, but this "
+                    "dataset has no segmentation to recount the parts' visibility after a turn; set "
+                    "augmentation.p_rotate=0 or augmentation.rotate_deg=[180,180] (exact without it)"
+                )
 
     def _check_object(self, root: Path) -> None:
         """Refuse a dataset made of another part (its ``object.json`` names the object)."""
