@@ -250,3 +250,16 @@ def test_invalid_settings_are_rejected():
         APParameterization(BRACKET, points=[[1.0, 2.0]])
     with pytest.raises(ValueError, match="cameras"):
         VanillaParameterization(BRACKET).encode(scene([(4.0, 4.0, 1.0)], [0.8]), [CAMERA, CAMERA])
+
+
+@pytest.mark.parametrize("cls", [VanillaParameterization, EVEParameterization, APParameterization])
+def test_parts_below_the_target_visibility_are_no_target(cls):
+    # object 0 barely visible in its own cell, object 1 hidden under object 2 in a shared cell
+    gt = scene([(20.0, 50.0, 1.0), (100.0, 20.0, 1.1), (101.0, 21.0, 1.0)], [0.04, 0.02, 0.7])
+    paper, dense = cls(BRACKET), cls(BRACKET, min_target_visibility=0.05)
+    assert paper.assigned(gt, CAMERA).tolist() == [True, False, True]
+    assert dense.assigned(gt, CAMERA).tolist() == [False, False, True]
+    target = dense.encode(gt, CAMERA)
+    assert set(occupied(dense, target).values()) == {0.7}  # every filled cell is object 2's
+    with pytest.raises(ValueError, match="min_target_visibility"):
+        cls(BRACKET, min_target_visibility=1.0)

@@ -164,6 +164,9 @@ class Parameterization(abc.ABC):
         averaging_min_samples: DBSCAN core-point threshold.
         averaging_score: cluster score, "max", "sum" or "mean".
         slots: slots per cell (Z: depth slabs, MP: poses per cell).
+        min_target_visibility: parts less visible than this are not assigned to any cell (their
+            cells are trained as empty: a part hidden that deeply cannot be seen in the depth
+            image); 0 = every part, the paper's encoding.
         min_visibility: decode only cells whose predicted visibility is at least this (0: all, the
             paper); instances more than half occluded need not be found (the metric ignores them)
             but their poses are the least trained, so gating them removes false positives.
@@ -191,6 +194,7 @@ class Parameterization(abc.ABC):
         averaging_score: str = "max",
         slots: int = 1,
         min_visibility: float = 0.0,
+        min_target_visibility: float = 0.0,
     ) -> None:
         if int(grid) != grid or grid < 1:
             raise ValueError(f"parameterization grid must be a positive integer, got {grid!r}")
@@ -200,6 +204,8 @@ class Parameterization(abc.ABC):
             raise ValueError(f"parameterization threshold must lie in [0, 1), got {threshold}")
         if not 0 <= min_visibility < 1:
             raise ValueError(f"parameterization.min_visibility must lie in [0, 1), got {min_visibility}")
+        if isinstance(min_target_visibility, bool) or not 0 <= min_target_visibility < 1:
+            raise ValueError(f"parameterization.min_target_visibility must lie in [0, 1), got {min_target_visibility!r}")
         if score not in SCORES:
             raise ValueError(f"parameterization score must be one of {SCORES}, got {score!r}")
         assert self.pose_weighting in POSE_WEIGHTINGS
@@ -209,6 +215,7 @@ class Parameterization(abc.ABC):
         self.threshold = float(threshold)
         self.score = score
         self.min_visibility = float(min_visibility)
+        self.min_target_visibility = float(min_target_visibility)
         self.rotation = rotation if rotation is not None else EulerCodec(obj.symmetry, euler)
         if self.rotation.revolution != obj.symmetry.is_revolution:
             raise ValueError(
@@ -281,7 +288,10 @@ class Parameterization(abc.ABC):
     def _assign(self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]) -> Candidates:
         cams = CameraBatch.of(camera, gt.batch_size, gt.t_cam_obj.device)
         proj = project_origins(gt.t_cam_obj, gt.batch_index, cams)
-        return resolve(self._candidates(gt, proj))
+        candidates = self._candidates(gt, proj)
+        if self.min_target_visibility > 0:  # parts hidden this deeply are no target: nothing shows them
+            candidates = candidates.select(gt.visibility[candidates.index] >= self.min_target_visibility)
+        return resolve(candidates)
 
     @abc.abstractmethod
     def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
