@@ -16,7 +16,7 @@ from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
-_LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "freeze_depth")
+_LATER_FIELDS = ("camera_file", "camera_file_clip", "views")
 
 
 def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -> Any:
@@ -74,10 +74,6 @@ class SceneConfig:
         settle_time_cap: simulated seconds after which a drop is recorded even if still moving.
         max_redrops: attempts per drop when parts leave the bin (the world is restored each time).
         max_cycle_restarts: whole-cycle restarts (fresh random stream) when a drop exhausts its attempts.
-        freeze_depth: after each drop, parts whose top lies more than this many object diameters
-            (2 x the part's radius about its origin) below the pile top become static: they keep
-            their pose and carry the pile but are no longer simulated (bulk piles: the buried
-            layers). 0 = never (every part simulated to the end).
 
     Camera from a file (then ``resolution``, ``width``, ``height`` and ``fov_deg`` are not used):
         camera_file: a Siléane ``camera_params.txt``, an IPA ``parameter.json`` or a YAML with
@@ -141,7 +137,6 @@ class SceneConfig:
     camera_file: str | None = None
     camera_file_clip: bool = False
     views: int = 1
-    freeze_depth: float = 0.0
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -164,7 +159,7 @@ class SceneConfig:
         # as on real cells where the camera sees only the middle of the bin
         need(math.isfinite(self.view_margin) and self.view_margin > -0.9, "view_margin", "a number > -0.9")
         for key in ("camera_jitter_m", "camera_jitter_deg", "bin_jitter_m", "bin_jitter_deg",
-                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg", "freeze_depth"):
+                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) >= 0, key, "a number >= 0")
         for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
                     "settle_angular", "settle_time_cap", "convexity_threshold"):

@@ -154,31 +154,11 @@ class BinSimulator:
                 raise _DropFailed
             pb.removeState(state, physicsClientId=self._client)
             piles.append(self.poses(bodies))
-            self._freeze_buried(bodies)
         return piles
 
     # ---- world -------------------------------------------------------------------------------
-    def _freeze_buried(self, bodies: list[int]) -> None:
-        """Turn parts buried deeper than ``freeze_depth`` object diameters below the pile top
-        into static bodies: they keep their pose and still carry the pile, but cost nothing more
-        to simulate (0 = never; see :class:`SceneConfig`)."""
-        if self.cfg.freeze_depth <= 0:
-            return
-        c = self._client
-        live = [b for b in bodies if b not in self._frozen]
-        if not live:
-            return
-        tops = np.array([pb.getAABB(b, physicsClientId=c)[1][2] for b in live])
-        limit = tops.max() - self.cfg.freeze_depth * 2.0 * self.rig.object_radius
-        for body, top in zip(live, tops):
-            if top < limit:
-                pb.changeDynamics(body, -1, mass=0.0, physicsClientId=c)
-                pb.resetBaseVelocity(body, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=c)
-                self._frozen.add(body)
-
     def _build_world(self, layout: CycleLayout) -> None:
         c, cfg = self._client, self.cfg
-        self._frozen: set[int] = set()
         pb.resetSimulation(physicsClientId=c)
         pb.setPhysicsEngineParameter(
             fixedTimeStep=cfg.time_step, numSolverIterations=cfg.solver_iterations,
@@ -270,8 +250,6 @@ class BinSimulator:
                 continue
             lin, ang = 0.0, 0.0
             for b in bodies:
-                if b in self._frozen:
-                    continue
                 v, w = pb.getBaseVelocity(b, physicsClientId=c)
                 lin, ang = max(lin, v[0] ** 2 + v[1] ** 2 + v[2] ** 2), max(ang, w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
             calm = calm + 1 if lin < cfg.settle_linear**2 and ang < cfg.settle_angular**2 else 0
