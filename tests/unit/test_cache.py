@@ -68,3 +68,77 @@ def test_truncated_shard_is_reported(dataset: Path, tmp_path: Path):
         SceneCache(tmp_path / "c")[3]
     assert default_cache_dir(dataset, 64) == dataset / "cache_s64"
     assert len(cache) == 12
+
+
+def _move_poses(csv: Path, dz: float) -> None:
+    """Rewrite an IPA CSV with every pose moved ``dz`` metres along z (same scene list)."""
+    from dataclasses import replace
+
+    from opnet.datasets.ipa_csv import read_ipa_csv, write_ipa_csv
+
+    gt = read_ipa_csv(csv)
+    write_ipa_csv(csv, replace(gt, t_cam_obj=gt.t_cam_obj + np.array([0.0, 0.0, dz])))
+
+
+def test_cache_follows_changed_ground_truth_and_images(dataset: Path, tmp_path: Path):
+    """The cache was keyed by the scene list only: moved poses still gave the old ground truth."""
+    import shutil
+
+    from opnet.datasets.ipa import scene_paths
+
+    data = tmp_path / "d"
+    shutil.copytree(dataset, data)
+    path = tmp_path / "c"
+    old = build_scene_cache(open_dataset(data), path, size=32, shard_scenes=4)
+    t_before = old[5].t_cam_obj.copy()
+    stamps = {p.name: p.stat().st_mtime_ns for p in path.iterdir()}
+    assert build_scene_cache(open_dataset(data), path, size=32, shard_scenes=4)[5].name == old[5].name
+    assert {p.name: p.stat().st_mtime_ns for p in path.iterdir()} == stamps  # unchanged: nothing rewritten
+    source = open_dataset(data)
+    for cycle, n in source.scenes():
+        _move_poses(scene_paths(data, cycle, n)["csv"], 0.05)
+    cache = build_scene_cache(open_dataset(data), path, size=32, shard_scenes=4)
+    np.testing.assert_allclose(cache[5].t_cam_obj, t_before + [0.0, 0.0, 0.05])
+    # a depth image rewritten in place (same size): its scene is read again
+    depth = scene_paths(data, *source.scenes()[5])["depth"]
+    raw = np.full((128, 128), 30000, np.uint16)
+    from opnet.datasets.png import write_png
+
+    write_png(depth, raw)
+    cache = build_scene_cache(open_dataset(data), path, size=32, shard_scenes=4)
+    assert np.nanstd(cache[5].depth) < 1e-6
+    assert not list(path.glob(".*.tmp")) and (path / "cache.json").is_file()
+
+
+def test_shards_without_their_cache_json_are_not_reused(dataset: Path, tmp_path: Path):
+    source = open_dataset(dataset)
+    path = tmp_path / "c"
+    build_scene_cache(source, path, size=32, shard_scenes=4)
+    (path / "cache.json").unlink()  # e.g. killed while a stale cache was being replaced
+    (path / "shard_00000.npz").write_bytes(b"stale")
+    cache = build_scene_cache(source, path, size=32, shard_scenes=4)
+    assert cache[0].name == source[0].name
+
+
+def test_every_reader_lists_the_files_it_reads(dataset: Path, tmp_path: Path):
+    """IPA, BOP and Siléane sources: their listed files exist, and touching one (the first, the
+    last) changes the fingerprint."""
+    import os
+
+    from opnet.data.cache import scene_keys, source_fingerprint
+    from opnet.datasets import SileaneDataset
+    from opnet.datasets.bop import BOPDataset, convert_ipa_to_bop
+    from test_sileane_reader import make_folder
+
+    bop = BOPDataset(convert_ipa_to_bop(dataset, tmp_path / "bop", obj_id=2), 2)
+    sileane = SileaneDataset(make_folder(tmp_path / "sileane"))
+    for source in (open_dataset(dataset), bop, sileane):
+        files = [Path(source.root, name) for name in source.source_files()]
+        present = [f for f in files if f.is_file()]
+        expected = len(files) if source is not sileane else 4  # Siléane: .PNG or .png
+        assert len(present) == expected, [f for f in files if not f.is_file()][:3]
+        for f in (present[0], present[-1]):
+            before = source_fingerprint(source, scene_keys(source))
+            st = f.stat()
+            os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1000))
+            assert source_fingerprint(source, scene_keys(source)) != before, f

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from collections.abc import Iterable
 from pathlib import Path
@@ -278,6 +279,19 @@ class BOPDataset:
 
     def scene_dir(self, sid: int) -> Path:
         return self.root / f"{sid:06d}"
+
+    def source_files(self) -> list[str]:
+        """Every file the images are read from, present or not, relative to ``root``:
+        ``models_info.json``, each scene's JSONs, then each image's depth PNG and the visible
+        masks of its instances."""
+        files = [os.path.relpath(self.models_dir / MODELS_INFO, self.root)]
+        files += [f"{sid:06d}/{name}" for sid in sorted(self._meta) for name in SCENE_FILES]
+        for sid, im, _ in self._scenes:
+            files.append(f"{sid:06d}/depth/{im:06d}.png")
+            entries = self._meta[sid]["scene_gt.json"].get(str(im))
+            count = len(entries) if isinstance(entries, list) else 0
+            files += [f"{sid:06d}/mask_visib/{im:06d}_{k:06d}.png" for k in range(count)]
+        return files
 
     def _depth_mm(self, sid: int, im: int) -> tuple[np.ndarray, Path]:
         cam = self._camera_entry(sid, im)

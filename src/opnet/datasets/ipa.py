@@ -45,14 +45,21 @@ SEG_BACKGROUND = 255
 MAX_INSTANCE_ID = 254  # uint8 segmentation, 0 = bin and 255 = background are taken
 
 
+def scene_files(cycle: int, n: int) -> dict[str, str]:
+    """The files of scene ``n`` of ``cycle`` relative to the dataset folder, ``/``-separated:
+    keys "csv", "depth", "segmentation"."""
+    folder = f"cycle_{cycle:04d}"
+    return {
+        "csv": f"gt/{folder}/{n:03d}.csv",
+        "depth": f"p_depth/{folder}/{n:03d}_depth_uint16.png",
+        "segmentation": f"p_segmentation/{folder}/{n:03d}_segmentation.png",
+    }
+
+
 def scene_paths(root: str | Path, cycle: int, n: int) -> dict[str, Path]:
     """The files of scene ``n`` of ``cycle``: keys "csv", "depth", "segmentation"."""
-    root, folder = Path(root), f"cycle_{cycle:04d}"
-    return {
-        "csv": root / "gt" / folder / f"{n:03d}.csv",
-        "depth": root / "p_depth" / folder / f"{n:03d}_depth_uint16.png",
-        "segmentation": root / "p_segmentation" / folder / f"{n:03d}_segmentation.png",
-    }
+    root = Path(root)
+    return {key: root / name for key, name in scene_files(cycle, n).items()}
 
 
 def write_ipa_scene(
@@ -232,6 +239,15 @@ class IPADataset:
     def scene_name(self, i: int) -> str:
         cycle, n = self._scenes[i]
         return f"cycle_{cycle:04d}_{n:03d}"
+
+    def source_files(self) -> list[str]:
+        """Every file the selected scenes are read from, present or not, relative to ``root``:
+        ``parameter.json``, then each scene's CSV, depth and segmentation PNGs (what a cache of
+        the records depends on; strings, as building paths would cost more than their ``stat``)."""
+        files = [PARAMETER_FILE]
+        for cycle, n in self._scenes:
+            files += scene_files(cycle, n).values()
+        return files
 
     def read_ground_truth(self, cycle: int, n: int) -> GroundTruthSet:
         """Ground truth of scene ``n`` of ``cycle`` from its CSV alone, internal camera frame.

@@ -132,6 +132,16 @@ class SileaneDataset:
     def scene_name(self, i: int) -> str:
         return self.scenes()[i]
 
+    def source_files(self) -> list[str]:
+        """Every file the scenes are read from, present or not, relative to ``root``:
+        ``camera_params.txt``, then each scene's ground truth JSON and its depth and segmentation
+        PNGs under both suffixes."""
+        files = [CAMERA_FILE]
+        for scene, gt in self._gt_files.items():
+            files += [f"gt/{gt.name}", f"depth/{scene}.PNG", f"depth/{scene}.png",
+                      f"segmentation/{scene}.PNG", f"segmentation/{scene}.png"]
+        return files
+
     def read_ground_truth(
         self, scene: str, frame: Literal["world", "camera"] = "world"
     ) -> GroundTruthSet:
