@@ -2,13 +2,14 @@
 
 Random numbers: cycle c of a dataset with seed s draws everything from
 ``SeedSequence([s, c])``, split into one stream for the per-cycle jitter and one for the drops, so
-a cycle is the same whichever worker makes it and whatever was made before.
+a cycle is the same whichever worker makes it and whatever was made before. With ``scene.views``
+= K, one simulated pile p gives the cycles pK .. pK + K - 1 (one camera each, :meth:`generate_views`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from typing import Self
 
 import numpy as np
