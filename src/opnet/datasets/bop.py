@@ -443,16 +443,31 @@ def write_bop_models(models_dir: str | Path, obj: Any, obj_id: int = 1) -> Path:
     return models_dir
 
 
-def convert_ipa_to_bop(ipa_root: str | Path, out: str | Path, split: str = "train_synt", obj_id: int = 1) -> Path:
+def convert_ipa_to_bop(ipa_root: str | Path, out: str | Path, split: str = "train_synt", obj_id: int = 1,
+                       overwrite: bool = False) -> Path:
     """An IPA-layout dataset (e.g. from ``generate.py``) as a BOP dataset: ``<out>/models`` and
-    ``<out>/<split>/<cycle as scene id>/``, each drop an image id. Returns the split folder."""
+    ``<out>/<split>/<cycle as scene id>/``, each drop an image id. Returns the split folder.
+
+    The dataset is written into a temporary folder beside ``out``, which then replaces ``out`` as a
+    whole: a failed conversion leaves ``out`` as it was, a finished one leaves nothing of before.
+
+    Raises:
+        ValueError: ``out`` is a non-empty folder and not ``overwrite``; ``out`` is, holds or lies
+            inside the IPA dataset.
+    """
     from opnet.datasets.ipa import IPADataset
+    from opnet.datasets.outputs import folder_replaced, is_within
     from opnet.objects.config import object_from_config
 
+    out = Path(out)
+    if is_within(out, ipa_root) or is_within(ipa_root, out):
+        raise ValueError(f"{out}: the BOP dataset would overlap its input {ipa_root}; choose a folder outside it")
     ipa = IPADataset(ipa_root)
     object_cfg = read_json(Path(ipa_root) / "object.json")
-    write_bop_models(Path(out) / "models", object_from_config(object_cfg), obj_id)
-    return write_bop_split(((c, n, ipa.read(c, n)) for c, n in ipa.scenes()), Path(out) / split, obj_id)
+    with folder_replaced(out, overwrite) as tmp:
+        write_bop_models(tmp / "models", object_from_config(object_cfg), obj_id)
+        write_bop_split(((c, n, ipa.read(c, n)) for c, n in ipa.scenes()), tmp / split, obj_id)
+    return out / split
 
 
 # ------------------------------------------------------------------------------------------ results
@@ -479,7 +494,7 @@ def bop_results_rows(names_hyps: Iterable[tuple[str, Any]], obj_id: int, R_align
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m opnet.datasets.bop <ipa dataset> <bop dataset> [--split S] [--obj-id N]``."""
+    """``python -m opnet.datasets.bop <ipa dataset> <bop dataset> [--split S] [--obj-id N] [--overwrite]``."""
     import argparse
     import sys
 
@@ -489,9 +504,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="BOP dataset folder to write (models/ and <split>/)")
     parser.add_argument("--split", default="train_synt", help="split folder name (default train_synt)")
     parser.add_argument("--obj-id", type=int, default=1, help="the BOP obj_id of the part (default 1)")
+    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder (as a whole)")
     args = parser.parse_args(argv)
     try:
-        split = convert_ipa_to_bop(args.ipa, args.out, args.split, args.obj_id)
+        split = convert_ipa_to_bop(args.ipa, args.out, args.split, args.obj_id, args.overwrite)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

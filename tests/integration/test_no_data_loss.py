@@ -1,0 +1,94 @@
+"""Nothing lost, nothing stale (issue 24, item 2): writers refuse a non-empty target unless told to
+replace it and then replace it whole; concurrent runs into one output folder cannot lose files;
+output names are unique within a run; an output onto an input is refused; a generation cut short
+fails the dataset check."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import compose_cfg
+from opnet.cli import export as export_cli
+from opnet.cli import predict as predict_cli
+from opnet.datasets.bop import main as bop_main
+from opnet.datasets.check import check_dataset
+from opnet.datasets.ipa import scene_paths
+from opnet.deploy.__main__ import main as deploy_main
+from opnet.metrics.records import HypothesisSet
+from opnet.paths import REPO_ROOT
+
+CAMERA_ARGS = ["--fx", "100", "--fy", "100", "--cx", "3.5", "--cy", "2.5", "--clip-start", "0.5", "--clip-end", "1.5"]
+
+
+def _npy(path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.save(path, np.full((6, 8), 1.0, np.float32))
+    return path
+
+
+class _FakeEstimator:
+    """Stands in for the ONNX model: the output handling of ``python -m opnet.deploy`` is tested."""
+
+    meta = {"object": "box"}
+    on_predict = None  # a hook run inside the first prediction
+
+    def __init__(self, path: Path, threads: int | None = None) -> None:
+        self.path = Path(path)
+
+    def predict(self, depth: np.ndarray, camera: object) -> HypothesisSet:
+        hook, _FakeEstimator.on_predict = _FakeEstimator.on_predict, None
+        if hook is not None:
+            hook()
+        return HypothesisSet(np.eye(3)[None], np.array([[0.0, 0.0, 1.0]]), np.array([0.9]))
+
+
+@pytest.fixture
+def fake_onnx(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    import opnet.deploy.runtime as runtime
+
+    monkeypatch.setattr(runtime, "OnnxPoseEstimator", _FakeEstimator)
+    model = tmp_path / "model.onnx"
+    model.write_bytes(b"stand-in")
+    return model
+
+
+# ---------------------------------------------------------------------------------------- BOP writer
+
+
+def test_bop_writer_refuses_a_non_empty_target_and_replaces_it_whole(tiny_dataset: Path, tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "bop"
+    assert bop_main([str(tiny_dataset), str(out), "--obj-id", "3"]) == 0
+    first = sorted(p.relative_to(out) for p in out.rglob("*"))
+    ply = (out / "models" / "obj_000003.ply").read_bytes()
+    capsys.readouterr()
+    assert bop_main([str(tiny_dataset), str(out), "--obj-id", "1", "--split", "other"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {out}: ") and "--overwrite" in err and "\n" not in err
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == first  # nothing written
+    assert (out / "models" / "obj_000003.ply").read_bytes() == ply
+    # replaced as a whole: nothing of the first dataset is left, nothing temporary beside it
+    assert bop_main([str(tiny_dataset), str(out), "--obj-id", "1", "--split", "other", "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["models", "other"]
+    assert set(json.loads((out / "models" / "models_info.json").read_text())) == {"1"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bop"]
+
+
+def test_bop_writer_refuses_to_write_over_its_input(tiny_dataset: Path, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    ipa = tmp_path / "ipa"
+    shutil.copytree(tiny_dataset, ipa)
+    before = sorted(p.relative_to(ipa) for p in ipa.rglob("*"))
+    for out in (ipa, ipa.parent):
+        assert bop_main([str(ipa), str(out), "--overwrite"]) == 2
+        assert "input" in capsys.readouterr().err
+    assert sorted(p.relative_to(ipa) for p in ipa.rglob("*")) == before
+
+
