@@ -92,3 +92,90 @@ def test_bop_writer_refuses_to_write_over_its_input(tiny_dataset: Path, tmp_path
     assert sorted(p.relative_to(ipa) for p in ipa.rglob("*")) == before
 
 
+# ---------------------------------------------------------------------------- concurrent runs, names
+
+
+def _deploy(model: Path, inp: Path, out: Path, *extra: str) -> int:
+    return deploy_main([str(model), str(inp), "--out", str(out), *CAMERA_ARGS, *extra])
+
+
+def test_deploy_run_into_a_folder_another_run_writes_is_refused(fake_onnx: Path, tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Both runs used to pass the existence check before either wrote, and both said "written"."""
+    a, b = _npy(tmp_path / "in_a" / "x.npy"), _npy(tmp_path / "in_b" / "x.npy")
+    out = tmp_path / "out"
+    second: list[int] = []
+    _FakeEstimator.on_predict = lambda: second.append(_deploy(fake_onnx, b, out))
+    assert _deploy(fake_onnx, a, out) == 0
+    assert second == [2]
+    err = capsys.readouterr().err
+    assert f"error: {out}: another run is writing into this folder" in err
+    assert json.loads((out / "x.json").read_text())["image"] == str(a)
+    assert sorted(p.name for p in out.iterdir()) == ["results", "x.json"]  # the lock is gone
+    assert _deploy(fake_onnx, b, out) == 2  # afterwards: the outputs exist, overwrite is needed
+    assert "exist already" in capsys.readouterr().err
+
+
+def test_deploy_output_names_are_unique_within_a_run(fake_onnx: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    inp = tmp_path / "in"
+    for rel in ("a/x.npy", "b/x.npy", "a_x.npy"):
+        _npy(inp / rel)
+    assert _deploy(fake_onnx, inp, tmp_path / "out") == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "a_x.json" in err and "rename one of them" in err
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").rglob("*.json"))
+    # a pose file that would be a results file of another image
+    inp2 = tmp_path / "in2"
+    _npy(inp2 / "results" / "y.npy")
+    assert _deploy(fake_onnx, inp2, tmp_path / "out2") == 2
+    assert "results/y.json" in capsys.readouterr().err
+
+
+def test_deploy_output_onto_an_input_is_refused(fake_onnx: Path, tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    x = _npy(tmp_path / "x.npy")
+    for out in (x, fake_onnx, x / "sub"):
+        assert _deploy(fake_onnx, x, out) == 2
+        assert str(out) in capsys.readouterr().err
+    assert fake_onnx.read_bytes() == b"stand-in" and np.load(x).shape == (6, 8)
+
+
+def test_predict_run_into_a_folder_another_run_writes_is_refused(checkpoint: Path, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    a, b = _npy(tmp_path / "in_a" / "x.npy"), _npy(tmp_path / "in_b" / "x.npy")
+    out = tmp_path / "out"
+    camera = ["camera.fx=100", "camera.fy=100", "camera.cx=3.5", "camera.cy=2.5", "camera.clip_start=0.5",
+              "camera.clip_end=1.5"]
+
+    def run(inp: Path) -> int:
+        return predict_cli.run(compose_cfg("predict", [f"ckpt={checkpoint}", f"input={inp}", f"out={out}", *camera]))
+
+    errors: list[str] = []
+    real = predict_cli.write_prediction
+
+    def write_and_race(*args, **kwargs):
+        if not errors:
+            try:
+                run(b)
+                errors.append("")
+            except ValueError as e:
+                errors.append(str(e))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(predict_cli, "write_prediction", write_and_race)
+    assert run(a) == 0
+    assert errors[0].startswith(f"{out}: another run is writing into this folder") and "\n" not in errors[0]
+    assert json.loads((out / "x.json").read_text())["image"] == str(a)
+
+
+def test_predict_out_onto_an_input_file_is_refused(checkpoint: Path, tmp_path: Path) -> None:
+    x = _npy(tmp_path / "x.npy")
+    for out in (x, x / "sub", checkpoint):
+        with pytest.raises(ValueError, match=f"{out}: "):
+            predict_cli.run(compose_cfg("predict", [f"ckpt={checkpoint}", f"input={x}", f"out={out}",
+                                                    "camera.fx=100", "camera.fy=100", "camera.cx=3.5", "camera.cy=2.5",
+                                                    "camera.clip_start=0.5", "camera.clip_end=1.5"]))
+    assert np.load(x).shape == (6, 8)
+
+

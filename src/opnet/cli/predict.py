@@ -21,7 +21,8 @@ world frame when the camera pose is known: Siléane ``camera_params.txt``), ``re
 ``<name>.ply`` (the scene's points and the posed models, for any 3-D viewer), where
 ``<name>`` mirrors the image's path relative to the input folder (``cycle_0001/004_depth_uint16``),
 so images of the same name in different folders never overwrite each other. An existing output is
-never overwritten unless ``overwrite=true``.
+never overwritten unless ``overwrite=true``; two inputs that would write the same file, an ``out=``
+that is an input, and a second run into a folder another run is writing into are refused.
 """
 
 from __future__ import annotations
@@ -39,15 +40,7 @@ from omegaconf import DictConfig, OmegaConf
 from opnet.cli.build import load_checkpoint
 from opnet.data.preprocess import to_network_input
 from opnet.datasets.atomic import write_bytes_atomic
-from opnet.datasets.depth_inputs import (
-    DepthImage,
-    check_outputs,
-    given_camera,
-    list_inputs,
-    load_depth_image,
-    scene_names,
-    write_pose_files,
-)
+from opnet.datasets.depth_inputs import DepthImage, claimed_outputs, given_camera, list_inputs, predict_inputs, write_pose_files
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -117,6 +110,10 @@ def write_point_cloud(path: Path, image: DepthImage, mesh: Any, hyps: Hypothesis
 _PALETTE = [(0.9, 0.1, 0.1), (0.1, 0.7, 0.1), (0.1, 0.3, 0.9), (0.9, 0.6, 0.0), (0.6, 0.1, 0.8), (0.0, 0.7, 0.7)]
 
 
+#: the files predict.py writes per image besides ``results/<scene>.json``
+PREDICT_SUFFIXES = (".json", ".png", ".ply")
+
+
 def run(cfg: DictConfig) -> int:
     """Entry logic of predict.py; returns the number of images that failed (bad input of the whole
     run, e.g. a missing checkpoint or conflicting camera values, raises ValueError instead)."""
@@ -126,23 +123,13 @@ def run(cfg: DictConfig) -> int:
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
     out = Path(cfg.out)
     inputs = list_inputs(Path(cfg.input))
-    check_outputs(out, inputs, bool(cfg.get("overwrite", False)))
-    scenes = scene_names(inputs)
-    failed, written, last_camera = 0, 0, None
-    for path, name in inputs:
-        try:
-            image = load_depth_image(path, given)
-            if image.camera_source != last_camera:
-                print(f"camera: {image.camera_source}")
-                last_camera = image.camera_source
-            hyps = predict_image(system, image)
-            (out / name).parent.mkdir(parents=True, exist_ok=True)
-            write_prediction(out, name, image, hyps, system, float(cfg.min_score), scenes[name])
-            written += 1
-            print(f"{path}: {len(hyps.above(cfg.min_score))} objects (score >= {cfg.min_score}), {len(hyps)} hypotheses")
-        except (ValueError, FileNotFoundError) as e:
-            failed += 1
-            print(f"error: {e}")
+    overwrite, min_score = bool(cfg.get("overwrite", False)), float(cfg.min_score)
+    with claimed_outputs(out, inputs, overwrite, PREDICT_SUFFIXES, (Path(cfg.ckpt),)) as scenes:
+        failed = predict_inputs(
+            inputs, given, out, scenes, lambda image: predict_image(system, image),
+            lambda name, image, hyps, scene: write_prediction(out, name, image, hyps, system, min_score, scene),
+            min_score)  # fmt: skip
+    written = len(inputs) - failed
     if written:
         print(f"{written} of {len(inputs)} predictions written to {out}" + (f" ({failed} failed)" if failed else ""))
     else:

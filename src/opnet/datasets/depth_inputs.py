@@ -6,10 +6,12 @@ torch-free ONNX runner (``python -m opnet.deploy``) share it. Every error names 
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
 import re
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +22,7 @@ from opnet.datasets.atomic import write_text_atomic
 from opnet.datasets.camera_file import camera_number, read_camera_yaml, require_principal_point_inside
 from opnet.datasets.files import read_bytes, require_regular_file
 from opnet.datasets.ipa_params import read_parameters
+from opnet.datasets.outputs import folder_lock, require_output_folder
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.sileane import read_camera_params
 from opnet.datasets.sileane_json import write_results_json
@@ -227,20 +230,81 @@ def list_inputs(path: Path) -> list[tuple[Path, Path]]:
     return pairs
 
 
-def check_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool) -> None:
-    """Refuse outputs that would overwrite an input, or existing predictions without ``overwrite``."""
+#: the files a run writes per image besides ``results/<scene>.json``: the torch-free runner's;
+#: predict.py adds the overlay and the point cloud
+POSE_SUFFIXES: tuple[str, ...] = (".json",)
+
+
+def planned_outputs(out: Path, inputs: list[tuple[Path, Path]], suffixes: tuple[str, ...]) -> dict[Path, Path]:
+    """Every file a run writes, each with its input: ``<out>/<name><suffix>`` and
+    ``<out>/results/<scene>.json`` per image.
+
+    Raises:
+        ValueError: two inputs would write the same file (``a/x.npy`` and ``a_x.npy`` both give the
+            scene ``a_x``; ``results/y.npy`` gives a pose file where ``y``'s results go); the
+            message names both inputs and the file.
+    """
+    scenes = scene_names(inputs)
+    planned: dict[Path, Path] = {}
+    for path, name in inputs:
+        for target in (*(out / f"{name}{suffix}" for suffix in suffixes), out / "results" / f"{scenes[name]}.json"):
+            if target in planned:
+                raise ValueError(f"{path} and {planned[target]} would both be written as {target}; rename one of them")
+            planned[target] = path
+    return planned
+
+
+def check_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool,
+                  suffixes: tuple[str, ...] = POSE_SUFFIXES) -> None:
+    """Refuse outputs that would overwrite an input or each other, or existing outputs without
+    ``overwrite``."""
     sources = {p.resolve() for p, _ in inputs}
     existing = []
-    for _, name in inputs:
-        for target in (out / f"{name}.json", out / f"{name}.png"):
-            if target.resolve() in sources:  # (the .ply and results/ files never clash with .png/.npy inputs)
-                raise ValueError(f"{target}: the output would overwrite an input image; choose another out=")
-            if target.exists():
-                existing.append(target)
+    for target in planned_outputs(out, inputs, suffixes):
+        if target.resolve() in sources:
+            raise ValueError(f"{target}: the output would overwrite an input image; choose another out=")
+        if target.exists():
+            existing.append(target)
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
         raise ValueError(f"{existing[0]}{more}: predictions exist already; pass overwrite=true to replace them, "
                          "or choose another out=")
+
+
+@contextlib.contextmanager
+def claimed_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool, suffixes: tuple[str, ...],
+                    other_inputs: tuple[Path, ...] = (), option: str = "out=") -> Iterator[dict[Path, str]]:
+    """Hold ``out`` for one run: refuse an ``out`` that is an input (an image, the model in
+    ``other_inputs``) or a file, lock the folder (:func:`opnet.datasets.outputs.folder_lock`: a
+    concurrent run into it stops with an error naming it), check the outputs inside the lock
+    (:func:`check_outputs`), and yield the results-file scene name of every input."""
+    require_output_folder(out, [*(p for p, _ in inputs), *other_inputs], option)
+    planned_outputs(out, inputs, suffixes)  # name clashes: refused before anything is created
+    with folder_lock(out):
+        check_outputs(out, inputs, overwrite, suffixes)
+        yield scene_names(inputs)
+
+
+def predict_inputs(inputs: list[tuple[Path, Path]], given: GivenCamera, out: Path, scenes: dict[Path, str],
+                   estimate: Callable[[DepthImage], HypothesisSet],
+                   write: Callable[[Path, DepthImage, HypothesisSet, str], object], min_score: float = 0.5) -> int:
+    """Read, estimate and write (``write(name, image, hyps, scene)``) every input, each on its
+    console line; a bad image is reported and the others go on. Returns the number that failed."""
+    failed, last_camera = 0, None
+    for path, name in inputs:
+        try:
+            image = load_depth_image(path, given)
+            if image.camera_source != last_camera:
+                print(f"camera: {image.camera_source}")
+                last_camera = image.camera_source
+            hyps = estimate(image)
+            (out / name).parent.mkdir(parents=True, exist_ok=True)
+            write(name, image, hyps, scenes[name])
+            print(f"{path}: {len(hyps.above(min_score))} objects (score >= {min_score:g}), {len(hyps)} hypotheses")
+        except (ValueError, FileNotFoundError) as e:
+            failed += 1
+            print(f"error: {e}")
+    return failed
 
 
 def results_name(name: Path) -> str:

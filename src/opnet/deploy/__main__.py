@@ -8,7 +8,9 @@ The inputs and cameras are predict.py's (:mod:`opnet.datasets.depth_inputs`: a d
 the camera file above it, other images the intrinsics given here), and so are the outputs
 ``<out>/<name>.json`` (poses, camera frame, and world frame when known) and
 ``<out>/results/<scene>.json`` (Siléane results format). Only numpy, OpenCV, SciPy, PyYAML and
-onnxruntime are imported. Exit status: 0, 1 when some images failed, 2 on bad arguments.
+onnxruntime are imported. Outputs are never overwritten without ``--overwrite``; a second run into a
+folder another run is writing into stops at once. Exit status: 0, 1 when some images failed, 2 on
+bad arguments.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from opnet.datasets.depth_inputs import check_outputs, given_camera, list_inputs, load_depth_image, scene_names, write_pose_files
+from opnet.datasets.depth_inputs import POSE_SUFFIXES, claimed_outputs, given_camera, list_inputs, predict_inputs, write_pose_files
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,22 +40,14 @@ def main(argv: list[str] | None = None) -> int:
         given = given_camera(camera_cfg)
         estimator = OnnxPoseEstimator(args.model, threads=args.threads)
         inputs = list_inputs(args.input)
-        check_outputs(args.out, inputs, args.overwrite)
+        with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
+            obj = str(estimator.meta.get("object", ""))
+            failed = predict_inputs(
+                inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, image.camera),
+                lambda name, image, hyps, scene: write_pose_files(args.out, name, image, hyps, obj, scene))
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    scenes = scene_names(inputs)
-    failed = 0
-    for path, name in inputs:
-        try:
-            image = load_depth_image(path, given)
-            hyps = estimator.predict(image.depth, image.camera)
-            (args.out / name).parent.mkdir(parents=True, exist_ok=True)
-            write_pose_files(args.out, name, image, hyps, str(estimator.meta.get("object", "")), scenes[name])
-            print(f"{path}: {len(hyps.above(0.5))} objects (score >= 0.5), {len(hyps)} hypotheses")
-        except (ValueError, FileNotFoundError) as e:
-            failed += 1
-            print(f"error: {e}")
     print(f"{len(inputs) - failed} of {len(inputs)} predictions written to {args.out}")
     return 1 if failed else 0
 
