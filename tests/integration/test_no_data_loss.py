@@ -179,3 +179,21 @@ def test_predict_out_onto_an_input_file_is_refused(checkpoint: Path, tmp_path: P
     assert np.load(x).shape == (6, 8)
 
 
+# -------------------------------------------------------------------------------------------- export
+
+
+def test_export_onto_its_checkpoint_is_refused(checkpoint: Path, tmp_path: Path) -> None:
+    ckpt = tmp_path / "X.ckpt"
+    shutil.copy(checkpoint, ckpt)
+    data = ckpt.read_bytes()
+    (tmp_path / "link.ckpt").symlink_to(ckpt)
+    for out in (ckpt, tmp_path / "link.ckpt", tmp_path / "." / "X.ckpt"):
+        with pytest.raises(ValueError, match="the checkpoint itself"):
+            export_cli.run(compose_cfg("export", [f"ckpt={ckpt}", f"out={out}", "overwrite=true"]))
+    assert ckpt.read_bytes() == data
+    proc = subprocess.run([sys.executable, "export.py", f"ckpt={ckpt}", f"out={ckpt}", "overwrite=true"],
+                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.strip().startswith("error:") and "X.ckpt" in proc.stderr
+    assert "\n" not in proc.stderr.strip() and ckpt.read_bytes() == data
+
+

@@ -16,6 +16,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from opnet.cli.build import load_checkpoint
+from opnet.datasets.outputs import is_within
 from opnet.deploy.export import (
     FORMATS,
     export_onnx,
@@ -50,6 +51,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if not ckpt.is_file():
         raise FileNotFoundError(f"{ckpt}: checkpoint not found")
     out = Path(str(cfg.out)) if cfg.get("out") else ckpt.with_suffix(f".{fmt}")
+    if is_within(out, ckpt):
+        raise ValueError(f"out={out}: the checkpoint itself; the export would replace it, choose another out=")
     if out.exists() and not cfg.get("overwrite", False):
         raise ValueError(f"{out}: exists already; pass overwrite=true to replace it, or choose another out=")
     system, run_cfg = load_checkpoint(ckpt)
