@@ -197,3 +197,50 @@ def test_export_onto_its_checkpoint_is_refused(checkpoint: Path, tmp_path: Path)
     assert "\n" not in proc.stderr.strip() and ckpt.read_bytes() == data
 
 
+# ---------------------------------------------------------------------------------- partial datasets
+
+
+def _copy(dataset: Path, dest: Path) -> Path:
+    shutil.copytree(dataset, dest, ignore=shutil.ignore_patterns("cache_*"))
+    return dest
+
+
+def test_generation_cut_short_fails_the_check(tiny_dataset: Path, tmp_path: Path) -> None:
+    """A full disk: the last cycle stopped after scene 002, the cycle before lost its depth PNG."""
+    data = _copy(tiny_dataset, tmp_path / "d")
+    assert check_dataset(data, fast=True).ok
+    for n in (3, 4):
+        for path in scene_paths(data, 3, n).values():
+            path.unlink()
+    scene_paths(data, 2, 4)["depth"].unlink()
+    for fast in (True, False):
+        report = check_dataset(data, fast=fast)
+        text = "\n".join(map(str, report.problems))
+        assert str(scene_paths(data, 3, 3)["csv"]) in text and str(scene_paths(data, 3, 4)["csv"]) in text, text
+        assert str(scene_paths(data, 2, 4)["depth"]) in text, text
+    shutil.rmtree(data / "gt" / "cycle_0003")
+    shutil.rmtree(data / "p_depth" / "cycle_0003")
+    report = check_dataset(data, fast=True)
+    assert any("cycle_0003" in str(p) and "number_cycles" in str(p) for p in report.problems), report.problems
+    proc = subprocess.run([sys.executable, "-m", "opnet.datasets.check", str(data), "--fast"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1 and "cycle_0003" in proc.stdout
+
+
+def test_empty_and_truncated_pngs_of_a_generation_fail_the_check(tiny_dataset: Path, tmp_path: Path) -> None:
+    data = _copy(tiny_dataset, tmp_path / "d")
+    seg, depth = scene_paths(data, 1, 2)["segmentation"], scene_paths(data, 0, 1)["depth"]
+    seg.write_bytes(b"")
+    depth.write_bytes(depth.read_bytes()[:-40])
+    for fast in (True, False):
+        text = "\n".join(map(str, check_dataset(data, fast=fast).problems))
+        assert str(seg) in text and str(depth) in text, text
+
+
+def test_generation_json_without_drops_names_the_key(tiny_dataset: Path, tmp_path: Path) -> None:
+    data = _copy(tiny_dataset, tmp_path / "d")
+    doc = json.loads((data / "generation.json").read_text())
+    del doc["drops"]
+    (data / "generation.json").write_text(json.dumps(doc))
+    report = check_dataset(data, fast=True)
+    assert any("generation.json" in str(p) and "'drops'" in str(p) for p in report.problems), report.problems
