@@ -380,7 +380,7 @@ class OPNetDataModule(L.LightningDataModule):
             is_ipa = isinstance(s, tuple)  # (group, ..., objects): IPA (cycle, objects), BOP (scene, image, objects)
             if is_ipa:
                 k, inner = (s[0], s[1:]) if concat else (0, s)
-                group = inner[0] // views[k] if isinstance(inner[0], int) else inner[0]
+                group = inner[0] // views[k] if isinstance(inner[0], (int, np.integer)) else inner[0]
                 keys.append((k, group) if concat else (group,))
             else:
                 keys.append(s)
