@@ -23,6 +23,7 @@ from torch.utils.data import DataLoader, Dataset
 from opnet.data.augment import DepthAugmenter
 from opnet.data.cache import build_scene_cache, default_cache_dir
 from opnet.data.preprocess import CANVAS_FITS, square_canvas
+from opnet.data.rotate import exact_without_segmentation
 from opnet.data.sample import Batch, Sample, collate, make_sample, random_interpolation
 from opnet.datasets import open_dataset
 from opnet.datasets.record import SceneRecord
@@ -338,7 +339,7 @@ class OPNetDataModule(L.LightningDataModule):
         """Refuse in-plane rotations a training dataset cannot follow exactly: turns other than
         180 degrees need the segmentation to recount visibilities (:mod:`opnet.data.rotate`)."""
         aug = self.augmenter
-        if aug is None or aug.p_rotate == 0 or aug.rotate_deg == (180.0, 180.0):
+        if aug is None or aug.p_rotate == 0 or exact_without_segmentation(*aug.rotate_deg):
             return
         for root in self.roots:
             dataset = open_dataset(root, object_id=self.object_id, clip=self.clip)

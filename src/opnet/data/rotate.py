@@ -32,6 +32,12 @@ from opnet.datasets.record import SceneRecord
 EXACT_TURNS = (0.0, 180.0)
 
 
+def exact_without_segmentation(low: float, high: float) -> bool:
+    """Whether every turn drawn from ``[low, high]`` degrees maps the image onto itself pixel for
+    pixel (0 or 180 degrees), so scenes without a segmentation can take it."""
+    return low == high and float(low) % 360.0 in EXACT_TURNS
+
+
 def rotation_about_axis(theta: float) -> np.ndarray:
     """(3, 3) float64 ``Q``: the camera frame turned by ``theta`` radians about its optical axis."""
     c, s = math.cos(theta), math.sin(theta)

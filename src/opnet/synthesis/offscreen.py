@@ -92,7 +92,7 @@ def _wrap_viewport_setup(renderer: pyrender.OffscreenRenderer) -> None:
 
     def read(scene: pyrender.Scene, flags: int) -> tuple[np.ndarray, np.ndarray | None]:
         # a union pass needs the colour bits only: skip pyrender's depth read-back and its
-        # linearization (a third of a pass over a 3 x 3-window canvas)
+        # linearization (the union canvas may be several images large)
         if not _UNION["on"]:
             return read_both(scene, flags)
         width, height = inner._main_fb_dims

@@ -13,9 +13,10 @@ Decisions:
 - Visibility = visible pixels of k / pixels of k rendered alone with the same camera. The solo
   counts come from union passes (:mod:`opnet.synthesis.offscreen`): up to 24 objects per pass,
   each in its own bit, without depth test, so one pass counts every silhouette at once. Parts
-  outside the image must count too: an object whose projected bounding box leaves the image is
-  also drawn in the neighbouring image-sized windows of the unbounded canvas (the same pixel
-  grid shifted by whole images, the principal point moving with it) and its counts are summed.
+  outside the image must count too: the pass covers the rectangle of the unbounded canvas (the
+  same pixel grid, the principal point shifted by whole pixels) that holds every counted part's
+  projected bounding box; only beyond ``MAX_CANVAS`` pixels a side does it fall back to the
+  image-sized windows each box touches, their counts summed.
 - Only what can cover a pixel is drawn: the scene pass leaves out parts whose projected bounding
   box misses the image, and solo counts are made only for parts with a visible pixel (the others
   have visibility 0 whatever their count). Both are exact; in bulk piles they save about half of
