@@ -42,6 +42,9 @@ from typing import Any
 
 import torch
 
+from opnet._limits import check_threads
+from opnet._repr import short_repr
+
 PRECISIONS = ("auto", "32", "bf16")
 AUTO_BOOL = ("auto", True, False)
 KEYS = ("precision", "fused", "channels_last", "compile", "max_batch", "workers")
@@ -74,10 +77,13 @@ class InferenceSettings:
         for key in ("channels_last", "fused"):
             if cfg.get(key, "auto") not in AUTO_BOOL:
                 raise ValueError(f"inference.{key}={cfg[key]!r}, expected auto, true or false")
-        for key in ("max_batch", "workers"):
-            value = cfg.get(key, "auto")
-            if value != "auto" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-                raise ValueError(f"inference.{key}={value!r}, expected a positive integer or auto")
+        value = cfg.get("max_batch", "auto")
+        if value != "auto" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ValueError(f"inference.max_batch={short_repr(value)}, expected a positive integer or auto")
+        if cfg.get("workers", "auto") != "auto":
+            check_threads(cfg["workers"], "inference.workers")
+        if not isinstance(cfg.get("compile", False), bool):
+            raise ValueError(f"inference.compile={short_repr(cfg['compile'])}, expected true or false")
         return cls(precision, cfg.get("channels_last", "auto"), bool(cfg.get("compile", False)),
                    cfg.get("max_batch", "auto"), cfg.get("fused", "auto"), cfg.get("workers", "auto"))
 

@@ -109,3 +109,48 @@ def test_genuine_checkpoint_still_resumes(checkpoint: Path, tiny_dataset: Path, 
                                                           "trainer.max_epochs=2", f"ckpt_path={checkpoint}"]))
     resumed = torch.load(tmp_path / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
     assert resumed["epoch"] == 1 and resumed["global_step"] == 4
+
+
+def _edited_weights(checkpoint: Path, folder: Path, edit: Callable[[dict[str, torch.Tensor]], None]) -> Path:
+    ckpt = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    edit(ckpt["state_dict"])
+    torch.save(ckpt, folder / "edited.ckpt")
+    return folder / "edited.ckpt"
+
+
+def _nan_weight(state: dict[str, torch.Tensor]) -> None:
+    name = next(k for k, v in state.items() if v.is_floating_point() and v.ndim == 4)
+    state[name].view(-1)[0] = float("nan")
+
+
+def _wrong_shape(state: dict[str, torch.Tensor]) -> None:
+    name = next(k for k, v in state.items() if v.is_floating_point() and v.ndim == 4)
+    state[name] = torch.zeros(3, 3)
+
+
+@pytest.mark.parametrize("loader", ["predict", "eval", "export"])
+def test_nan_weights_are_refused(loader: str, checkpoint: Path, tmp_path: Path) -> None:
+    # predicted "0 objects" with exit 0, and the export's self-check printed "largest difference nan"
+    ckpt = _edited_weights(checkpoint, tmp_path, _nan_weight)
+    with pytest.raises(ValueError, match=r"edited\.ckpt: the checkpoint's weights hold NaN or inf \(1 tensor"):
+        LOADERS[loader](ckpt, tmp_path)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "m.onnx").exists()
+
+
+def test_wrong_tensor_shape_is_a_one_line_error(checkpoint: Path, tmp_path: Path) -> None:
+    ckpt = _edited_weights(checkpoint, tmp_path, _wrong_shape)
+    with pytest.raises(ValueError, match=r"edited\.ckpt: the checkpoint's weights do not fit its config") as err:
+        load_checkpoint(ckpt)
+    assert "\n" not in str(err.value)
+
+
+def test_nan_network_output_stops_predict(checkpoint: Path, tmp_path: Path) -> None:
+    system, _ = load_checkpoint(checkpoint)
+    system.infer = lambda x: torch.full((len(x), system.parameterization.out_channels, 16, 16), float("nan"))
+    from opnet.datasets.depth_inputs import DepthImage
+    from opnet.geometry.camera import Camera
+
+    image = DepthImage(tmp_path / "in.png", np.full((128, 128), 1.2, np.float32),
+                       Camera(180.0, 180.0, 63.5, 63.5, 128, 128, 0.5, 1.5))
+    with pytest.raises(ValueError, match=r"in\.png: the network's output holds NaN or inf"):
+        predict_cli.predict_image(system, image)

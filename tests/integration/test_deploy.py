@@ -146,6 +146,13 @@ def test_runtime_refuses_foreign_and_mismatched_models(checkpoint: Path, tmp_pat
     onnx.save(proto, str(tmp_path / "mismatch.onnx"))
     with pytest.raises(ValueError, match=r"mismatch\.onnx: the graph decodes 256 cells, but the metadata's mp"):
         OnnxPoseEstimator(tmp_path / "mismatch.onnx")
+    # a NaN threshold used to be taken (the checkpoint path refuses it): validated the same way now
+    proto.metadata_props[0].value = json.dumps({**meta, "decoding": {**meta["decoding"], "threshold": float("nan")}})
+    onnx.save(proto, str(tmp_path / "nan.onnx"))
+    with pytest.raises(ValueError, match=r"nan\.onnx: opnet metadata decoding\.threshold = nan, expected a number"):
+        OnnxPoseEstimator(tmp_path / "nan.onnx")
+    with pytest.raises(ValueError, match=r"threads=20000: expected a whole number in 1\.\."):
+        OnnxPoseEstimator(out, threads=20000)
     del proto.metadata_props[0]
     onnx.save(proto, str(tmp_path / "bare.onnx"))
     with pytest.raises(ValueError, match=r"bare\.onnx: no opnet metadata"):

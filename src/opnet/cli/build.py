@@ -124,6 +124,16 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
     if not isinstance(ckpt.get("state_dict"), dict):
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     system = build_components(cfg).system
-    system.load_state_dict(ckpt["state_dict"])
+    try:
+        system.load_state_dict(ckpt["state_dict"])
+    except (RuntimeError, TypeError, ValueError) as e:  # missing or unexpected keys, wrong tensor shapes
+        first = str(e).strip().splitlines()
+        detail = " ".join(line.strip() for line in first[:3])[:300]
+        raise ValueError(f"{path}: the checkpoint's weights do not fit its config ({detail})") from None
+    bad = [name for name, value in system.state_dict().items()
+           if value.is_floating_point() and not bool(torch.isfinite(value).all())]
+    if bad:
+        raise ValueError(f"{path}: the checkpoint's weights hold NaN or inf ({len(bad)} tensor(s), e.g. {bad[0]}): "
+                         "a diverged training; use an earlier checkpoint")
     system.eval()
     return system, cfg

@@ -42,6 +42,11 @@ def synthetic_inputs(size: int, n: int = 2, seed: int = 0) -> tuple[np.ndarray, 
     return images, cams
 
 
+#: the self-check's largest accepted difference between ONNX Runtime and PyTorch (presence and
+#: visibility in [0, 1], translations in metres, rotation matrix entries)
+CHECK_TOLERANCE = 1e-3
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Export; returns the metadata (with ``max_abs_difference`` when checked)."""
     fmt = str(cfg.format).lower()
@@ -75,6 +80,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         meta["max_abs_difference"] = diff
         print("ONNX Runtime vs PyTorch, largest difference over every cell: "
               + ", ".join(f"{k} {v:.1e}" for k, v in diff.items()))
+        failed = {k: v for k, v in diff.items() if not v <= CHECK_TOLERANCE}  # NaN fails too
+        if failed:
+            out.unlink(missing_ok=True)
+            raise ValueError(f"{out}: the exported graph differs from PyTorch ("
+                             + ", ".join(f"{k} {v:.3g}" for k, v in failed.items())
+                             + f" > {CHECK_TOLERANCE:g}); the file was removed")
     print(f"deploy without PyTorch: from opnet.deploy.runtime import OnnxPoseEstimator; "
           f"OnnxPoseEstimator('{out}').predict(depth_m, camera)")
     return meta

@@ -55,7 +55,11 @@ def predict_image(system: OPNetSystem, image: DepthImage) -> HypothesisSet:
     size, fit = int(data.get("input_size", 128)), str(data.get("fit", "pad"))  # the training's framing
     net_in, net_cam = to_network_input(image.depth, image.camera, size=size, interpolation=cv2.INTER_AREA, fit=fit)
     x = torch.from_numpy(net_in)[None, None].to(system.device)
-    return system.parameterization.decode(system.infer(x), [net_cam])[0]
+    output = system.infer(x)
+    if not bool(torch.isfinite(output).all()):  # would decode to "0 objects" without a word
+        raise ValueError(f"{image.path}: the network's output holds NaN or inf (diverged weights or an input it "
+                         "cannot take); no poses written for it")
+    return system.parameterization.decode(output, [net_cam])[0]
 
 
 def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: OPNetSystem,

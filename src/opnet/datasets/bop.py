@@ -37,7 +37,7 @@ from opnet.datasets.png import read_png, write_png
 from opnet.datasets.record import SceneRecord
 from opnet.datasets.validate import check_poses, check_range
 from opnet.geometry.camera import Camera
-from opnet.geometry.symmetry import Symmetry
+from opnet.geometry.symmetry import MAX_GROUP_SIZE, Symmetry
 
 MODELS_INFO = "models_info.json"
 SCENE_FILES = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json")
@@ -122,8 +122,11 @@ def symmetry_from_bop(info: dict[str, Any], where: str) -> tuple[Symmetry, np.nd
         if np.linalg.norm(t) > tol:
             raise ValueError(f"{where}: symmetries_discrete[{i}] moves the origin by {np.linalg.norm(t):.3g} mm: opnet's "
                              "symmetries are rotations about the model origin; centre the model on the symmetry axis")
-        if np.abs(R - np.eye(3)).max() > 1e-6:
-            discrete.append(R)
+        if np.abs(R - np.eye(3)).max() > 1e-6 and all(np.abs(R - D).max() > 1e-6 for D in discrete):
+            discrete.append(R)  # a repeated element is one element of the group
+        if len(discrete) > MAX_GROUP_SIZE:
+            raise ValueError(f"{where}: symmetries_discrete holds more than {MAX_GROUP_SIZE} distinct rotations: "
+                             "not a part's symmetry group")
     continuous = info.get("symmetries_continuous") or []
     if len(continuous) > 1:
         raise ValueError(f"{where}: {len(continuous)} continuous symmetry axes (a sphere?) cannot be mapped; "

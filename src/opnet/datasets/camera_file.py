@@ -14,6 +14,7 @@ from typing import Any
 
 import yaml
 
+from opnet._repr import short_repr
 from opnet.datasets.files import read_text
 from opnet.geometry.camera import Camera
 
@@ -23,12 +24,14 @@ YAML_EXTRA_KEYS = ("depth_scale",)
 
 def camera_number(value: Any, key: str, origin: str) -> float:
     """``value`` as a finite float, or a ValueError naming ``origin`` and ``camera.<key>``."""
+    if isinstance(value, bool):  # YAML `true` and `camera.fx=true` would read as 1
+        raise ValueError(f"{origin}: camera.{key}={value} is a boolean, not a number")
     try:
         x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{origin}: camera.{key}={value!r} is not a number") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{origin}: camera.{key}={short_repr(value)} is not a number") from None
     if not math.isfinite(x):
-        raise ValueError(f"{origin}: camera.{key}={value!r} is not finite")
+        raise ValueError(f"{origin}: camera.{key}={short_repr(value)} is not finite")
     return x
 
 

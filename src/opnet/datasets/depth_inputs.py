@@ -7,7 +7,6 @@ torch-free ONNX runner (``python -m opnet.deploy``) share it. Every error names 
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import math
 import re
@@ -20,13 +19,13 @@ import numpy as np
 
 from opnet.datasets.atomic import write_text_atomic
 from opnet.datasets.camera_file import camera_number, read_camera_yaml, require_principal_point_inside
-from opnet.datasets.files import read_bytes, require_regular_file
+from opnet.datasets.files import require_regular_file
 from opnet.datasets.ipa_params import read_parameters
 from opnet.datasets.outputs import folder_lock, require_output_folder
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.sileane import read_camera_params
 from opnet.datasets.sileane_json import write_results_json
-from opnet.geometry.camera import MAX_CLIP_END_M, Camera
+from opnet.geometry.camera import MAX_CLIP_END_M, MAX_IMAGE_SIDE, Camera
 from opnet.geometry.frames import camera_to_world
 from opnet.metrics.records import HypothesisSet
 
@@ -144,11 +143,44 @@ def _describe_camera(cam: Camera) -> str:
             f"clip [{cam.clip_start:g}, {cam.clip_end:g}] m")
 
 
-def _load_npy(path: Path, given: GivenCamera) -> DepthImage:
+def read_npy_image(path: Path) -> np.ndarray:
+    """A 2-D image from a ``.npy`` file, its header checked before anything is allocated: at most
+    :data:`MAX_IMAGE_SIDE` pixels a side, a numeric dtype, and a file size that matches the header
+    (a header claiming 200000 x 200000, or a 30 GB sparse file, is refused without reading it).
+
+    Raises:
+        ValueError: naming the file: not a .npy, a bad header, a size mismatch, truncated data.
+    """
+    path = require_regular_file(path)
     try:
-        depth = np.load(io.BytesIO(read_bytes(path)), allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        raise ValueError(f"{path}: cannot read .npy ({type(e).__name__}: {e})") from None
+        with path.open("rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+            else:
+                raise ValueError(f"unsupported .npy version {version}")
+            if len(shape) != 2 or min(shape) < 1:
+                raise ValueError(f"expected a 2-D depth array (H, W), the header says shape {shape}")
+            if max(shape) > MAX_IMAGE_SIDE:
+                raise ValueError(f"the header says {shape[1]}x{shape[0]} pixels, more than {MAX_IMAGE_SIDE} a side")
+            if dtype.kind not in "uif" or dtype.itemsize > 8:
+                raise ValueError(f"dtype {dtype} is not a depth (expected float or integer numbers)")
+            expected = fh.tell() + shape[0] * shape[1] * dtype.itemsize
+            size = path.stat().st_size
+            if size != expected:
+                raise ValueError(f"the file holds {size} bytes, its header describes {expected} (truncated or padded)")
+            data = np.fromfile(fh, dtype=dtype, count=shape[0] * shape[1])
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read .npy ({e})") from None
+    except ValueError as e:
+        raise ValueError(f"{path}: cannot read .npy ({str(e)[:200]})") from None
+    return data.reshape(shape, order="F" if fortran else "C")
+
+
+def _load_npy(path: Path, given: GivenCamera) -> DepthImage:
+    depth = read_npy_image(path)
     if depth.ndim != 2 or min(depth.shape) < 1:
         raise ValueError(f"{path}: expected a 2-D depth array (H, W), got shape {depth.shape}")
     scale = given.values.get("depth_scale")

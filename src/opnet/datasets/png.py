@@ -14,6 +14,7 @@ import numpy as np
 
 from opnet.datasets.atomic import write_bytes_atomic
 from opnet.datasets.files import read_bytes
+from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 DEPTH_MISSING = 65535
 #: fixed encoder settings, so the same image always gives the same bytes
@@ -40,6 +41,12 @@ def read_png(
     data = read_bytes(path)
     if not data.startswith(_PNG_SIGNATURE):
         raise ValueError(f"{path}: not a PNG file (bad signature)")
+    if len(data) < 24 or data[12:16] != b"IHDR":
+        raise ValueError(f"{path}: corrupt PNG (no IHDR header)")
+    width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not (1 <= width <= MAX_IMAGE_SIDE and 1 <= height <= MAX_IMAGE_SIDE):
+        # decoding would allocate width x height pixels first (50000 x 50000 from a 5 MB file)
+        raise ValueError(f"{path}: the PNG header says {width}x{height} pixels; expected 1 to {MAX_IMAGE_SIDE} a side")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError(f"{path}: corrupt or truncated PNG (cannot be decoded)")

@@ -23,14 +23,17 @@ from typing import Any
 import cv2
 import numpy as np
 
+from opnet._limits import check_threads
+from opnet._repr import short_repr
 from opnet.data.preprocess import to_network_input
+from opnet.deploy.metadata import validate_metadata
 from opnet.geometry.camera import Camera
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.parameterizations.averaging import PoseAveraging
 
 METADATA_KEY = "opnet"
-_REQUIRED = ("parameterization", "grid_size", "slots", "channels_per_slot", "input", "decoding", "pose_space", "outputs")
+
 _INTERPOLATION = {"area": cv2.INTER_AREA}
 
 
@@ -55,8 +58,8 @@ class OnnxPoseEstimator:
         if not self.path.is_file():
             raise FileNotFoundError(f"{self.path}: ONNX model not found")
         options = ort.SessionOptions()
-        if threads:
-            options.intra_op_num_threads = int(threads)
+        if threads is not None:
+            options.intra_op_num_threads = check_threads(threads)
         try:
             self.session = ort.InferenceSession(str(self.path), options, providers=list(providers))
         except Exception as e:  # onnxruntime raises its own exception types for foreign files
@@ -66,43 +69,41 @@ class OnnxPoseEstimator:
             raise ValueError(f"{self.path}: no opnet metadata (key {METADATA_KEY!r}); export it with python export.py")
         try:
             self.meta: dict[str, Any] = json.loads(raw)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{self.path}: opnet metadata is not JSON ({e})") from None
-        self._check_metadata()
-        d = self.meta["decoding"]
-        self.threshold, self.score, self.min_visibility = float(d["threshold"]), str(d["score"]), float(d["min_visibility"])
-        space = PoseSpaceArrays.from_dict(self.meta["pose_space"])
-        avg = d.get("averaging")
-        self.averaging = None if avg is None else PoseAveraging(space, float(avg["eps"]), int(avg["min_samples"]),
-                                                                str(avg["cluster_score"]), bool(avg.get("keep_noise", False)))
-        self.input_size = int(self.meta["input"]["size"])
-        self.fit = str(self.meta["input"].get("fit", "pad"))
+        except (json.JSONDecodeError, RecursionError) as e:
+            raise ValueError(f"{self.path}: opnet metadata is not JSON ({str(e)[:200]})") from None
+        self.settings = validate_metadata(self.meta, self.path)
+        self._check_graph()
+        s = self.settings
+        self.threshold, self.score, self.min_visibility = s["threshold"], s["score"], s["min_visibility"]
+        ps = s["pose_space"]
+        space = PoseSpaceArrays(ps["Lambda"], ps["group"], ps["delta"], ps["revolution"], ps["lam"])
+        avg = s["averaging"]
+        self.averaging = None if avg is None else PoseAveraging(space, avg["eps"], avg["min_samples"],
+                                                                avg["cluster_score"], avg["keep_noise"])
+        self.input_size = s["input_size"]
+        self.fit = s["fit"]
 
-    def _check_metadata(self) -> None:
-        m = self.meta
-        missing = [k for k in _REQUIRED if k not in m]
-        if missing:
-            raise ValueError(f"{self.path}: opnet metadata lacks {missing}")
-        if m["decoding"].get("score") not in ("p", "p*v", "v"):
-            raise ValueError(f"{self.path}: metadata decoding.score={m['decoding'].get('score')!r}, expected p, p*v or v")
+    def _check_graph(self) -> None:
+        """The graph's inputs and outputs are those the (validated) metadata describes."""
+        m, s = self.meta, self.settings
         names = [o.name for o in self.session.get_outputs()]
         if names != list(m["outputs"]):
-            raise ValueError(f"{self.path}: graph outputs {names} differ from the metadata's {m['outputs']}")
-        cells = int(m["slots"]) * int(m["grid_size"]) ** 2
+            raise ValueError(f"{self.path}: graph outputs {names} differ from the metadata's outputs {m['outputs']}")
+        cells = s["slots"] * s["grid_size"] ** 2
         shape = self.session.get_outputs()[0].shape  # (batch, N)
         if len(shape) != 2 or shape[1] != cells:
             raise ValueError(f"{self.path}: the graph decodes {shape[1] if len(shape) == 2 else '?'} cells, but the "
-                             f"metadata's {m['parameterization']} parameterization has {m['slots']} slot(s) x "
-                             f"{m['grid_size']}^2 = {cells}: graph and metadata do not belong together")
+                             f"metadata's {m['parameterization'][:40]} parameterization has {s['slots']} "
+                             f"slot(s) x {s['grid_size']}^2 = {cells}: graph and metadata do not belong together")
         size = self.session.get_inputs()[0].shape
-        if size[2:] != [m["input"]["size"], m["input"]["size"]]:
-            raise ValueError(f"{self.path}: graph input {size} does not match the metadata's input size {m['input']['size']}")
+        if size[2:] != [s["input_size"], s["input_size"]]:
+            raise ValueError(f"{self.path}: graph input {size} does not match the metadata's input.size {s['input_size']}")
 
     # ---- the pipeline ------------------------------------------------------------------------
     def preprocess(self, depth: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """(1, 1, S, S) float32 network input and (1, 8) float64 input camera of one image."""
         image, cam = to_network_input(np.asarray(depth, dtype=np.float32), camera, size=self.input_size,
-                                      interpolation=_INTERPOLATION[self.meta["input"].get("interpolation", "area")],
+                                      interpolation=_INTERPOLATION[self.settings["interpolation"]],
                                       fit=self.fit)
         row = [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
         return image[None, None].astype(np.float32), np.asarray([row], dtype=np.float64)

@@ -20,6 +20,10 @@ if TYPE_CHECKING:
 MAX_IMAGE_SIDE = 16384
 #: clip planes beyond this are surely not metres (bin-picking cameras work at 0.2 .. 5 m)
 MAX_CLIP_END_M = 50.0
+#: field of view (degrees, per image axis) of any real depth camera: a focal length outside it is a
+#: typo (1e-9 px puts the parts 1e10 m away; 1e12 px makes overlays hang while drawing)
+MIN_FOV_DEG = 0.5
+MAX_FOV_DEG = 175.0
 
 
 @dataclass(frozen=True)
@@ -43,6 +47,9 @@ class Camera:
     clip_end: float
 
     def __post_init__(self) -> None:
+        for key in ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"):
+            if isinstance(getattr(self, key), bool):  # True would read as 1
+                raise ValueError(f"camera {key} must be a number, got the boolean {getattr(self, key)}")
         values = (self.fx, self.fy, self.cx, self.cy, self.clip_start, self.clip_end)
         if not all(math.isfinite(float(v)) for v in values):
             raise ValueError(f"Camera parameters must be finite, got {self}")
@@ -58,7 +65,8 @@ class Camera:
 
     def check_plausible(self, source: str = "camera") -> Camera:
         """``self`` if it describes a real depth camera, checked where a camera enters the program
-        (readers, configs): at most :data:`MAX_IMAGE_SIDE` pixels a side, the principal point within
+        (readers, configs): a field of view in [:data:`MIN_FOV_DEG`, :data:`MAX_FOV_DEG`] along
+        each axis, at most :data:`MAX_IMAGE_SIDE` pixels a side, the principal point within
         one image size of the image, clip planes in metres (``clip_end`` <= :data:`MAX_CLIP_END_M`).
         Beyond these, values are typos that would allocate gigabytes (a canvas around a far-away
         principal point) or silently normalize depth wrongly.
@@ -66,6 +74,12 @@ class Camera:
         Raises:
             ValueError: naming ``source`` (a file or config key) and the value.
         """
+        for key, f, size in (("fx", self.fx, self.width), ("fy", self.fy, self.height)):
+            fov = math.degrees(2.0 * math.atan(size / (2.0 * f)))
+            if not MIN_FOV_DEG <= fov <= MAX_FOV_DEG:
+                raise ValueError(f"{source}: focal length {key} = {f:g} px is implausible: a field of view of {fov:.3g} degrees "
+                                 f"over {size} pixels; a depth camera sees {MIN_FOV_DEG:g} to {MAX_FOV_DEG:g} degrees "
+                                 "(focal lengths are in pixels)")
         if max(self.width, self.height) > MAX_IMAGE_SIDE:
             raise ValueError(f"{source}: image size {self.width}x{self.height} is implausible "
                              f"(more than {MAX_IMAGE_SIDE} pixels a side)")

@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from opnet.geometry.rotations import axis_angle_rotation
+from opnet._repr import short_repr
 
 SymmetryKind = Literal["none", "cyclic", "revolution", "finite"]
 _KINDS = ("none", "cyclic", "revolution", "finite")
@@ -25,6 +25,10 @@ _KINDS = ("none", "cyclic", "revolution", "finite")
 
 #: beyond this a cyclic part is, for any depth camera, a solid of revolution (and the group gets huge)
 MAX_CYCLIC_ORDER = 360
+#: the largest finite group accepted: the dihedral group of the largest cyclic order
+MAX_GROUP_SIZE = 2 * MAX_CYCLIC_ORDER
+#: matrices read before deduplication (repeats are dropped; more than this is not a group spec)
+MAX_GROUP_INPUT = 8 * MAX_GROUP_SIZE
 
 @dataclass(frozen=True)
 class Symmetry:
@@ -44,12 +48,12 @@ class Symmetry:
 
     def __post_init__(self) -> None:
         if self.kind not in _KINDS:
-            raise ValueError(f"symmetry kind must be one of {_KINDS}, got {self.kind!r}")
+            raise ValueError(f"symmetry kind must be one of {_KINDS}, got {short_repr(self.kind)}")
         if self.kind == "cyclic" and (int(self.order) != self.order or not 2 <= self.order <= MAX_CYCLIC_ORDER):
-            raise ValueError(f"cyclic symmetry needs an integer order in 2..{MAX_CYCLIC_ORDER}, got {self.order!r} "
+            raise ValueError(f"cyclic symmetry needs an integer order in 2..{MAX_CYCLIC_ORDER}, got {short_repr(self.order)} "
                              "(a part with finer symmetry is a solid of revolution: kind: revolution)")
         if self.kind != "cyclic" and self.order != 1:
-            raise ValueError(f"'order' only applies to cyclic symmetry (kind={self.kind!r})")
+            raise ValueError(f"'order' only applies to cyclic symmetry (kind={short_repr(self.kind)})")
         if self.rotoreflection and self.kind != "revolution":
             raise ValueError("'rotoreflection' only applies to revolution symmetry")
         if self.kind == "finite":
@@ -68,6 +72,8 @@ class Symmetry:
         cover: ``{I}``, or ``{I, Rx(pi)}`` with rotoreflection.
         """
         if self.kind == "cyclic":
+            from opnet.geometry.rotations import axis_angle_rotation  # torch-free callers never get here
+
             angles = 2 * math.pi * np.arange(self.order) / self.order
             return axis_angle_rotation("Z", angles)
         if self.kind == "finite":
@@ -108,11 +114,11 @@ class Symmetry:
             raise ValueError(f"unknown symmetry keys {sorted(unknown)}; expected kind, order, rotoreflection, rotations")
         order = spec.get("order", 1)
         if isinstance(order, bool) or not isinstance(order, int | float) or not float(order).is_integer():
-            raise ValueError(f"symmetry order must be a whole number, got {order!r}")
+            raise ValueError(f"symmetry order must be a whole number, got {short_repr(order)}")
         return cls(
             kind=spec.get("kind", "none"),
             order=int(order),
-            rotoreflection=bool(spec.get("rotoreflection", False)),
+            rotoreflection=_flag(spec.get("rotoreflection", False), "symmetry.rotoreflection"),
             rotations=None if spec.get("rotations") is None else np.asarray(spec["rotations"], float),
         )
 
@@ -129,22 +135,55 @@ class Symmetry:
 
 
 def _validated_group(G: np.ndarray, tol: float = 1e-5) -> np.ndarray:
+    """The distinct elements of ``G`` (repeats within ``tol`` dropped), identity first, after
+    checking that they are proper rotations forming a group of at most :data:`MAX_GROUP_SIZE`.
+
+    Repeats and closure are found with a k-d tree over the flattened matrices: O(K^2 log K) for K
+    elements (the K^2 products are the check itself), not the O(K^3) of comparing every product with
+    every element.
+    """
+    from scipy.spatial import cKDTree
+
     if G.ndim != 3 or G.shape[1:] != (3, 3) or len(G) == 0:
         raise ValueError(f"symmetry rotations must have shape (K, 3, 3), got {G.shape}")
+    if len(G) > MAX_GROUP_INPUT:
+        raise ValueError(f"symmetry rotations: {len(G)} matrices given, more than {MAX_GROUP_INPUT}: not a part's "
+                         f"symmetry group (at most {MAX_GROUP_SIZE} elements)")
+    if not np.isfinite(G).all():
+        raise ValueError("symmetry rotations must be finite numbers")
     eye = np.eye(3)
     if np.abs(G.transpose(0, 2, 1) @ G - eye).max() > tol or np.abs(np.linalg.det(G) - 1).max() > tol:
-        raise ValueError("symmetry rotations must be proper rotation matrices (orthonormal, det +1)")
-    def index_of(M: np.ndarray) -> int:
-        d = np.abs(G - M).reshape(len(G), -1).max(1)
-        return int(d.argmin()) if d.min() < tol else -1
-    if index_of(eye) < 0:
+        raise ValueError("symmetry rotations must be proper rotation matrices (orthonormal, det +1; "
+                         "a reflection is not a rigid motion)")
+    # repeats: exact-ish ones collapse on a coarse grid first (cheap for many copies), then an element is
+    # dropped when an earlier survivor lies within tol (the grid may split a pair across a cell border)
+    _, first = np.unique(np.round(G.reshape(len(G), 9) * 1e3), axis=0, return_index=True)
+    G = G[np.sort(first)]
+    flat = G.reshape(len(G), 9)
+    nearest = np.array([min(near) for near in cKDTree(flat).query_ball_point(flat, tol, p=np.inf)])
+    G = G[nearest == np.arange(len(G))]
+    if len(G) > MAX_GROUP_SIZE:
+        raise ValueError(f"symmetry rotations: {len(G)} distinct elements, more than {MAX_GROUP_SIZE} (a cyclic "
+                         f"order beyond {MAX_CYCLIC_ORDER} is a solid of revolution: kind: revolution)")
+    flat = G.reshape(len(G), 9)
+    tree = cKDTree(flat)
+    dist, idx = tree.query(eye.reshape(1, 9), p=np.inf)
+    if dist[0] > tol:
         raise ValueError("symmetry rotations must contain the identity")
-    for a in G:
-        for b in G:
-            if index_of(a @ b) < 0:
-                raise ValueError("symmetry rotations are not closed under composition: not a group")
-    order = np.argsort([index_of(eye) != i for i in range(len(G))], kind="stable")
+    products = np.einsum("aij,bjk->abik", G, G).reshape(-1, 9)
+    dist, _ = tree.query(products, p=np.inf, distance_upper_bound=tol * 10)
+    if not (dist <= tol * 10).all():
+        raise ValueError("symmetry rotations are not closed under composition: not a group")
+    identity = int(idx[0])
+    order = [identity, *(i for i in range(len(G)) if i != identity)]
     return G[order]
+
+
+def _flag(value: Any, key: str) -> bool:
+    """A true/false config value; strings and numbers are refused (``'false'`` would read as true)."""
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    raise ValueError(f"{key} must be true or false, got a {type(value).__name__}")
 
 
 def _z_cyclic_order(G: np.ndarray, tol: float = 1e-6) -> int:

@@ -45,8 +45,11 @@ def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) 
         R = np.asarray(model_rotation, dtype=np.float64)
         if R.shape == (3,):
             R = euler_to_matrix(np.radians(R))
-        if R.shape != (3, 3) or np.abs(R.T @ R - np.eye(3)).max() > 1e-6:
+        if R.shape != (3, 3) or not np.isfinite(R).all() or np.abs(R.T @ R - np.eye(3)).max() > 1e-6:
             raise ValueError(f"{path}: model_rotation must be a rotation matrix or 3 Z-Y-Z angles in degrees")
+        if np.linalg.det(R) < 0:
+            raise ValueError(f"{path}: model_rotation has det -1, a reflection: it would mirror the part; "
+                             "give a proper rotation (det +1)")
         T = np.eye(4)
         T[:3, :3] = R
         mesh.apply_transform(T)

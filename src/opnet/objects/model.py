@@ -86,7 +86,9 @@ class ObjectModel:
             return cls(name, sym, np.zeros(3), cov, threshold / 0.1, mesh, Lambda)
         if kind == "RevolutionPoseUtils":
             lam = float(_require(data, "lambda", path))
-            flip = bool(data.get("rotoreflection_symmetry", False))
+            flip = data.get("rotoreflection_symmetry", False)
+            if not isinstance(flip, bool):
+                raise ValueError(f"{path}: 'rotoreflection_symmetry' must be true or false, got a {type(flip).__name__}")
             # only lam matters for the revolution distance; spread it as lam_r = 0, lam_z = lam
             cov = np.diag([0.0, 0.0, lam**2])
             return cls(name, Symmetry("revolution", rotoreflection=flip), np.zeros(3), cov, threshold / 0.1, mesh)

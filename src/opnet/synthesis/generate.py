@@ -22,6 +22,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from opnet._limits import check_threads
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.collision import CollisionModel, build_collision_model, check_solid
 from opnet.synthesis.config import SceneConfig
@@ -184,8 +185,9 @@ def generate_dataset(
     Raises:
         ValueError: bad arguments, or ``out`` holds a dataset made with other settings.
     """
-    if cycles < 0 or not 0 <= drops <= 254 or workers < 1:
-        raise ValueError(f"need cycles >= 0, 0 <= drops <= 254 and workers >= 1; got {cycles}, {drops}, {workers}")
+    if cycles < 0 or not 0 <= drops <= 254:
+        raise ValueError(f"need cycles >= 0 and 0 <= drops <= 254; got {cycles}, {drops}")
+    check_threads(workers, "workers")
     start, wall_start = time.perf_counter(), time.time()
     out, scene = Path(out), scene or SceneConfig()
     sensor = sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)

@@ -1,0 +1,83 @@
+"""ONNX metadata validated like a checkpoint's config (issue 24, item 3): NaN or -1 thresholds, bad
+names and ill-typed fields were accepted (or crashed later) before; every refusal is one line that
+names the file and the key."""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from opnet.deploy.metadata import validate_metadata
+
+
+def _meta() -> dict[str, Any]:
+    return {
+        "format": 1, "object": "bunny", "parameterization": "vanilla", "grid_size": 16, "slots": 1,
+        "channels_per_slot": 8, "outputs": ["presence", "visibility", "translation", "rotation"],
+        "input": {"size": 128, "fit": "pad", "interpolation": "area"},
+        "decoding": {"threshold": 0.5, "score": "p", "min_visibility": 0.0,
+                     "averaging": {"eps": 0.5, "min_samples": 1, "cluster_score": "max", "keep_noise": False}},
+        "pose_space": {"Lambda": np.eye(3).tolist(), "group": [np.eye(3).tolist()], "delta": 0.01,
+                       "revolution": False, "lam": 0.0},
+    }
+
+
+def test_a_valid_metadata_is_typed() -> None:
+    s = validate_metadata(_meta(), "m.onnx")
+    assert (s["threshold"], s["score"], s["input_size"], s["fit"]) == (0.5, "p", 128, "pad")
+    assert s["pose_space"]["group"].shape == (1, 3, 3) and s["averaging"]["cluster_score"] == "max"
+
+
+def _set(meta: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
+    meta = copy.deepcopy(meta)
+    *parents, last = key.split(".")
+    node = meta
+    for p in parents:
+        node = node[p]
+    if value is KeyError:
+        del node[last]
+    else:
+        node[last] = value
+    return meta
+
+
+@pytest.mark.parametrize(("key", "value", "message"), [
+    ("decoding.threshold", math.nan, "decoding.threshold = nan, expected a number in [0, 1)"),
+    ("decoding.threshold", -1, "decoding.threshold = -1, expected a number in [0, 1)"),
+    ("decoding.threshold", True, "decoding.threshold = True"),
+    ("decoding.threshold", KeyError, "lacks decoding.threshold"),
+    ("decoding.score", "q", "decoding.score = 'q', expected one of p, p*v, v"),
+    ("decoding.min_visibility", "0.1", "decoding.min_visibility = '0.1'"),
+    ("decoding.averaging.eps", 0, "decoding.averaging.eps = 0"),
+    ("decoding.averaging.min_samples", 1.5, "decoding.averaging.min_samples = 1.5"),
+    ("decoding.averaging.cluster_score", "median", "decoding.averaging.cluster_score = 'median'"),
+    ("decoding.averaging.keep_noise", "false", "decoding.averaging.keep_noise = 'false', expected true or false"),
+    ("decoding.averaging", [1], "decoding.averaging = [1]"),
+    ("input.size", 10**9, "input.size = 1000000000"),
+    ("input.fit", "stretch", "input.fit = 'stretch'"),
+    ("input.interpolation", "cubic", "input.interpolation = 'cubic'"),
+    ("grid_size", 0, "grid_size = 0"),
+    ("slots", "4", "slots = '4'"),
+    ("pose_space.delta", math.inf, "pose_space.delta = inf"),
+    ("pose_space.revolution", 1, "pose_space.revolution = 1, expected true or false"),
+    ("pose_space.Lambda", [[1, 2], [3]], "pose_space.Lambda = "),
+    ("pose_space.group", [np.diag([1.0, 1.0, -1.0]).tolist()], "pose_space.group: symmetry rotations must be proper"),
+    ("pose_space.group", [[[1, 0, 0], [0, 1, 0], [0, 0, math.nan]]], "pose_space.group = "),
+    ("pose_space", "x", "pose_space = 'x', expected a mapping"),
+    ("object", "x" * 10_000, "object = 'xxxx"),
+    ("outputs", "presence", "outputs = 'presence'"),
+])  # fmt: skip
+def test_bad_metadata_is_refused_naming_file_and_key(key: str, value: Any, message: str) -> None:
+    with pytest.raises(ValueError) as err:
+        validate_metadata(_set(_meta(), key, value), "m.onnx")
+    assert str(err.value).startswith(f"m.onnx: opnet metadata {message}"), str(err.value)
+    assert "\n" not in str(err.value) and len(str(err.value)) < 300
+
+
+def test_metadata_that_is_not_an_object() -> None:
+    with pytest.raises(ValueError, match="m.onnx: opnet metadata is a list, expected a JSON object"):
+        validate_metadata([1, 2], "m.onnx")
