@@ -24,9 +24,11 @@ from typing import Any
 
 from omegaconf.errors import OmegaConfBaseException
 
-#: exceptions that mean "the input is wrong", not "the program is wrong"
+from opnet.datasets.atomic import DiskFullError
+
+#: exceptions that mean "the input (or the disk) is wrong", not "the program is wrong"
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, NotADirectoryError,
-                                                 PermissionError, OmegaConfBaseException)
+                                                 PermissionError, OmegaConfBaseException, DiskFullError)
 _ADVERTS = ("litlogger", "LitLogger", "Lightning Experiments platform")
 _HARMLESS_WARNINGS = (
     r".*isinstance\(treespec, LeafSpec\)` is deprecated.*",

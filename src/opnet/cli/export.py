@@ -58,6 +58,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     out = Path(str(cfg.out)) if cfg.get("out") else ckpt.with_suffix(f".{fmt}")
     if is_within(out, ckpt):
         raise ValueError(f"out={out}: the checkpoint itself; the export would replace it, choose another out=")
+    if out.exists() and not out.is_file():  # /dev/null, a folder, a FIFO: never replaced
+        raise ValueError(f"out={out}: exists and is not a regular file; choose another out=")
     if out.exists() and not cfg.get("overwrite", False):
         raise ValueError(f"{out}: exists already; pass overwrite=true to replace it, or choose another out=")
     system, run_cfg = load_checkpoint(ckpt)

@@ -9,13 +9,25 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from opnet._repr import short_repr
 from opnet.objects import object_from_config
 from opnet.synthesis import GenerationReport, SceneConfig, generate_dataset
 
 log = logging.getLogger(__name__)
+
+
+def whole_number(value: Any, key: str) -> int:
+    """A config value that must be a whole number (``cycles=abc``, ``seed=1.5`` named, not ``int()``'s
+    message); ``true`` is not 1."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{key}={short_repr(value)}: expected a whole number")
+    return value
 
 
 def run(cfg: DictConfig) -> GenerationReport:
@@ -30,10 +42,10 @@ def run(cfg: DictConfig) -> GenerationReport:
     report = generate_dataset(
         obj,
         Path(str(cfg.out)),
-        cycles=int(cfg.cycles),
-        drops=int(cfg.drops),
-        workers=int(cfg.workers),
-        seed=int(cfg.seed),
+        cycles=whole_number(cfg.cycles, "cycles"),
+        drops=whole_number(cfg.drops, "drops"),
+        workers=whole_number(cfg.workers, "workers"),
+        seed=whole_number(cfg.seed, "seed"),
         scene=scene,
         progress=bool(cfg.get("progress", True)),
         previews=int(cfg.get("previews", 4)),

@@ -9,10 +9,40 @@ that a shared dataset or results folder stays readable by colleagues.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+#: errno values of a write that failed for want of space: a full disk or an exhausted quota
+DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+
+
+class DiskFullError(OSError):
+    """A write failed for want of space; ``filename`` is the file (or folder) being written.
+
+    One line naming it, for the entry points (an ``OSError``, so that it is not mistaken for bad
+    input by the per-image loops, which go on with the next image)."""
+
+    def __str__(self) -> str:
+        return f"{self.filename}: {self.strerror} (disk full); free some space or choose another output folder"
+
+
+@contextlib.contextmanager
+def disk_full_named(path: str | Path) -> Iterator[None]:
+    """Turn an ``OSError`` of a full disk (ENOSPC, EDQUOT) raised in the block into a
+    :class:`DiskFullError` naming ``path``; other errors pass unchanged."""
+    try:
+        yield
+    except DiskFullError:
+        raise
+    except OSError as e:
+        if e.errno not in DISK_FULL_ERRNOS:
+            raise
+        raise DiskFullError(e.errno, os.strerror(e.errno), str(path)) from None
 
 
 def _umask() -> int:
@@ -36,14 +66,16 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
         data: the complete file content.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    with disk_full_named(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        if hasattr(os, "fchmod"):
-            os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
+        with disk_full_named(path):
+            if hasattr(os, "fchmod"):
+                os.fchmod(fd, 0o666 & ~_umask())
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from opnet.datasets.atomic import write_text_atomic
+from opnet._repr import short_repr
+from opnet.datasets.atomic import disk_full_named, write_text_atomic
 from opnet.datasets.files import read_json
 from opnet.datasets.png import read_png, write_png
 from opnet.datasets.record import SceneRecord
@@ -44,6 +45,11 @@ SCENE_FILES = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json")
 #: a symmetry whose axis or translation misses the model origin by more than this share of the
 #: diameter cannot be expressed as a rotation about the origin (opnet's symmetry groups)
 ORIGIN_TOL = 0.01
+#: BOP ids name files of 6 digits (``obj_000001.ply``); 0 is no object
+MAX_BOP_ID = 999_999
+#: a ground-truth translation must lie within these factors of the working range (clip planes):
+#: ``cam_t_m2c`` in metres instead of millimetres puts every part a thousand times too close
+_T_RANGE_FACTORS = (0.5, 2.0)
 #: default working range of BOP data without clip planes: these quantiles of the valid depth of
 #: the first image, widened by the factors below
 _CLIP_QUANTILES, _CLIP_WIDEN = (0.01, 0.99), (0.8, 1.25)
@@ -64,6 +70,27 @@ def _numbers(value: Any, n: int, key: str, where: str) -> np.ndarray:
 
 def _has_bool(value: Any) -> bool:
     return isinstance(value, bool) or (isinstance(value, list) and any(_has_bool(v) for v in value))
+
+
+def bop_id(value: Any, key: str, where: str) -> int:
+    """A BOP object id (``obj_id``, ``--obj-id``, ``data.object_id``) as an int in 1..999999: a
+    whole number, not a boolean or a fraction (``1.9`` is no id, not object 1).
+
+    Raises:
+        ValueError: naming ``where`` and ``key``.
+    """
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_BOP_ID:
+        raise ValueError(f"{where}: {key}={short_repr(value)} is not a BOP object id (a whole number in "
+                         f"1..{MAX_BOP_ID})")
+    return value
+
+
+def _list(value: Any, key: str, where: str) -> list[Any]:
+    if not isinstance(value, list):
+        raise ValueError(f"{where}: '{key}' must be a list, got a {type(value).__name__}")
+    return value
 
 
 def _key(entry: Any, key: str, where: str) -> Any:
@@ -111,10 +138,13 @@ def symmetry_from_bop(info: dict[str, Any], where: str) -> tuple[Symmetry, np.nd
             pass through the model origin (translation or offset > 1 % of the diameter), a
             discrete matrix that is not a rotation, or a set that is not a group.
     """
-    diameter = float(info.get("diameter", 0.0) or 0.0)
+    if not isinstance(info, dict):
+        raise ValueError(f"{where}: expected an object of model info (diameter, symmetries), got a "
+                         f"{type(info).__name__}")
+    diameter = float(_numbers(info.get("diameter", 0.0) or 0.0, 1, "diameter", where)[0])
     tol = ORIGIN_TOL * diameter if diameter > 0 else 1.0  # mm
     discrete = []
-    for i, m in enumerate(info.get("symmetries_discrete") or []):
+    for i, m in enumerate(_list(info.get("symmetries_discrete") or [], "symmetries_discrete", where)):
         T = _numbers(m, 16, f"symmetries_discrete[{i}]", where).reshape(4, 4)
         R, t = T[:3, :3], T[:3, 3]
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
@@ -127,12 +157,12 @@ def symmetry_from_bop(info: dict[str, Any], where: str) -> tuple[Symmetry, np.nd
         if len(discrete) > MAX_GROUP_SIZE:
             raise ValueError(f"{where}: symmetries_discrete holds more than {MAX_GROUP_SIZE} distinct rotations: "
                              "not a part's symmetry group")
-    continuous = info.get("symmetries_continuous") or []
+    continuous = _list(info.get("symmetries_continuous") or [], "symmetries_continuous", where)
     if len(continuous) > 1:
         raise ValueError(f"{where}: {len(continuous)} continuous symmetry axes (a sphere?) cannot be mapped; "
                          "opnet supports one axis of revolution")
     if continuous:
-        axis = _numbers(_key(continuous[0], "axis", where), 3, "axis", where)
+        axis = _numbers(_key(continuous[0], "axis", f"{where}: symmetries_continuous[0]"), 3, "axis", where)
         offset = _numbers(continuous[0].get("offset", [0, 0, 0]), 3, "offset", where)
         if np.linalg.norm(axis) < 1e-9:
             raise ValueError(f"{where}: symmetries_continuous axis is zero")
@@ -202,10 +232,11 @@ def models_dir_of(root: Path) -> Path:
 
 def model_info(models_dir: Path, obj_id: int) -> dict[str, Any]:
     path = models_dir / MODELS_INFO
+    obj_id = bop_id(obj_id, "obj_id", str(path))
     info = read_json(path)
     if not isinstance(info, dict):
         raise ValueError(f"{path}: expected an object of obj_id -> model info")
-    entry = info.get(str(int(obj_id)))
+    entry = info.get(str(obj_id))
     if entry is None:
         ids = ", ".join(sorted(info, key=lambda s: int(s) if s.isdigit() else 0)[:20])
         raise ValueError(f"{path}: obj_id {obj_id} is not in this dataset's models (ids: {ids})")
@@ -220,10 +251,11 @@ def bop_object(models_dir: str | Path, obj_id: int, name: str | None = None) -> 
 
     models_dir = Path(models_dir)
     info = model_info(models_dir, obj_id)
+    obj_id = bop_id(obj_id, "obj_id", str(models_dir / MODELS_INFO))
     symmetry, A = symmetry_from_bop(info, f"{models_dir / MODELS_INFO}: obj_id {obj_id}")
-    mesh_path = models_dir / f"obj_{int(obj_id):06d}.ply"
+    mesh_path = models_dir / f"obj_{obj_id:06d}.ply"
     mesh = load_mesh(mesh_path, 0.001, A if np.abs(A - np.eye(3)).max() > 0 else None)
-    return ObjectModel.from_mesh(name or f"obj_{int(obj_id):06d}", mesh, symmetry, source=str(mesh_path))
+    return ObjectModel.from_mesh(name or f"obj_{obj_id:06d}", mesh, symmetry, source=str(mesh_path))
 
 
 # ------------------------------------------------------------------------------------------ reader
@@ -242,7 +274,7 @@ class BOPDataset:
     def __init__(self, root: str | Path, obj_id: int, clip: tuple[float, float] | None = None,
                  models_dir: str | Path | None = None) -> None:
         self.root = Path(root)
-        self.obj_id = int(obj_id)
+        self.obj_id = bop_id(obj_id, "data.object_id", str(self.root))
         self.models_dir = Path(models_dir) if models_dir is not None else models_dir_of(self.root)
         info = model_info(self.models_dir, self.obj_id)
         self.symmetry, self.R_align = symmetry_from_bop(info, f"{self.models_dir / MODELS_INFO}: obj_id {obj_id}")
@@ -260,10 +292,20 @@ class BOPDataset:
                 if not isinstance(meta[name], dict):
                     raise ValueError(f"{d / name}: expected an object of image id -> entries")
             self._meta[sid] = meta
+            gt_path = d / "scene_gt.json"
+            bad = [k for k in meta["scene_gt.json"] if not re.fullmatch(r"\d{1,9}", k)]
+            if bad:
+                raise ValueError(f"{gt_path}: image id {short_repr(bad[0])} is not a whole number")
             for key in sorted(meta["scene_gt.json"], key=int):
-                n = sum(1 for e in meta["scene_gt.json"][key] if int(_key(e, "obj_id", str(d / "scene_gt.json"))) == self.obj_id)
+                where = f"{gt_path}: image {key}"
+                entries = _list(meta["scene_gt.json"][key], "instances", where)
+                n = sum(1 for k, e in enumerate(entries) if self._obj_id_of(e, f"{where}, instance {k}") == self.obj_id)
                 self._scenes.append((sid, int(key), n))
         self.clip = tuple(clip) if clip is not None else self._default_clip()
+
+    @staticmethod
+    def _obj_id_of(entry: Any, where: str) -> int:
+        return bop_id(_key(entry, "obj_id", where), "obj_id", where)
 
     def scenes(self) -> list[tuple[int, int, int]]:
         """(scene_id, im_id, number of instances of obj_id) per image, sorted."""
@@ -336,6 +378,15 @@ class BOPDataset:
             raise ValueError(f"{where}: {e}") from None
         return cam.check_plausible(where)
 
+    def _check_translation(self, t: np.ndarray, where: str) -> None:
+        """A part's distance along the optical axis lies near the working range (the clip planes);
+        ``cam_t_m2c`` in metres puts it a thousand times too close, in micrometres too far."""
+        lo, hi = self.clip[0] * _T_RANGE_FACTORS[0], self.clip[1] * _T_RANGE_FACTORS[1]
+        if not lo <= t[2] <= hi:
+            raise ValueError(f"{where}: cam_t_m2c puts the part {t[2]:.4g} m in front of the camera, far outside the "
+                             f"depth's working range [{self.clip[0]:.3g}, {self.clip[1]:.3g}] m; BOP translations are in "
+                             "millimetres (metres given?)")
+
     def read(self, sid: int, im: int) -> SceneRecord:
         """The record of image ``im`` of scene ``sid``: depth (m), camera, the chosen object's
         instances (poses in opnet's model frame, visibility) and their visible masks."""
@@ -343,7 +394,7 @@ class BOPDataset:
         h, w = depth_mm.shape
         camera = self.camera(sid, im, w, h)
         gt_path = self.scene_dir(sid) / "scene_gt.json"
-        entries = self._meta[sid]["scene_gt.json"].get(str(im), [])
+        entries = _list(self._meta[sid]["scene_gt.json"].get(str(im), []), "instances", f"{gt_path}: image {im}")
         infos = self._meta[sid]["scene_gt_info.json"].get(str(im))
         if not isinstance(infos, list) or len(infos) != len(entries):
             raise ValueError(f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im} needs one entry per "
@@ -352,10 +403,11 @@ class BOPDataset:
         seg = np.zeros((h, w), np.int32)
         for k, e in enumerate(entries):
             where = f"{gt_path}: image {im}, instance {k}"
-            if int(_key(e, "obj_id", where)) != self.obj_id:
+            if self._obj_id_of(e, where) != self.obj_id:
                 continue
             R = _numbers(_key(e, "cam_R_m2c", where), 9, "cam_R_m2c", where).reshape(3, 3)
             t = _numbers(_key(e, "cam_t_m2c", where), 3, "cam_t_m2c", where) / 1000.0
+            self._check_translation(t, where)
             Rs.append(R @ self.R_align.T)
             ts.append(t)
             v = _key(infos[k], "visib_fract", f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im}, instance {k}")
@@ -406,7 +458,8 @@ def write_bop_split(records: Iterable[tuple[int, int, SceneRecord]], out: str | 
             "cam_K": [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0], "depth_scale": 0.1}
         code = np.where(np.isfinite(rec.depth), np.rint(rec.depth * 10000.0), 0)
         if code.max(initial=0) > 65535:
-            raise ValueError(f"scene {rec.name!r}: depth beyond 6.5 m does not fit BOP's 16-bit PNG at 0.1 mm")
+            raise ValueError(f"{d / 'depth' / f'{im:06d}.png'}: scene {rec.name}: depth beyond 6.5 m does not fit "
+                             "BOP's 16-bit PNG at 0.1 mm")
         write_png(d / "depth" / f"{im:06d}.png", code.astype(np.uint16))
         gts, infos = [], []
         for k in range(rec.num_objects):
@@ -429,19 +482,22 @@ def write_bop_split(records: Iterable[tuple[int, int, SceneRecord]], out: str | 
 def write_bop_models(models_dir: str | Path, obj: Any, obj_id: int = 1) -> Path:
     """``models_info.json`` and ``obj_XXXXXX.ply`` (mm) of an opnet object, symmetries included."""
     models_dir = Path(models_dir)
-    models_dir.mkdir(parents=True, exist_ok=True)
+    obj_id = bop_id(obj_id, "obj_id", str(models_dir))
     if obj.mesh is None:
         raise ValueError(f"object {obj.name!r} has no mesh to write as a BOP model")
     mesh = obj.mesh.copy()
     mesh.apply_scale(1000.0)
-    mesh.export(models_dir / f"obj_{int(obj_id):06d}.ply")
+    ply = models_dir / f"obj_{obj_id:06d}.ply"
+    with disk_full_named(ply):
+        models_dir.mkdir(parents=True, exist_ok=True)
+        mesh.export(ply)
     lo, hi = mesh.bounds
     entry = {"diameter": float(1000.0 * obj.diameter), "min_x": float(lo[0]), "min_y": float(lo[1]),
              "min_z": float(lo[2]), "size_x": float(hi[0] - lo[0]), "size_y": float(hi[1] - lo[1]),
              "size_z": float(hi[2] - lo[2]), **bop_symmetry_entries(obj.symmetry)}
     path = models_dir / MODELS_INFO
     info = read_json(path) if path.is_file() else {}
-    info[str(int(obj_id))] = entry
+    info[str(obj_id)] = entry
     write_text_atomic(path, json.dumps(info, indent=1))
     return models_dir
 
@@ -463,6 +519,7 @@ def convert_ipa_to_bop(ipa_root: str | Path, out: str | Path, split: str = "trai
     from opnet.objects.config import object_from_config
 
     out = Path(out)
+    obj_id = bop_id(obj_id, "--obj-id", str(out))
     if is_within(out, ipa_root) or is_within(ipa_root, out):
         raise ValueError(f"{out}: the BOP dataset would overlap its input {ipa_root}; choose a folder outside it")
     ipa = IPADataset(ipa_root)
@@ -501,6 +558,8 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
 
+    from opnet.datasets.atomic import DiskFullError
+
     parser = argparse.ArgumentParser(prog="python -m opnet.datasets.bop",
                                      description="Write an IPA-layout dataset (e.g. from generate.py) as a BOP dataset.")
     parser.add_argument("ipa", type=Path, help="IPA-layout dataset folder (parameter.json, gt/, p_depth/, ...)")
@@ -511,7 +570,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         split = convert_ipa_to_bop(args.ipa, args.out, args.split, args.obj_id, args.overwrite)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, DiskFullError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"BOP split written to {split} (models in {split.parent / 'models'}); train with: python train.py "

@@ -35,18 +35,54 @@ def camera_number(value: Any, key: str, origin: str) -> float:
     return x
 
 
+class _DuplicateKey(Exception):
+    pass
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (plain PyYAML keeps the
+    last value without a word: ``fx: 600`` then ``fx: 6`` would read as 6)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                if key in seen:
+                    raise _DuplicateKey(f"key {short_repr(key)} is given twice (line {key_node.start_mark.line + 1})")
+                seen.add(key)
+            except TypeError:  # an unhashable key: the base class names it
+                break
+        return super().construct_mapping(node, deep)
+
+
+UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, UniqueKeyLoader.construct_mapping)
+
+
+def read_yaml(path: str | Path, what: str) -> Any:
+    """The content of the YAML file ``path`` (``what`` it holds, for the messages): safe types
+    only, each key once per mapping; every error one line naming the file."""
+    path = Path(path)
+    try:
+        return yaml.load(read_text(path), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except _DuplicateKey as e:
+        raise ValueError(f"{path}: {e} in the {what}; give each key once") from None
+    except yaml.MarkedYAMLError as e:
+        line = f" at line {e.problem_mark.line + 1}" if e.problem_mark is not None else ""
+        raise ValueError(f"{path}: malformed {what} ({e.problem}{line})") from None
+    except (yaml.YAMLError, RecursionError) as e:
+        raise ValueError(f"{path}: malformed {what} ({type(e).__name__})") from None
+
+
 def read_camera_yaml(path: str | Path, allowed: tuple[str, ...] = (*YAML_CAMERA_KEYS, *YAML_EXTRA_KEYS)) -> dict[str, float]:
     """The numbers of a camera YAML (keys among ``allowed``; null values are left out)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(read_text(path))
-    except yaml.YAMLError as e:
-        raise ValueError(f"{path}: malformed camera YAML ({e})") from None
+    doc = read_yaml(path, "camera YAML")
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: a camera YAML holds a mapping of {', '.join(allowed)}")
     unknown = sorted(set(map(str, doc)) - set(allowed))
     if unknown:
-        raise ValueError(f"{path}: unknown camera key(s) {unknown}; expected {', '.join(allowed)}")
+        raise ValueError(f"{path}: unknown camera key(s) {short_repr(unknown)}; expected {', '.join(allowed)}")
     return {str(k): camera_number(v, str(k), str(path)) for k, v in doc.items() if v is not None}
 
 

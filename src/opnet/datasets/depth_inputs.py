@@ -194,7 +194,33 @@ def _load_npy(path: Path, given: GivenCamera) -> DepthImage:
     if np.isinf(depth).any():
         raise ValueError(f"{path}: depth holds infinite values")
     depth[depth <= 0] = np.nan
+    check_depth_in_range(path, depth, cam)
     return DepthImage(path, depth, cam, f"{_describe_camera(cam)}, depth in metres (from {given.sources()})")
+
+
+#: below this share of the valid pixels between the clip planes, an image's depth is in other
+#: units or the clip planes are wrong (the network would see a blank image: 0 objects)
+MIN_SHARE_IN_RANGE = 0.01
+
+
+def check_depth_in_range(path: Path, depth: np.ndarray, cam: Camera) -> None:
+    """Refuse a depth image (metres) of which (almost) no valid pixel lies between the camera's
+    clip planes: millimetres in a ``.npy``, or clip planes of another setup.
+
+    Raises:
+        ValueError: naming ``path``, the median depth and the clip range.
+    """
+    valid = depth[np.isfinite(depth)]
+    if valid.size == 0:  # no depth at all: nothing to find, and said so by "0 objects"
+        return
+    inside = float(np.count_nonzero((valid >= cam.clip_start) & (valid <= cam.clip_end))) / valid.size
+    if inside >= MIN_SHARE_IN_RANGE:
+        return
+    median = float(np.median(valid))
+    hint = ("millimetres? depth is in metres (an integer array takes camera.depth_scale, metres per unit)"
+            if median > 100 * cam.clip_end else "check camera.clip_start and camera.clip_end (metres)")
+    raise ValueError(f"{path}: {100 * inside:.2g} % of the valid depth lies between the clip planes "
+                     f"[{cam.clip_start:g}, {cam.clip_end:g}] m (median {median:.4g}); {hint}")
 
 
 def _load_png(path: Path, given: GivenCamera) -> DepthImage:
@@ -215,6 +241,7 @@ def _load_png(path: Path, given: GivenCamera) -> DepthImage:
             depth = code.astype(np.float32) * np.float32(scale)
             depth[code == 0] = np.nan
             encoding = f"depth = value x {scale:g} m, 0 = none"
+            check_depth_in_range(path, depth, cam)
         else:
             depth = decode_depth(code, cam.clip_start, cam.clip_end)
             encoding = "depth coded between the clip planes, 65535 = none"

@@ -19,6 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from opnet.datasets.atomic import DiskFullError
 from opnet.datasets.depth_inputs import POSE_SUFFIXES, claimed_outputs, given_camera, list_inputs, predict_inputs, write_pose_files
 
 
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
             failed = predict_inputs(
                 inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, image.camera),
                 lambda name, image, hyps, scene: write_pose_files(args.out, name, image, hyps, obj, scene))
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, DiskFullError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     print(f"{len(inputs) - failed} of {len(inputs)} predictions written to {args.out}")

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from opnet import __version__
+from opnet.datasets.atomic import disk_full_named
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
 from opnet.parameterizations.base import Parameterization
@@ -109,21 +110,27 @@ def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET
     depth = torch.rand(2, 1, size, size)
     cam = torch.tensor([[size * 1.2, size * 1.2, (size - 1) / 2, (size - 1) / 2, size, size, 0.5, 1.5]] * 2,
                        dtype=torch.float64)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    with disk_full_named(out):
+        out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.tmp")
-    with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore", torch.jit.TracerWarning)  # shape checks of the backbone become constants
-        torch.onnx.export(model, (depth, cam), str(tmp), input_names=["depth", "camera"], output_names=list(OUTPUTS),
-                          dynamic_axes={"depth": {0: "batch"}, "camera": {0: "batch"},
-                                        **{k: {0: "batch"} for k in OUTPUTS}},
-                          opset_version=opset, dynamo=False)
-    proto = onnx.load(str(tmp))
-    entry = proto.metadata_props.add()
-    entry.key, entry.value = METADATA_KEY, json.dumps(meta)
-    proto.producer_name, proto.producer_version = "opnet", __version__
-    onnx.checker.check_model(proto)
-    onnx.save(proto, str(tmp))
-    tmp.replace(out)
+    try:  # a failure (a full disk) leaves neither the temporary file nor a partial out
+        with disk_full_named(out):
+            with torch.no_grad(), warnings.catch_warnings():
+                warnings.simplefilter("ignore", torch.jit.TracerWarning)  # the backbone's shape checks become constants
+                torch.onnx.export(model, (depth, cam), str(tmp), input_names=["depth", "camera"],
+                                  output_names=list(OUTPUTS), opset_version=opset, dynamo=False,
+                                  dynamic_axes={"depth": {0: "batch"}, "camera": {0: "batch"},
+                                                **{k: {0: "batch"} for k in OUTPUTS}})
+            proto = onnx.load(str(tmp))
+            entry = proto.metadata_props.add()
+            entry.key, entry.value = METADATA_KEY, json.dumps(meta)
+            proto.producer_name, proto.producer_version = "opnet", __version__
+            onnx.checker.check_model(proto)
+            onnx.save(proto, str(tmp))
+            tmp.replace(out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return meta
 
 

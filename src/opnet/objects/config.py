@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
+from opnet._repr import short_repr
 from opnet.geometry.symmetry import Symmetry
 from opnet.objects.io import load_object
 from opnet.objects.model import ObjectModel
@@ -23,11 +25,18 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
     if cfg.get("bop_models") is not None:  # a BOP model: mesh in mm and symmetries from models_info.json
         from opnet.datasets.bop import bop_object
 
+        from opnet.datasets.bop import bop_id
+
         if cfg.get("bop_obj_id") is None:
             raise ValueError("object config: 'bop_models' needs 'bop_obj_id' (the BOP obj_id)")
-        return bop_object(cfg["bop_models"], int(cfg["bop_obj_id"]), str(cfg["name"]))
+        obj_id = bop_id(cfg["bop_obj_id"], "object.bop_obj_id", f"object {short_repr(cfg['name'])}")
+        return bop_object(cfg["bop_models"], obj_id, str(cfg["name"]))
     symmetry = cfg.get("symmetry")
     if symmetry is not None and not isinstance(symmetry, str):
+        if not isinstance(symmetry, Mapping):  # `symmetry: [revolution]`
+            raise ValueError(f"object.symmetry of {short_repr(cfg['name'])}: expected a name (none, revolution, "
+                             f"cyclic<N>) or a mapping with 'kind', got a {type(symmetry).__name__} "
+                             f"{short_repr(symmetry)}")
         symmetry = {k: (list(v) if k == "rotations" else v) for k, v in dict(symmetry).items()}
     if symmetry is not None:
         try:  # checked here so that the message names the config key
@@ -38,8 +47,17 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
         str(cfg["name"]),
         mesh=cfg.get("mesh"),
         symmetry=symmetry,
-        mesh_scale=float(cfg.get("mesh_scale", 1.0)),
+        mesh_scale=_mesh_scale(cfg.get("mesh_scale", 1.0), cfg["name"]),
         model_rotation=cfg.get("model_rotation"),
         builtin=cfg.get("builtin"),
         poseutils=cfg.get("poseutils"),
     )
+
+
+def _mesh_scale(value: Any, name: Any) -> float:
+    """``object.mesh_scale`` as a positive finite number (metres per mesh unit)."""
+    scale = value if isinstance(value, int | float) and not isinstance(value, bool) else math.nan
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"object.mesh_scale={short_repr(value)} of {short_repr(name)}: expected a positive number "
+                         "(metres per mesh unit: 0.001 for a mesh in millimetres)")
+    return float(scale)

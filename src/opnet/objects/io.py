@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import logging
+import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import trimesh
 
+from opnet._repr import short_repr
+from opnet.datasets.files import require_regular_file
 from opnet.geometry.rotations import euler_to_matrix
 from opnet.geometry.symmetry import Symmetry
 from opnet.objects.library import BUILTINS, builtin_names, builtin_object
 from opnet.objects.model import ObjectModel
+
+log = logging.getLogger(__name__)
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 
@@ -25,20 +31,22 @@ def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) 
         model_rotation: optional fixed correction so that the symmetry axis becomes z: a 3x3
             matrix, or three Z-Y-Z Euler angles in degrees, applied as ``x_model = R x_file``.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: mesh file not found")
+    path = require_regular_file(path)  # a FIFO or a device is named as such, not "not found"
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ValueError(f"{path}: unsupported mesh format {path.suffix!r}; expected one of {MESH_SUFFIXES}")
+    if isinstance(scale, bool) or not isinstance(scale, int | float) or not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"{path}: mesh_scale must be a positive number, got {short_repr(scale)}")
+    declared = declared_faces(path)
+    if declared is not None:
+        _check_face_count(declared, path)  # from the header: before minutes of loading
     try:
         loaded = trimesh.load(path, force="mesh", process=True)
     except Exception as e:  # trimesh raises many types on corrupt files
-        raise ValueError(f"{path}: cannot read mesh ({type(e).__name__}: {e})") from e
+        raise ValueError(f"{path}: cannot read mesh ({type(e).__name__}: {str(e)[:200]})") from e
     if not isinstance(loaded, trimesh.Trimesh):
         raise ValueError(f"{path}: file holds no triangle mesh")
-    if not np.isfinite(scale) or scale <= 0:
-        raise ValueError(f"{path}: mesh_scale must be a positive number, got {scale}")
-    mesh = loaded.copy()
+    _check_face_count(len(loaded.faces), path)
+    mesh = outward_faces(loaded.copy(), path)
     if scale != 1.0:
         mesh.apply_scale(scale)
     if model_rotation is not None:
@@ -53,6 +61,52 @@ def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) 
         T = np.eye(4)
         T[:3, :3] = R
         mesh.apply_transform(T)
+    return mesh
+
+
+#: more triangles than a part's model needs: physics and rendering would take minutes and gigabytes
+#: (a 5-million-face scan took 93 s and 6 GB before failing); simplify such a mesh first
+MAX_MESH_FACES = 1_000_000
+
+
+def _check_face_count(faces: int, path: Path) -> None:
+    if faces > MAX_MESH_FACES:
+        raise ValueError(f"{path}: the mesh has {faces:,} faces, more than {MAX_MESH_FACES:,}; simplify it "
+                         "(e.g. quadric decimation in MeshLab or Blender) to a part model of fewer faces")
+
+
+def declared_faces(path: Path) -> int | None:
+    """The face count a binary STL or a PLY header declares (None for other formats or an
+    unreadable header; the loader then judges the file)."""
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return None
+    suffix = path.suffix.lower()
+    if suffix == ".stl" and not head[:5].lower() == b"solid" and len(head) >= 84:
+        return int.from_bytes(head[80:84], "little")
+    if suffix == ".ply" and head.startswith(b"ply"):
+        m = re.search(rb"\nelement face (\d{1,12})\s", head)
+        return int(m.group(1)) if m else None
+    return None
+
+
+def outward_faces(mesh: trimesh.Trimesh, path: Path) -> trimesh.Trimesh:
+    """``mesh`` with its faces wound consistently and its normals pointing outwards (a closed mesh
+    of negative volume is inside out: physics would give it a negative mass), repaired in place
+    with a warning.
+
+    Raises:
+        ValueError: naming ``path``: a closed mesh still inside out after the repair.
+    """
+    if mesh.is_winding_consistent and not (mesh.is_watertight and mesh.volume < 0):
+        return mesh
+    trimesh.repair.fix_normals(mesh)
+    if mesh.is_watertight and mesh.volume < 0:
+        raise ValueError(f"{path}: the mesh is inside out (its normals point inwards) and could not be repaired; "
+                         "flip its normals in a mesh editor")
+    log.warning("%s: faces were wound inconsistently or inside out (normals pointing inwards); repaired", path)
     return mesh
 
 

@@ -23,6 +23,7 @@ from typing import Any
 from tqdm import tqdm
 
 from opnet._limits import check_threads
+from opnet._repr import short_repr
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.collision import CollisionModel, build_collision_model, check_solid
 from opnet.synthesis.config import SceneConfig
@@ -187,9 +188,13 @@ def generate_dataset(
     """
     if cycles < 0 or not 0 <= drops <= 254:
         raise ValueError(f"need cycles >= 0 and 0 <= drops <= 254; got {cycles}, {drops}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # SeedSequence takes no negative seed
+        raise ValueError(f"seed={short_repr(seed)}: expected a whole number >= 0")
     check_threads(workers, "workers")
     start, wall_start = time.perf_counter(), time.time()
     out, scene = Path(out), scene or SceneConfig()
+    if out.exists() and not out.is_dir():  # a file, /dev/null
+        raise ValueError(f"out={out}: exists and is not a folder; choose another out=")
     sensor = sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)
     rig = make_rig(obj, drops, cycles, scene)
     config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)

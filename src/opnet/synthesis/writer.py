@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from opnet.datasets.atomic import write_text_if_changed
+from opnet.datasets.atomic import disk_full_named, write_text_if_changed
 from opnet.datasets.ipa import scene_paths, write_ipa_scene
 from opnet.datasets.ipa_params import IPAParameters, write_parameters
 from opnet.objects.library import BUILTINS, builtin_object
@@ -52,8 +52,9 @@ def object_config_for(obj: ObjectModel, root: Path) -> dict[str, Any]:
     if obj.mesh is None:
         raise ValueError(f"object {obj.name!r} has no mesh: the generator needs one to simulate and render")
     path = (root / MESH_COPY).resolve()
-    root.mkdir(parents=True, exist_ok=True)
-    obj.mesh.export(path)
+    with disk_full_named(path):
+        root.mkdir(parents=True, exist_ok=True)
+        obj.mesh.export(path)
     return {"name": obj.name, "mesh": str(path), "mesh_scale": 1.0, "symmetry": obj.symmetry.to_spec()}
 
 
