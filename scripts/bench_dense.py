@@ -21,8 +21,10 @@ training minutes). Rows of earlier invocations (other objects or configurations)
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -40,6 +42,7 @@ ROW_FIELDS = (
     "object", "config", "gen_minutes", "train_minutes", "total_minutes", "train_scenes", "piles", "views",
     "test_scenes", "steps", "ap", "map", "f1", "target", "found", "no_hypothesis", "position", "orientation",
     "conflict", "confident_fp_per_scene", "duplicates_per_scene", "t_err_mm_p50", "r_err_deg_p50", "run",
+    "budget_minutes", "test_curve", "command",
 )  # fmt: skip
 
 
@@ -82,29 +85,52 @@ def dense_scene(camera: Path, height: float, views: int) -> Any:
     return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
 
 
-def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:
+def split_sizes(run_dir: Path) -> dict[str, int]:
+    """Scenes per split of a run, as its train.log reports them (training piles held out for
+    validation or left out by ``data.train_groups`` are not training scenes)."""
+    log = run_dir / "train.log"
+    found = re.findall(r"dataset .*?: \{'train': (\d+), 'val': (\d+), 'test': (\d+)\}", log.read_text()) if log.is_file() else []
+    return dict(zip(("train", "val", "test"), map(int, found[-1]), strict=True)) if found else {}
+
+
+def test_curve(run_dir: Path) -> str:
+    """The held-out test AP measured during a run: ``<train minutes>: <AP>`` at each test epoch."""
+    path = REPO / run_dir / "learning_curve.csv"
+    if not path.is_file():
+        return ""
+    points = [r for r in csv.DictReader(path.open()) if r.get("test_ap")]
+    return ", ".join(f"{float(r['train_minutes']):.0f}: {float(r['test_ap']):.3f}" for r in points)
+
+
+def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
     lines = [
         "# Dense-pile benchmark", "",
         "Siléane-like bulk piles (70-80 parts, most of them more than half hidden) seen from above by the camera of "
         "the Siléane bunny dataset (`conf/cameras/sileane_bunny.yaml`, 1.5 m above the floor). Per object, on this "
         "2-core CPU: training piles generated and a model trained within the budget; held-out AP (Brégier, max "
         "occlusion 0.5) on the scenes with at least 70 parts of piles of another seed. Diagnostics as in "
-        "[the learning benchmark](../learning/README.md).", "",
-        f"Command: `{command}`", "",
-        "| object | config | gen min | train min | total min | train scenes (piles x views) | test scenes | "
-        "**test AP** | target | MAP | F1 | found % | no hyp % | position % | orientation % | conflict % | "
-        "conf. FP/scene | dup/scene | t p50 mm | r p50 ° |",
-        "|" + "---|" * 20,
+        "[the learning benchmark](../learning/README.md). *budget min*: the training budget the step count was "
+        "calibrated for (`--minutes`: the throughput of 50 steps measured at the start); *train min*: the wall "
+        "minutes the run took, which exceed the budget when other jobs shared the machine or validation took long; "
+        "*test AP during training*: the held-out test AP at the test epochs (wall training minutes: AP), so the AP "
+        "reached within a shorter budget can be read off.", "",
+        "| object | config | gen min | budget min | train min | total min | train scenes (of piles x views made) | "
+        "test scenes | **test AP** | target | MAP | F1 | found % | no hyp % | position % | orientation % | "
+        "conflict % | conf. FP/scene | dup/scene | t p50 mm | r p50 ° | test AP during training |",
+        "|" + "---|" * 22,
     ]  # fmt: skip
     for r in rows:
         lines.append(
-            f"| {r['object']} | {r['config']} | {fmt(r['gen_minutes'], 'f1')} | {fmt(r['train_minutes'], 'f1')} | "
-            f"{fmt(r['total_minutes'], 'f1')} | {r['train_scenes']} ({r['piles']} x {r['views']}) | {r['test_scenes']} | "
-            f"**{fmt(r['ap'])}** | {r['target']} | {fmt(r['map'])} | {fmt(r['f1'])} | {fmt(r['found'], 'pct')} | "
-            f"{fmt(r['no_hypothesis'], 'pct')} | {fmt(r['position'], 'pct')} | {fmt(r['orientation'], 'pct')} | "
-            f"{fmt(r['conflict'], 'pct')} | {fmt(r['confident_fp_per_scene'], 'f1')} | "
-            f"{fmt(r['duplicates_per_scene'], 'f1')} | {fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} |"
+            f"| {r['object']} | {r['config']} | {fmt(r['gen_minutes'], 'f1')} | {fmt(r.get('budget_minutes', ''), 'f1')} | "
+            f"{fmt(r['train_minutes'], 'f1')} | {fmt(r['total_minutes'], 'f1')} | {r['train_scenes']} ({r['piles']} x "
+            f"{r['views']}) | {r['test_scenes']} | **{fmt(r['ap'])}** | {r['target']} | {fmt(r['map'])} | "
+            f"{fmt(r['f1'])} | {fmt(r['found'], 'pct')} | {fmt(r['no_hypothesis'], 'pct')} | {fmt(r['position'], 'pct')} | "
+            f"{fmt(r['orientation'], 'pct')} | {fmt(r['conflict'], 'pct')} | {fmt(r['confident_fp_per_scene'], 'f1')} | "
+            f"{fmt(r['duplicates_per_scene'], 'f1')} | {fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} | "
+            f"{r.get('test_curve') or ''} |"
         )
+    lines += ["", "Commands (one per row):", ""]
+    lines += [f"- {r['object']} {r['config']}: `{r.get('command') or '?'}`" for r in rows]
     (out / "README.md").write_text("\n".join(lines) + "\n")
 
 
@@ -126,7 +152,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "results" / "dense")
     ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
     ap.add_argument("--generate-only", action="store_true", help="make (or complete) the datasets, then stop")
+    ap.add_argument("--readme-only", action="store_true", help="re-render README.md from dense.csv, then stop")
     args = ap.parse_args(argv)
+    if args.readme_only:
+        rows = merge_csv(args.out / "dense.csv", ROW_FIELDS, [], ("object", "config"))
+        for r in rows:
+            r["test_curve"] = test_curve(Path(r["run"])) or r.get("test_curve", "")
+            r["train_scenes"] = split_sizes(REPO / r["run"]).get("train", r["train_scenes"])
+        write_readme(args.out, merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config")))
+        print((args.out / "README.md").read_text())
+        return 0
     command = "python scripts/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
     for obj in args.objects:
@@ -146,15 +181,17 @@ def main(argv: list[str] | None = None) -> int:
         row, _ = summarize(obj, args.config, run_dir, steps)
         summary = json.loads((run_dir / "test" / "summary.json").read_text())
         row.update(gen_minutes=gen_minutes, total_minutes=gen_minutes + float(row["train_minutes"]),
-                   train_scenes=args.gen_cycles * args.drops, piles=-(-args.gen_cycles // args.views),
-                   views=args.views, test_scenes=summary["num_scenes"], target=TARGET)
+                   train_scenes=split_sizes(run_dir).get("train", args.gen_cycles * args.drops),
+                   piles=-(-args.gen_cycles // args.views),
+                   views=args.views, test_scenes=summary["num_scenes"], target=TARGET,
+                   budget_minutes="" if args.steps else args.minutes, test_curve=test_curve(run_dir), command=command)
         print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
               f"training minutes)", flush=True)
         rows.append(row)
     if args.generate_only:
         return 0
     all_rows = merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config"))
-    write_readme(args.out, all_rows, command)
+    write_readme(args.out, all_rows)
     print((args.out / "README.md").read_text())
     return 0
 

@@ -148,3 +148,21 @@ def test_rotation_refused_for_data_without_segmentation(two_views: Path, tmp_pat
     with pytest.raises(ValueError, match=r"bare: augmentation.p_rotate=0.5 .* no segmentation"):
         make((-30.0, 30.0)).setup()
     make((180.0, 180.0)).setup()  # the exact half turn needs none
+
+
+def test_train_groups_keeps_the_first_piles_of_the_training_split(two_views: Path) -> None:
+    from opnet.data.datamodule import OPNetDataModule
+
+    def piles(dm: OPNetDataModule, split: str) -> set[int]:
+        return {int(dm.splits[split].record(i).name.split("_")[1]) // 2 for i in range(len(dm.splits[split]))}
+
+    make = lambda n: OPNetDataModule(builtin_object("bracket"), two_views, val_fraction=0.34, test_fraction=0.0,  # noqa: E731
+                                     cache=False, check="off", train_groups=n)
+    full, one = make(None), make(1)
+    full.setup()
+    one.setup()
+    assert len(piles(full, "train")) == 2 and piles(one, "train") == {min(piles(full, "train"))}
+    assert len(one.splits["train"]) == len(full.splits["train"]) // 2  # both views of that pile
+    assert piles(one, "val") == piles(full, "val")  # the held-out data does not move
+    with pytest.raises(ValueError, match="data.train_groups=0, expected null or an integer >= 1"):
+        make(0)

@@ -193,6 +193,9 @@ class OPNetDataModule(L.LightningDataModule):
             validated) or ``"off"``. A problem stops the run at once, naming the file.
         object_id: for a BOP split folder: the ``obj_id`` whose instances are the ground truth.
         clip: for BOP data: (near, far) working range in metres (None: from the first image).
+        train_groups: train on the first N groups (piles of a generated dataset, else cycles or
+            scenes; sorted by dataset and group) of the training split only, the validation and
+            test splits unchanged: the data-scaling curve at fixed held-out data. None: all.
         fit: how an image becomes the square network input (:data:`opnet.data.preprocess.CANVAS_FITS`):
             ``image`` (centred on the image, short side padded: the configs' default), ``pad``
             (centred on the principal point: this argument's default, the framing of checkpoints
@@ -227,6 +230,7 @@ class OPNetDataModule(L.LightningDataModule):
         clip: Sequence[float] | None = None,
         fit: str = "pad",
         test_min_objects: int = 0,
+        train_groups: int | None = None,
     ) -> None:
         super().__init__()
         if fit not in CANVAS_FITS:
@@ -261,6 +265,10 @@ class OPNetDataModule(L.LightningDataModule):
         if isinstance(test_min_objects, bool) or int(test_min_objects) < 0:
             raise ValueError(f"data.test_min_objects={test_min_objects!r}, expected an integer >= 0")
         self.test_min_objects = int(test_min_objects)
+        if train_groups is not None and (isinstance(train_groups, bool) or not isinstance(train_groups, int)
+                                         or train_groups < 1):
+            raise ValueError(f"data.train_groups={train_groups!r}, expected null or an integer >= 1")
+        self.train_groups = train_groups
         self.test_root = self.test_roots[0] if self.test_roots else None
         self.splits: dict[str, SceneSamples] = {}
 
@@ -320,6 +328,9 @@ class OPNetDataModule(L.LightningDataModule):
         keys, keep = self._scene_keys(source, self.roots)
         test_fraction = 0.0 if self.test_root is not None else self.test_fraction
         tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, test_fraction, self.seed)
+        if self.train_groups is not None:  # the data-scaling curve: the first N training groups only
+            first = set(sorted({keys[keep[i]] for i in tr})[: self.train_groups])
+            tr = [i for i in tr if keys[keep[i]] in first]
         pick = lambda idx: [keep[i] for i in idx]  # noqa: E731
         # a cached scene is already framed (its canvas is the image): framing it again is the identity
         common = dict(input_size=self.input_size, fit=self.fit)
