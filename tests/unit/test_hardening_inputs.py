@@ -157,6 +157,13 @@ def test_a_mesh_with_too_many_faces_is_refused_after_loading(tmp_path: Path, mon
         mesh_io.load_mesh(tmp_path / "box.obj")
 
 
+def test_a_mesh_with_a_nan_vertex_is_refused_not_trimmed(tmp_path: Path) -> None:
+    path = tmp_path / "nan.obj"  # processing used to drop the vertex and its faces without a word
+    path.write_text("v 0 0 0\nv nan 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 2 3\nf 1 3 4\nf 1 2 4\nf 2 3 4\n")
+    with pytest.raises(ValueError, match=r"nan.obj: mesh has non-finite \(NaN or inf\) vertex coordinates"):
+        mesh_io.load_mesh(path)
+
+
 def test_a_fifo_mesh_is_named_a_fifo(tmp_path: Path) -> None:
     os.mkfifo(tmp_path / "part.stl")
     with pytest.raises(ValueError, match=r"part.stl: not a regular file \(a FIFO\)"):
@@ -260,3 +267,12 @@ def test_export_on_a_full_disk_removes_its_temporary_file(tmp_path: Path, monkey
     with pytest.raises(DiskFullError, match=rf"^{out}: No space left on device"):
         export_onnx(build_components(cfg).system.eval(), cfg, Path("none.ckpt"), out)
     assert list(tmp_path.iterdir()) == []  # before: .model.onnx.tmp stayed
+
+
+def test_a_fifo_onnx_model_is_named_a_fifo(tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    os.mkfifo(tmp_path / "model.onnx")  # used to be "ONNX model not found"
+    with pytest.raises(ValueError, match=r"model.onnx: not a regular file \(a FIFO\)"):
+        OnnxPoseEstimator(tmp_path / "model.onnx")

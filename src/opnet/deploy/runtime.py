@@ -26,6 +26,7 @@ import numpy as np
 from opnet._limits import check_threads
 from opnet._repr import short_repr
 from opnet.data.preprocess import to_network_input
+from opnet.datasets.files import require_regular_file
 from opnet.deploy.metadata import validate_metadata
 from opnet.geometry.camera import Camera
 from opnet.geometry.pose_numpy import PoseSpaceArrays
@@ -55,8 +56,9 @@ class OnnxPoseEstimator:
         import onnxruntime as ort
 
         self.path = Path(path)
-        if not self.path.is_file():
+        if not self.path.exists():
             raise FileNotFoundError(f"{self.path}: ONNX model not found")
+        require_regular_file(self.path)  # a FIFO or /dev/zero is named as such (and never read)
         options = ort.SessionOptions()
         if threads is not None:
             options.intra_op_num_threads = check_threads(threads)

@@ -40,12 +40,15 @@ def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) 
     if declared is not None:
         _check_face_count(declared, path)  # from the header: before minutes of loading
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as e:  # trimesh raises many types on corrupt files
         raise ValueError(f"{path}: cannot read mesh ({type(e).__name__}: {str(e)[:200]})") from e
     if not isinstance(loaded, trimesh.Trimesh):
         raise ValueError(f"{path}: file holds no triangle mesh")
     _check_face_count(len(loaded.faces), path)
+    if not np.isfinite(loaded.vertices).all():  # processing would drop them, and their faces, silently
+        raise ValueError(f"{path}: mesh has non-finite (NaN or inf) vertex coordinates")
+    loaded.process()  # merge duplicate vertices, drop degenerate faces (what process=True would do)
     mesh = outward_faces(loaded.copy(), path)
     if scale != 1.0:
         mesh.apply_scale(scale)
@@ -100,7 +103,7 @@ def outward_faces(mesh: trimesh.Trimesh, path: Path) -> trimesh.Trimesh:
     Raises:
         ValueError: naming ``path``: a closed mesh still inside out after the repair.
     """
-    if mesh.is_winding_consistent and not (mesh.is_watertight and mesh.volume < 0):
+    if len(mesh.faces) == 0 or (mesh.is_winding_consistent and not (mesh.is_watertight and mesh.volume < 0)):
         return mesh
     trimesh.repair.fix_normals(mesh)
     if mesh.is_watertight and mesh.volume < 0:
