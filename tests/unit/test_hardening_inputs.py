@@ -276,3 +276,15 @@ def test_a_fifo_onnx_model_is_named_a_fifo(tmp_path: Path) -> None:
     os.mkfifo(tmp_path / "model.onnx")  # used to be "ONNX model not found"
     with pytest.raises(ValueError, match=r"model.onnx: not a regular file \(a FIFO\)"):
         OnnxPoseEstimator(tmp_path / "model.onnx")
+
+
+@pytest.mark.parametrize("out", ["file", "/dev/null"])
+def test_eval_refuses_out_that_is_a_file_before_evaluating(out: str, tmp_path: Path) -> None:
+    from opnet.cli import eval as eval_cli
+    from conftest import compose_cfg
+
+    target = tmp_path / "file" if out == "file" else Path(out)
+    (tmp_path / "file").write_text("x")  # used to fail with a raw FileExistsError after the whole evaluation
+    cfg = compose_cfg("eval", [f"ckpt={tmp_path / 'none.ckpt'}", f"out={target}"])
+    with pytest.raises(ValueError, match=rf"^{target}: exists and is not a folder; choose another out="):
+        eval_cli.run(cfg)

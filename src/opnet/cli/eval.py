@@ -15,7 +15,8 @@ from omegaconf import DictConfig, OmegaConf
 from opnet.cli.build import build_datamodule, load_checkpoint
 from opnet.cli.console import report, result_summary
 from opnet.data.sample import Batch
-from opnet.datasets.atomic import write_text_atomic
+from opnet.datasets.atomic import write_bytes_atomic, write_text_atomic
+from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import diagnose
@@ -101,7 +102,7 @@ def write_examples(
         confident = scenes[record.name][1].above(min_score)
         img = draw_models(record.depth, record.camera, mesh.vertices, mesh.faces, confident)
         path = out / f"{record.name}.png"
-        cv2.imwrite(str(path), img[..., ::-1])
+        write_bytes_atomic(path, cv2.imencode(".png", img[..., ::-1])[1].tobytes())  # a full disk is an error
         written.append(path)
     return written
 
@@ -109,6 +110,8 @@ def write_examples(
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of eval.py (see conf/eval.yaml)."""
     started = time.monotonic()
+    out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
+    require_output_folder(out_dir, [Path(cfg.ckpt)], "out=")  # a file or /dev/null: refused before the evaluation
     system, run_cfg = load_checkpoint(cfg.ckpt)
     log.info("inference: %s", system.configure_inference(cfg.get("inference")))
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
@@ -117,7 +120,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if overrides:  # overrides of the data section (e.g. another dataset root)
         run_cfg = OmegaConf.merge(run_cfg, {"data": overrides})
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
-    out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)))
     lines = result_summary(result, str(out_dir / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))
     report(["", *lines, f"results       : {out_dir}/summary.json, {out_dir}/ap_table.md (per scene), {out_dir}/results/"])
