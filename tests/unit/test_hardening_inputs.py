@@ -288,3 +288,15 @@ def test_eval_refuses_out_that_is_a_file_before_evaluating(out: str, tmp_path: P
     cfg = compose_cfg("eval", [f"ckpt={tmp_path / 'none.ckpt'}", f"out={target}"])
     with pytest.raises(ValueError, match=rf"^{target}: exists and is not a folder; choose another out="):
         eval_cli.run(cfg)
+
+
+def test_a_folder_filled_by_another_run_meanwhile_is_not_replaced(tmp_path: Path) -> None:
+    from opnet.datasets.outputs import folder_replaced
+
+    target = tmp_path / "bop"
+    with pytest.raises(ValueError, match=rf"^{target}: another run filled this folder while this one was writing"):
+        with folder_replaced(target, overwrite=False) as tmp:
+            (tmp / "mine.txt").write_text("this run")
+            target.mkdir()  # a concurrent writer finished first (it passed the emptiness check too)
+            (target / "theirs.txt").write_text("other run")
+    assert [p.name for p in tmp_path.iterdir()] == ["bop"] and [p.name for p in target.iterdir()] == ["theirs.txt"]

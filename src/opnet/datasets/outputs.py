@@ -71,15 +71,23 @@ def folder_replaced(path: str | Path, overwrite: bool, option: str = "--overwrit
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())  # an ordinary folder's mode, not mkdtemp's private 0700
-        _swap_in(tmp, path)
+        _swap_in(tmp, path, overwrite, option)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _swap_in(new: Path, path: Path) -> None:
-    """Put folder ``new`` at ``path``; a previous ``path`` is moved aside first, then deleted."""
-    if not path.exists():
-        os.rename(new, path)
+def _swap_in(new: Path, path: Path, overwrite: bool, option: str) -> None:
+    """Put folder ``new`` at ``path``; with ``overwrite``, a previous ``path`` is moved aside first,
+    then deleted. Without it, ``path`` must still be absent or empty: a rename onto a folder that
+    another run filled meanwhile fails (atomically), and that run's files stay."""
+    if not overwrite or not path.exists():
+        try:
+            os.rename(new, path)
+        except OSError as e:
+            if e.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+            raise ValueError(f"{path}: another run filled this folder while this one was writing; its files were "
+                             f"kept and this run's discarded; pass {option} to replace them") from None
         return
     old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
     os.rename(path, old)  # onto the empty folder just made: atomic
