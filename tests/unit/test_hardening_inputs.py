@@ -300,3 +300,19 @@ def test_a_folder_filled_by_another_run_meanwhile_is_not_replaced(tmp_path: Path
             target.mkdir()  # a concurrent writer finished first (it passed the emptiness check too)
             (target / "theirs.txt").write_text("other run")
     assert [p.name for p in tmp_path.iterdir()] == ["bop"] and [p.name for p in target.iterdir()] == ["theirs.txt"]
+
+
+def test_a_config_key_its_component_does_not_take_names_the_group() -> None:
+    from opnet.cli.build import build_components
+    from conftest import compose_cfg
+
+    cfg = compose_cfg("train", ["model=tiny", "object=zbracket", "+parameterization.colour=red"])
+    with pytest.raises(ValueError, match=r"^config group 'parameterization': its keys do not fit its component \(.*colour"):
+        build_components(cfg)  # used to be Hydra's InstantiationException: a traceback
+
+
+def test_a_bop_split_without_images_is_named(tmp_path: Path) -> None:
+    split = _bop_split(tmp_path)
+    (split / "000000" / "scene_gt.json").write_text("{}")  # used to be an IndexError
+    with pytest.raises(ValueError, match=rf"^{split}: no images: every scene_gt.json of its 1 scene folder"):
+        BOPDataset(split, 1)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import pickle
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -43,6 +46,21 @@ def run_config(cfg: DictConfig) -> dict[str, Any]:
     return {k: plain(cfg[k]) for k in keys if k in cfg}
 
 
+@contextlib.contextmanager
+def config_group(group: str) -> Iterator[None]:
+    """Name the config group whose component could not be built from its keys: an unknown or a
+    missing keyword (a typo, or a config edited by hand) is a ``ValueError`` naming ``group``,
+    not a traceback from inside Hydra. Other errors pass unchanged."""
+    try:
+        yield
+    except (InstantiationException, TypeError) as e:
+        cause = e.__cause__ if isinstance(e, InstantiationException) and e.__cause__ is not None else e
+        text = str(cause)
+        if not isinstance(cause, TypeError) or "argument" not in text:
+            raise
+        raise ValueError(f"config group '{group}': its keys do not fit its component ({short(text.splitlines()[0], 200)})") from e
+
+
 def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
     if not isinstance(cfg, DictConfig):
@@ -51,15 +69,19 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     # _partial_: the object goes in as it is (a dataclass keyword would be turned into a config)
     rotation = None
     if cfg.get("rotation") is not None:  # checkpoints of before conf/rotation: the Euler default
-        rotation = instantiate(cfg.rotation, _partial_=True)(symmetry=obj.symmetry)
-    parameterization = instantiate(cfg.parameterization, _partial_=True)(obj=obj, rotation=rotation)
-    backbone = instantiate(cfg.model, out_channels=parameterization.out_channels, out_grid=parameterization.grid_size)
+        with config_group("rotation"):
+            rotation = instantiate(cfg.rotation, _partial_=True)(symmetry=obj.symmetry)
+    with config_group("parameterization"):
+        parameterization = instantiate(cfg.parameterization, _partial_=True)(obj=obj, rotation=rotation)
+    with config_group("model"):
+        backbone = instantiate(cfg.model, out_channels=parameterization.out_channels, out_grid=parameterization.grid_size)
     presence_prior = cfg.get("presence_prior_logit")
     if presence_prior is not None and hasattr(backbone, "set_head_bias"):
         # start every slot's presence near the share of occupied cells (stabilizes early training)
         slot_channels = [s * parameterization.channels_per_slot for s in range(parameterization.slots)]
         backbone.set_head_bias(slot_channels, float(presence_prior))
-    loss: MultiTaskLoss = instantiate(cfg.loss)
+    with config_group("loss"):
+        loss: MultiTaskLoss = instantiate(cfg.loss)
     optim = plain(cfg.get("optim", {})) or {}
     system = OPNetSystem(backbone, parameterization, loss, config=run_config(cfg), **optim)
     return Components(obj, parameterization, system)
@@ -123,7 +145,10 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
     cfg = checkpoint_config(ckpt, path)
     if not isinstance(ckpt.get("state_dict"), dict):
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
-    system = build_components(cfg).system
+    try:
+        system = build_components(cfg).system
+    except ValueError as e:  # a saved config that names opnet's components with keys they do not take
+        raise ValueError(f"{path}: the checkpoint's config: {e}") from None
     try:
         system.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, ValueError) as e:  # missing or unexpected keys, wrong tensor shapes

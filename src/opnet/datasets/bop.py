@@ -301,6 +301,9 @@ class BOPDataset:
                 entries = _list(meta["scene_gt.json"][key], "instances", where)
                 n = sum(1 for k, e in enumerate(entries) if self._obj_id_of(e, f"{where}, instance {k}") == self.obj_id)
                 self._scenes.append((sid, int(key), n))
+        if not self._scenes:
+            raise ValueError(f"{self.root}: no images: every scene_gt.json of its {len(scene_dirs)} scene folder(s) "
+                             "is empty")
         self.clip = tuple(clip) if clip is not None else self._default_clip()
 
     @staticmethod
