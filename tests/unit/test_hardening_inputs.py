@@ -316,3 +316,19 @@ def test_a_bop_split_without_images_is_named(tmp_path: Path) -> None:
     (split / "000000" / "scene_gt.json").write_text("{}")  # used to be an IndexError
     with pytest.raises(ValueError, match=rf"^{split}: no images: every scene_gt.json of its 1 scene folder"):
         BOPDataset(split, 1)
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({"input_size": "abc"}, r"data.input_size='abc', expected a whole number of pixels in 8..4096"),
+    ({"input_size": True}, r"data.input_size=True"),
+    ({"input_size": 10**6}, r"data.input_size=1000000"),
+    ({"input_size": 128, "fit": "stretch"}, r"data.fit='stretch', expected one of pad"),
+])  # fmt: skip
+def test_a_checkpoint_framing_is_checked_where_it_is_loaded(data: dict, message: str) -> None:
+    from omegaconf import OmegaConf
+
+    from opnet.cli.build import check_framing
+
+    with pytest.raises(ValueError, match=rf"^x.ckpt: the checkpoint's config {message}"):
+        check_framing(OmegaConf.create({"data": data}), "x.ckpt")  # predict.py used to fail on int('abc')
+    check_framing(OmegaConf.create({"data": {"input_size": 128, "fit": "pad"}}), "x.ckpt")

@@ -139,10 +139,34 @@ def checkpoint_config(ckpt: dict[str, Any], path: str | Path) -> DictConfig:
     return saved_config(config, path)
 
 
+#: the largest network input side a checkpoint may ask for (the ONNX metadata's bound too)
+MAX_INPUT_SIZE = 4096
+
+
+def check_framing(cfg: DictConfig, path: str | Path) -> None:
+    """The saved ``data.input_size`` and ``data.fit`` that predict.py and export.py frame images
+    with: a whole number of pixels in 8..:data:`MAX_INPUT_SIZE` and one of the canvas fits.
+
+    Raises:
+        ValueError: naming ``path`` and the key.
+    """
+    from opnet.data.preprocess import CANVAS_FITS
+
+    data = cfg.get("data") or {}
+    size, fit = data.get("input_size", 128), data.get("fit", "pad")
+    if isinstance(size, bool) or not isinstance(size, int) or not 8 <= size <= MAX_INPUT_SIZE:
+        raise ValueError(f"{path}: the checkpoint's config data.input_size={short(repr(size))}, expected a whole "
+                         f"number of pixels in 8..{MAX_INPUT_SIZE}")
+    if fit not in CANVAS_FITS:
+        raise ValueError(f"{path}: the checkpoint's config data.fit={short(repr(fit))}, expected one of "
+                         f"{', '.join(CANVAS_FITS)}")
+
+
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
     """Rebuild a trained system from a checkpoint written by ``train.py``."""
     ckpt = read_checkpoint(path, map_location)
     cfg = checkpoint_config(ckpt, path)
+    check_framing(cfg, path)
     if not isinstance(ckpt.get("state_dict"), dict):
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     try:
