@@ -52,7 +52,8 @@ def test_a_valid_bop_split_reads(tmp_path: Path) -> None:
 
 def test_bop_translation_in_metres_is_refused(tmp_path: Path) -> None:
     split = _bop_split(tmp_path, t_mm=[0.0, 0.0, 0.95])  # metres where BOP has millimetres
-    with pytest.raises(ValueError, match=r"scene_gt.json: image 0, instance 0: cam_t_m2c puts the part 0.00095 m"):
+    with pytest.raises(ValueError, match=r"scene_gt.json: image 0, instance 0: cam_t_m2c puts the part 0.00095 m in "
+                                         r"front of the camera, far outside the image's depth range \[1, 1\] m"):
         BOPDataset(split, 1)[0]
 
 
@@ -63,16 +64,23 @@ def test_bop_obj_id_must_be_a_whole_positive_number(obj_id: Any, tmp_path: Path)
 
 
 @pytest.mark.parametrize(("change", "message"), [
-    ({"entries": {"obj_id": 1}}, r"scene_gt.json: image 0: 'instances' must be a list, got a dict"),
+    ({"entries": {"obj_id": 1}}, r"scene_gt.json: image 0: 'instances' must be a list, got \{'obj_id': 1\}"),
     ({"entries": [{"obj_id": "abc"}]}, r"scene_gt.json: image 0, instance 0: obj_id='abc'"),
     ({"info": {"diameter": 50.0, "symmetries_discrete": 5}}, r"models_info.json: obj_id 1: 'symmetries_discrete' must be a list"),
     ({"info": {"diameter": 50.0, "symmetries_continuous": {"axis": [0, 0, 1]}}}, r"'symmetries_continuous' must be a list"),
-    ({"info": {"diameter": "big"}}, r"models_info.json: obj_id 1: 'diameter' must be 1 finite numbers"),
+    ({"info": {"diameter": "big"}}, r"models_info.json: obj_id 1: 'diameter' must be a finite number, got 'big'"),
     ({"info": [1, 2]}, r"models_info.json: obj_id 1: expected an object of model info"),
 ])  # fmt: skip
 def test_bop_entries_of_the_wrong_type_name_the_file(change: dict, message: str, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=message):
         BOPDataset(_bop_split(tmp_path, **change), 1)
+
+
+def test_bop_visibility_errors_name_scene_gt_info(tmp_path: Path) -> None:
+    split = _bop_split(tmp_path)
+    (split / "000000" / "scene_gt_info.json").write_text(json.dumps({"0": [{"visib_fract": "a"}]}))
+    with pytest.raises(ValueError, match=r"scene_gt_info.json: image 0, instance 0: 'visib_fract' must be a finite number"):
+        BOPDataset(split, 1)[0]  # used to blame scene_gt.json
 
 
 def test_bop_symmetry_of_a_continuous_entry_without_axis_names_it() -> None:

@@ -47,8 +47,9 @@ SCENE_FILES = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json")
 ORIGIN_TOL = 0.01
 #: BOP ids name files of 6 digits (``obj_000001.ply``); 0 is no object
 MAX_BOP_ID = 999_999
-#: a ground-truth translation must lie within these factors of the working range (clip planes):
-#: ``cam_t_m2c`` in metres instead of millimetres puts every part a thousand times too close
+#: a ground-truth translation must lie within these factors of the image's depth range (nearest,
+#: farthest valid pixel): ``cam_t_m2c`` in metres instead of millimetres puts every part a thousand
+#: times too close
 _T_RANGE_FACTORS = (0.5, 2.0)
 #: default working range of BOP data without clip planes: these quantiles of the valid depth of
 #: the first image, widened by the factors below
@@ -64,7 +65,8 @@ def _numbers(value: Any, n: int, key: str, where: str) -> np.ndarray:
     except (TypeError, ValueError):
         a = np.zeros(0)
     if a.size != n or not np.isfinite(a).all() or _has_bool(value):
-        raise ValueError(f"{where}: '{key}' must be {n} finite numbers, got {str(value)[:80]}")
+        what = "a finite number" if n == 1 else f"{n} finite numbers"
+        raise ValueError(f"{where}: '{key}' must be {what}, got {short_repr(value)}")
     return a
 
 
@@ -89,7 +91,7 @@ def bop_id(value: Any, key: str, where: str) -> int:
 
 def _list(value: Any, key: str, where: str) -> list[Any]:
     if not isinstance(value, list):
-        raise ValueError(f"{where}: '{key}' must be a list, got a {type(value).__name__}")
+        raise ValueError(f"{where}: '{key}' must be a list, got {short_repr(value)}")
     return value
 
 
@@ -369,7 +371,9 @@ class BOPDataset:
     def _camera_entry(self, sid: int, im: int) -> dict[str, Any]:
         entry = self._meta[sid]["scene_camera.json"].get(str(im))
         if not isinstance(entry, dict):
-            raise ValueError(f"{self.scene_dir(sid) / 'scene_camera.json'}: no entry for image {im}")
+            got = "none" if entry is None else short_repr(entry)
+            raise ValueError(f"{self.scene_dir(sid) / 'scene_camera.json'}: image {im} needs an entry (an object with "
+                             f"cam_K, depth_scale), got {got}")
         return entry
 
     def camera(self, sid: int, im: int, width: int, height: int) -> Camera:
@@ -381,20 +385,25 @@ class BOPDataset:
             raise ValueError(f"{where}: {e}") from None
         return cam.check_plausible(where)
 
-    def _check_translation(self, t: np.ndarray, where: str) -> None:
-        """A part's distance along the optical axis lies near the working range (the clip planes);
+    @staticmethod
+    def _check_translation(t: np.ndarray, depth_range: tuple[float, float] | None, where: str) -> None:
+        """A part's distance along the optical axis lies near the image's depth range (metres);
         ``cam_t_m2c`` in metres puts it a thousand times too close, in micrometres too far."""
-        lo, hi = self.clip[0] * _T_RANGE_FACTORS[0], self.clip[1] * _T_RANGE_FACTORS[1]
-        if not lo <= t[2] <= hi:
+        if depth_range is None:  # no valid depth: nothing to compare with
+            return
+        near, far = depth_range
+        if not near * _T_RANGE_FACTORS[0] <= t[2] <= far * _T_RANGE_FACTORS[1]:
             raise ValueError(f"{where}: cam_t_m2c puts the part {t[2]:.4g} m in front of the camera, far outside the "
-                             f"depth's working range [{self.clip[0]:.3g}, {self.clip[1]:.3g}] m; BOP translations are in "
-                             "millimetres (metres given?)")
+                             f"image's depth range [{near:.3g}, {far:.3g}] m; BOP translations are in millimetres "
+                             "(metres given?)")
 
     def read(self, sid: int, im: int) -> SceneRecord:
         """The record of image ``im`` of scene ``sid``: depth (m), camera, the chosen object's
         instances (poses in opnet's model frame, visibility) and their visible masks."""
         depth_mm, depth_path = self._depth_mm(sid, im)
         h, w = depth_mm.shape
+        valid = depth_mm[np.isfinite(depth_mm)]
+        depth_range = (float(valid.min()) / 1000.0, float(valid.max()) / 1000.0) if valid.size else None
         camera = self.camera(sid, im, w, h)
         gt_path = self.scene_dir(sid) / "scene_gt.json"
         entries = _list(self._meta[sid]["scene_gt.json"].get(str(im), []), "instances", f"{gt_path}: image {im}")
@@ -410,11 +419,11 @@ class BOPDataset:
                 continue
             R = _numbers(_key(e, "cam_R_m2c", where), 9, "cam_R_m2c", where).reshape(3, 3)
             t = _numbers(_key(e, "cam_t_m2c", where), 3, "cam_t_m2c", where) / 1000.0
-            self._check_translation(t, where)
+            self._check_translation(t, depth_range, where)
             Rs.append(R @ self.R_align.T)
             ts.append(t)
-            v = _key(infos[k], "visib_fract", f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im}, instance {k}")
-            vis.append(float(_numbers(v, 1, "visib_fract", where)[0]))
+            info_where = f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im}, instance {k}"
+            vis.append(float(_numbers(_key(infos[k], "visib_fract", info_where), 1, "visib_fract", info_where)[0]))
             ids.append(k + 1)
             mask_path = self.scene_dir(sid) / "mask_visib" / f"{im:06d}_{k:06d}.png"
             if mask_path.is_file():
