@@ -171,7 +171,7 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     try:
         system = build_components(cfg).system
-    except ValueError as e:  # a saved config that names opnet's components with keys they do not take
+    except (ValueError, FileNotFoundError) as e:  # keys its components do not take, a mesh it names is gone
         raise ValueError(f"{path}: the checkpoint's config: {e}") from None
     try:
         system.load_state_dict(ckpt["state_dict"])
