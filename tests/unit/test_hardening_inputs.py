@@ -340,3 +340,15 @@ def test_a_checkpoint_framing_is_checked_where_it_is_loaded(data: dict, message:
     with pytest.raises(ValueError, match=rf"^x.ckpt: the checkpoint's config {message}"):
         check_framing(OmegaConf.create({"data": data}), "x.ckpt")  # predict.py used to fail on int('abc')
     check_framing(OmegaConf.create({"data": {"input_size": 128, "fit": "pad"}}), "x.ckpt")
+
+
+def test_a_full_disk_while_replacing_a_folder_names_the_target(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import opnet.datasets.atomic as atomic
+    from opnet.datasets.outputs import folder_replaced
+
+    monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: _FullDisk(fd))
+    target = tmp_path / "bop"
+    with pytest.raises(DiskFullError, match=rf"^{target / 'models' / 'x.json'}: No space left on device"):
+        with folder_replaced(target, overwrite=False) as tmp:
+            write_bytes_atomic(tmp / "models" / "x.json", b"{}")  # used to name the deleted temporary folder
+    assert list(tmp_path.iterdir()) == []

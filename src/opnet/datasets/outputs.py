@@ -24,7 +24,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from opnet.datasets.atomic import _umask
+from opnet.datasets.atomic import DiskFullError, _umask
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,11 @@ def folder_replaced(path: str | Path, overwrite: bool, option: str = "--overwrit
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())  # an ordinary folder's mode, not mkdtemp's private 0700
         _swap_in(tmp, path, overwrite, option)
+    except DiskFullError as e:  # named as the file in the target, not in the deleted temporary folder
+        name = str(e.filename)
+        if not name.startswith(str(tmp)):
+            raise
+        raise DiskFullError(e.errno, e.strerror, str(path) + name[len(str(tmp)):]) from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
