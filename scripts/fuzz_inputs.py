@@ -3,7 +3,9 @@
 ``python scripts/fuzz_inputs.py [--out results/fuzz.md] [--no-cli]``
 
 Each case is a file (or argument) a careless or hostile user could hand us, derived from a valid
-tiny dataset: truncated, garbled, impossible values, wrong units, special files. Every case runs in
+tiny dataset: truncated, garbled, impossible values, wrong units, special files; BOP copies of it,
+meshes, camera YAMLs, its checkpoint edited and exported to ONNX (metadata edited), full disks (a
+1 MB tmpfs, where this machine may mount one) and concurrent runs into one folder. Every case runs in
 its own process with a time limit. Verdicts:
 
 - ``error``: refused with a one-line error that names the file (or the option / key);
@@ -12,7 +14,9 @@ its own process with a time limit. Verdicts:
   FileNotFoundError (a bug);
 - ``HANG``: no answer within the limit (a bug);
 - ``SILENT``: an impossible value accepted without a word (a bug);
-- ``VAGUE``: an error that does not name the file or key (a bug).
+- ``VAGUE``: an error that does not name the file or key (a bug);
+- ``DIRTY``: the run left a temporary file behind, or concurrent runs lost outputs (a bug);
+- ``skipped``: the machine cannot stage the case (no tmpfs for a full disk); the reason is printed.
 
 Exit status 1 when any case is a bug.
 """
@@ -51,6 +55,9 @@ class Case:
     run: Callable[[], Any] | None = None  # in-process reader call (run in a forked child)
     argv: list[str] | None = None  # a command line (run as a subprocess)
     names: tuple[str, ...] = ()  # what a clear error must mention (a file name, a key)
+    concurrent: list[list[str]] | None = None  # command lines started together
+    skip: str = ""  # why the case cannot run on this machine
+    after: Callable[[], str] | None = None  # a check after the run: what it left or lost ("" = clean)
 
 
 # ---------------------------------------------------------------------------------------- fixtures
@@ -405,6 +412,603 @@ def cli_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
     return [Case(f, n, v, argv=a, names=names) for f, n, v, a, names in c]
 
 
+# ------------------------------------------------------------------- more families (issue 24)
+
+
+def make_extra(ws: Path, base: dict[str, Path]) -> dict[str, Path]:
+    """A BOP copy of the dataset, the checkpoint exported to ONNX, and a fresh checkpoint copy."""
+    from opnet.datasets.bop import convert_ipa_to_bop
+
+    extra = {"bop": convert_ipa_to_bop(base["data"], ws / "bop", split="train_synt", obj_id=1).parent}
+    onnx = ws / "model.onnx"
+    subprocess.run([sys.executable, str(REPO / "export.py"), f"ckpt={base['ckpt']}", f"out={onnx}", "check=false",
+                    f"hydra.run.dir={ws / 'hydra' / 'export0'}"], check=True, capture_output=True, cwd=REPO)
+    extra["onnx"] = onnx
+    return extra
+
+
+def _reader(cases: list[Case], family: str, name: str, valid: bool, fn: Callable[[], Any], *names: str) -> None:
+    cases.append(Case(family, name, valid, run=fn, names=names))
+
+
+def _read_bop(split: Path) -> None:
+    from opnet.datasets.bop import BOPDataset
+
+    ds = BOPDataset(split, 1)
+    for i in range(len(ds)):
+        ds[i]
+
+
+def _rz(deg: float) -> list[float]:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return [c, -s, 0, 0, s, c, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
+
+
+def _last_image(change: Callable[[dict], Any]) -> Callable[[Any], Any]:
+    """A change of the last image's entry of a BOP scene JSON (image id -> entry): the full bin."""
+    def apply(doc: dict) -> dict:
+        key = sorted(doc, key=int)[-1]
+        doc[key] = change(doc[key])
+        return doc
+
+    return apply
+
+
+def _inst0(key: str, value: Callable[[Any], Any] | Any) -> Callable[[Any], Any]:
+    def change(entries: list) -> list:
+        entries[0][key] = value(entries[0][key]) if callable(value) else value
+        return entries
+
+    return _last_image(change)
+
+
+def bop_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
+    """Every BOP file of the split, garbled: scene_gt, scene_camera, scene_gt_info, models_info, PNGs."""
+    import cv2
+
+    src = extra["bop"]
+    cases: list[Case] = []
+
+    def bop_copy(i: int, rel: str, change: Callable[[bytes], bytes] | bytes) -> Path:
+        root = ws / "cases" / f"bop_{i}"
+        shutil.copytree(src, root)
+        path = root / rel
+        path.write_bytes(change(path.read_bytes()) if callable(change) else change)
+        return root / "train_synt"
+
+    g, c, n, m = ("train_synt/000000/scene_gt.json", "train_synt/000000/scene_camera.json",
+                  "train_synt/000000/scene_gt_info.json", "models/models_info.json")
+    png = "train_synt/000000/depth/000003.png"
+    mask = "train_synt/000000/mask_visib/000003_000000.png"
+    J = json_with
+    rows: list[tuple[str, bool, str, Callable[[bytes], bytes] | bytes, str]] = [
+        ("valid copy", True, g, lambda d: d, ""),
+        ("cam_t_m2c in metres", False, g, J(_last_image(lambda e: [{**x, "cam_t_m2c": [v / 1000 for v in x["cam_t_m2c"]]} for x in e])), "cam_t_m2c"),
+        ("cam_t_m2c in micrometres", False, g, J(_inst0("cam_t_m2c", lambda t: [v * 1000 for v in t])), "cam_t_m2c"),
+        ("obj_id 1.9", False, g, J(_inst0("obj_id", 1.9)), "obj_id"),
+        ("obj_id true", False, g, J(_inst0("obj_id", True)), "obj_id"),
+        ("obj_id 'abc'", False, g, J(_inst0("obj_id", "abc")), "obj_id"),
+        ("obj_id -1", False, g, J(_inst0("obj_id", -1)), "obj_id"),
+        ("image entry a dict", False, g, J(_last_image(lambda e: {"obj_id": 1})), "scene_gt.json"),
+        ("instance a number", False, g, J(_last_image(lambda e: [5])), "scene_gt.json"),
+        ("image id 'abc'", False, g, J(lambda d: {**d, "abc": []}), "scene_gt.json"),
+        ("cam_R_m2c scaled by 3", False, g, J(_inst0("cam_R_m2c", lambda r: [3 * v for v in r])), "scene_gt.json"),
+        ("cam_R_m2c a reflection", False, g, J(_inst0("cam_R_m2c", lambda r: [*r[:6], *(-v for v in r[6:])])), "scene_gt.json"),
+        ("cam_R_m2c 8 numbers", False, g, J(_inst0("cam_R_m2c", lambda r: r[:8])), "cam_R_m2c"),
+        ("cam_t_m2c strings", False, g, J(_inst0("cam_t_m2c", ["a", "b", "c"])), "cam_t_m2c"),
+        ("cam_t_m2c 1e300", False, g, J(_inst0("cam_t_m2c", [0, 0, 1e300])), "scene_gt.json"),
+        ("cam_t_m2c missing", False, g, J(_last_image(lambda e: [{k: v for k, v in e[0].items() if k != "cam_t_m2c"}, *e[1:]])), "cam_t_m2c"),
+        ("NaN in cam_t_m2c", False, g, lambda d: d.replace(b'"cam_t_m2c": [', b'"cam_t_m2c": [NaN, ', 1), "scene_gt.json"),
+        ("scene_gt not JSON", False, g, b"{", "scene_gt.json"),
+        ("scene_gt a list", False, g, b"[]", "scene_gt.json"),
+        ("scene_gt nested 100000 deep", False, g, b"[" * 100000 + b"]" * 100000, "scene_gt.json"),
+        ("cam_K fx 1e-9", False, c, J(_last_image(lambda e: {**e, "cam_K": [1e-9, *e["cam_K"][1:]]})), "scene_camera.json"),
+        ("cam_K fx 1e12", False, c, J(_last_image(lambda e: {**e, "cam_K": [1e12, *e["cam_K"][1:]]})), "scene_camera.json"),
+        ("cam_K 8 numbers", False, c, J(_last_image(lambda e: {**e, "cam_K": e["cam_K"][:8]})), "cam_K"),
+        ("cam_K booleans", False, c, J(_last_image(lambda e: {**e, "cam_K": [True] * 9})), "cam_K"),
+        ("cam_K principal point 1e6", False, c, J(_last_image(lambda e: {**e, "cam_K": [*e["cam_K"][:2], 1e6, *e["cam_K"][3:]]})), "scene_camera.json"),
+        ("depth_scale 0", False, c, J(_last_image(lambda e: {**e, "depth_scale": 0})), "depth_scale"),
+        ("depth_scale 'x'", False, c, J(_last_image(lambda e: {**e, "depth_scale": "x"})), "depth_scale"),
+        ("camera entry missing", False, c, J(lambda d: {k: v for k, v in d.items() if k != sorted(d, key=int)[-1]}), "scene_camera.json"),
+        ("camera entry a list", False, c, J(_last_image(lambda e: [1, 2])), "scene_camera.json"),
+        ("visib_fract 1.5", False, n, J(_last_image(lambda e: [{**e[0], "visib_fract": 1.5}, *e[1:]])), "visib_fract"),
+        ("visib_fract 'a'", False, n, J(_last_image(lambda e: [{**e[0], "visib_fract": "a"}, *e[1:]])), "visib_fract"),
+        ("gt_info one entry short", False, n, J(_last_image(lambda e: e[:-1])), "scene_gt_info.json"),
+        ("gt_info entry a number", False, n, J(_last_image(lambda e: [7] * len(e))), "scene_gt_info.json"),
+        ("obj 1 missing from models_info", False, m, b'{"2": {"diameter": 50}}', "models_info.json"),
+        ("symmetries_discrete 5", False, m, J(lambda d: {"1": {**d["1"], "symmetries_discrete": 5}}), "symmetries_discrete"),
+        ("symmetries_discrete repeated (valid)", True, m, J(lambda d: {"1": {**d["1"], "symmetries_discrete": [_rz(180), _rz(180)]}}), ""),
+        ("symmetries_discrete 3000 rotations", False, m, J(lambda d: {"1": {**d["1"], "symmetries_discrete": [_rz(a) for a in np.arange(1, 3001) * 0.12]}}), "models_info.json"),
+        ("symmetries_discrete a reflection", False, m, J(lambda d: {"1": {**d["1"], "symmetries_discrete": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1]]}}), "symmetries_discrete"),
+        ("symmetries_continuous a dict", False, m, J(lambda d: {"1": {**d["1"], "symmetries_continuous": {"axis": [0, 0, 1]}}}), "symmetries_continuous"),
+        ("two continuous axes", False, m, J(lambda d: {"1": {**d["1"], "symmetries_continuous": [{"axis": [0, 0, 1]}, {"axis": [1, 0, 0]}]}}), "models_info.json"),
+        ("diameter 'big'", False, m, J(lambda d: {"1": {**d["1"], "diameter": "big"}}), "diameter"),
+        ("model entry a list", False, m, J(lambda d: {"1": [1, 2]}), "models_info.json"),
+        ("models_info not JSON", False, m, b"{", "models_info.json"),
+        ("depth PNG truncated", False, png, lambda d: d[: len(d) // 2], "000003.png"),
+        ("depth PNG 8-bit", False, png, lambda d: cv2.imencode(".png", np.zeros((96, 96), np.uint8))[1].tobytes(), "000003.png"),
+        ("depth PNG header 50000 x 50000", False, png, lambda d: d[:16] + (50000).to_bytes(4, "big") * 2 + d[24:], "000003.png"),
+        ("mask of another size", False, mask, lambda d: cv2.imencode(".png", np.zeros((50, 60), np.uint8))[1].tobytes(), "000003_000000.png"),
+    ]  # fmt: skip
+    for i, (name, valid, rel, change, key) in enumerate(rows):
+        split = bop_copy(i, rel, change)
+        _reader(cases, "BOP", name, valid, lambda s=split: _read_bop(s), *((key,) if key else ()))
+    empty = ws / "cases" / "bop_empty"
+    shutil.copytree(src, empty)
+    for p in (empty / "train_synt").glob("*/scene_gt.json"):
+        p.write_text("{}")
+    _reader(cases, "BOP", "every scene_gt.json empty", False, lambda: _read_bop(empty / "train_synt"), "train_synt")
+    return cases
+
+
+def mesh_cases(ws: Path) -> list[Case]:
+    """Object configs with bad meshes and keys (object_from_config, what generate.py calls)."""
+    import trimesh
+
+    from opnet.objects import object_from_config
+
+    folder = ws / "cases" / "meshes"
+    folder.mkdir(parents=True, exist_ok=True)
+    box = trimesh.creation.box((0.04, 0.03, 0.02))
+    box.export(folder / "box.obj")
+    inv = box.copy()
+    inv.invert()
+    inv.export(folder / "inside_out.ply")
+    mixed = trimesh.Trimesh(box.vertices, np.vstack([box.faces[:4, ::-1], box.faces[4:]]), process=False)
+    mixed.export(folder / "mixed_winding.obj")
+    trimesh.creation.box((40.0, 30.0, 20.0)).export(folder / "box_mm.stl")
+    files = {
+        "huge.ply": b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                    b"property float z\nelement face 5000000\nproperty list uchar int vertex_indices\nend_header\n",
+        "huge.stl": b"\0" * 80 + (5_000_000).to_bytes(4, "little") + b"\0" * 100,
+        "empty.obj": b"",
+        "garbage.stl": os.urandom(300),
+        "nan.obj": b"v 0 0 0\nv nan 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\nf 1 2 4\nf 2 3 4\n",
+        "bad_index.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+        "points.ply": b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                      b"end_header\n0 0 0\n0.01 0 0\n0 0.01 0\n",
+        "part.dxf": b"0\nSECTION\n",
+        "text.obj": "v é 0 0\n".encode(),
+    }
+    for name, data in files.items():
+        (folder / name).write_bytes(data)
+    os.mkfifo(folder / "fifo.stl")
+    (folder / "dir.obj").mkdir(exist_ok=True)
+    cases: list[Case] = []
+
+    def obj(name: str, valid: bool, key: str | None = None, **cfg: Any) -> None:
+        mesh = cfg.pop("mesh", None)
+        config = {"name": "part", **({"mesh": str(folder / mesh)} if mesh else {}), **cfg}
+        names = (key,) if key else ((mesh,) if mesh else ())
+        _reader(cases, "mesh / object config", name, valid, lambda c=config: object_from_config(c), *names)
+
+    obj("valid box", True, mesh="box.obj")
+    obj("inside-out box (repaired)", True, mesh="inside_out.ply")
+    obj("mixed winding (repaired)", True, mesh="mixed_winding.obj")
+    obj("mesh in mm with mesh_scale 0.001", True, mesh="box_mm.stl", mesh_scale=0.001)
+    obj("mesh in mm", False, mesh="box_mm.stl")
+    (folder / "flat.obj").write_bytes(b"v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nf 1 2 3\n")
+    obj("flat mesh (a surface model; generate.py refuses it)", True, mesh="flat.obj")
+    for name in files:
+        obj(f"{name}", False, mesh=name)
+    obj("FIFO named .stl", False, mesh="fifo.stl")
+    obj("folder named .obj", False, mesh="dir.obj")
+    obj("missing mesh", False, mesh="nope.obj")
+    obj("/dev/zero as mesh", False, "zero", mesh="../../../../../../dev/zero")
+    obj("mesh_scale -1", False, "mesh_scale", mesh="box.obj", mesh_scale=-1)
+    obj("mesh_scale 'abc'", False, "mesh_scale", mesh="box.obj", mesh_scale="abc")
+    obj("mesh_scale true", False, "mesh_scale", mesh="box.obj", mesh_scale=True)
+    obj("mesh_scale NaN", False, "mesh_scale", mesh="box.obj", mesh_scale=float("nan"))
+    obj("symmetry [revolution]", False, "object.symmetry", mesh="box.obj", symmetry=["revolution"])
+    obj("symmetry 'magic'", False, "object.symmetry", mesh="box.obj", symmetry="magic")
+    obj("symmetry order 2.5", False, "order", mesh="box.obj", symmetry={"kind": "cyclic", "order": 2.5})
+    obj("symmetry order 10^6", False, "order", mesh="box.obj", symmetry={"kind": "cyclic", "order": 10**6})
+    obj("rotoreflection 'false'", False, "rotoreflection", mesh="box.obj", symmetry={"kind": "revolution", "rotoreflection": "false"})
+    obj("rotations [I, reflection]", False, "object.symmetry", mesh="box.obj",
+        symmetry={"kind": "finite", "rotations": [np.eye(3).tolist(), np.diag([1, 1, -1]).tolist()]})
+    obj("model_rotation a reflection", False, "model_rotation", mesh="box.obj", model_rotation=np.diag([1, 1, -1]).tolist())
+    obj("model_rotation 2x2", False, "model_rotation", mesh="box.obj", model_rotation=[[1, 0], [0, 1]])
+    obj("unknown key", False, "colour", mesh="box.obj", colour="red")
+    obj("bop_obj_id 1.9", False, "bop_obj_id", bop_models=str(folder), bop_obj_id=1.9)
+    obj("unknown builtin", False, "teapot", builtin="teapot")
+    return cases
+
+
+CAMERA_YAML = "fx: 100\nfy: 100\ncx: 47.5\ncy: 47.5\nwidth: 96\nheight: 96\nclip_start: 0.5\nclip_end: 1.5\n"
+
+
+def camera_yaml_cases(ws: Path) -> list[Case]:
+    """Camera YAMLs as generate.py (read_camera_file) and predict.py (camera.file) read them."""
+    from opnet.datasets.camera_file import read_camera_file
+    from opnet.datasets.depth_inputs import _camera_from_given, given_camera
+
+    def as_predict(path: Path) -> Any:  # predict.py camera.file=<yaml> for a 96 x 96 .npy
+        return _camera_from_given(Path("image.npy"), given_camera({"file": str(path)}), 96, 96)
+
+    y = CAMERA_YAML
+    bomb = "fx:\n  - &a [x, x, x, x, x, x, x, x, x]\n" + "".join(  # 9^9 strings once expanded
+        f"  - &{k} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]\n" for p, k in zip("abcdefgh", "bcdefghi"))
+    texts = {
+        "valid": (True, y),
+        "duplicate key fx": (False, y + "fx: 6\n"),
+        "fx true": (False, y.replace("fx: 100", "fx: true")),
+        "fx 1e-9": (False, y.replace("fx: 100", "fx: 1.0e-9")),
+        "fx 1e12": (False, y.replace("fx: 100", "fx: 1.0e+12")),
+        "fx 0.0035": (False, y.replace("fx: 100", "fx: 0.0035")),
+        "fx .nan": (False, y.replace("fx: 100", "fx: .nan")),
+        "fx 'abc'": (False, y.replace("fx: 100", "fx: abc")),
+        "fx a list": (False, y.replace("fx: 100", "fx: [1, 2]")),
+        "width 1.5": (False, y.replace("width: 96", "width: 1.5")),
+        "width -96": (False, y.replace("width: 96", "width: -96")),
+        "clip planes in mm": (False, y.replace("clip_start: 0.5", "clip_start: 500").replace("clip_end: 1.5", "clip_end: 1500")),
+        "cx 1e6": (False, y.replace("cx: 47.5", "cx: 1000000")),
+        "missing clip_end": (False, y.replace("clip_end: 1.5\n", "")),
+        "unknown key k1": (False, y + "k1: 0.1\n"),
+        "a list": (False, "- 1\n- 2\n"),
+        "malformed": (False, "fx: [100\n"),
+        "alias bomb": (False, bomb),
+        "empty file": (False, ""),
+        "tab indentation": (False, "fx:\n\t100\n"),
+        "python tag": (False, y + "depth: !!python/object/apply:os.system ['true']\n"),
+    }
+    folder = ws / "cases" / "camyaml"
+    folder.mkdir(parents=True, exist_ok=True)
+    cases: list[Case] = []
+    for i, (name, (valid, text)) in enumerate(texts.items()):
+        path = folder / f"cam_{i}.yaml"
+        path.write_text(text)
+        _reader(cases, "camera YAML (generate)", name, valid, lambda p=path: read_camera_file(p), path.name)
+        if i % 2 == 0 or name in ("duplicate key fx", "alias bomb", "fx 1e-9"):
+            _reader(cases, "camera YAML (predict)", name, valid, lambda p=path: as_predict(p), path.name, "camera.")
+    os.mkfifo(folder / "fifo.yaml")
+    _reader(cases, "camera YAML (generate)", "FIFO named .yaml", False, lambda: read_camera_file(folder / "fifo.yaml"), "fifo.yaml")
+    return cases
+
+
+def _onnx_with_meta(src: Path, dst: Path, change: Callable[[dict], Any] | str | None) -> Path:
+    import onnx
+
+    proto = onnx.load(str(src))
+    entry = next(e for e in proto.metadata_props if e.key == "opnet")
+    if change is None:
+        proto.metadata_props.remove(entry)
+    elif isinstance(change, str):
+        entry.value = change
+    else:
+        entry.value = json.dumps(change(json.loads(entry.value)))
+    onnx.save(proto, str(dst))
+    return dst
+
+
+def _nested_set(path: str, value: Any) -> Callable[[dict], dict]:
+    """A change of a nested mapping: ``path`` (dotted) set to ``value``, or deleted (``_DROP``)."""
+    def change(meta: dict) -> dict:
+        node = meta
+        *parents, last = path.split(".")
+        for p in parents:
+            node = node[p]
+        if value is _DROP:
+            del node[last]
+        else:
+            node[last] = value
+        return meta
+
+    return change
+
+
+_DROP = object()
+
+
+def onnx_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
+    """ONNX files and their opnet metadata, as the torch-free runtime loads them."""
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    src = extra["onnx"]
+    folder = ws / "cases" / "onnx"
+    folder.mkdir(parents=True, exist_ok=True)
+    cases: list[Case] = []
+
+    def add(name: str, valid: bool, path: Path, *names: str) -> None:
+        _reader(cases, "ONNX", name, valid, lambda p=path: OnnxPoseEstimator(p), *(names or (path.name,)))
+
+    data = src.read_bytes()
+    for i, (name, content) in enumerate({"truncated": data[: len(data) // 2], "empty": b"", "garbage": os.urandom(2000),
+                                         "a PNG renamed": b"\x89PNG\r\n\x1a\n" + os.urandom(100)}.items()):
+        path = folder / f"file_{i}.onnx"
+        path.write_bytes(content)
+        add(name, False, path)
+    metas: dict[str, tuple[bool, Callable[[dict], Any] | str | None, str]] = {
+        "valid copy": (True, lambda m: m, ""),
+        "no metadata": (False, None, ""),
+        "metadata not JSON": (False, "{threshold", ""),
+        "metadata a list": (False, "[1, 2]", ""),
+        "metadata nested 100000 deep": (False, "[" * 100000 + "]" * 100000, ""),
+        "threshold NaN": (False, lambda m: json.loads(json.dumps(m).replace('"threshold": ', '"threshold": NaN, "x": ')), "threshold"),
+        "threshold -1": (False, _nested_set("decoding.threshold", -1), "threshold"),
+        "threshold missing": (False, _nested_set("decoding.threshold", _DROP), "threshold"),
+        "threshold 'high'": (False, _nested_set("decoding.threshold", "high"), "threshold"),
+        "threshold true": (False, _nested_set("decoding.threshold", True), "threshold"),
+        "score 'magic'": (False, _nested_set("decoding.score", "magic"), "score"),
+        "decoding missing": (False, _nested_set("decoding", _DROP), "decoding"),
+        "averaging eps -1": (False, lambda m: _nested_set("decoding.averaging", {"eps": -1, "min_samples": 1, "cluster_score": "sum"})(m), "eps"),
+        "interpolation 'cubic'": (False, _nested_set("input.interpolation", "cubic"), "interpolation"),
+        "fit 'stretch'": (False, _nested_set("input.fit", "stretch"), "fit"),
+        "input size 0": (False, _nested_set("input.size", 0), "size"),
+        "input size 10^6": (False, _nested_set("input.size", 10**6), "size"),
+        "grid_size wrong": (False, lambda m: _nested_set("grid_size", m["grid_size"] + 1)(m), ""),
+        "pose_space missing": (False, _nested_set("pose_space", _DROP), "pose_space"),
+        "pose_space Lambda 2x2": (False, _nested_set("pose_space.Lambda", [[1, 0], [0, 1]]), "Lambda"),
+        "pose_space group not a group": (False, _nested_set("pose_space.group", [np.eye(3).tolist(), [[0, -1, 0], [1, 0, 0], [0, 0, 1]]]), "group"),
+        "pose_space delta 0": (False, _nested_set("pose_space.delta", 0), "delta"),
+        "object name of 10^5 characters": (False, _nested_set("object", "x" * 100000), "object"),
+        "outputs renamed": (False, _nested_set("outputs", ["a", "b", "c", "d"]), "outputs"),
+    }
+    for i, (name, (valid, change, key)) in enumerate(metas.items()):
+        path = _onnx_with_meta(src, folder / f"meta_{i}.onnx", change)
+        add(name, valid, path, *((key,) if key else (path.name,)))
+    os.mkfifo(folder / "fifo.onnx")
+    add("FIFO named .onnx", False, folder / "fifo.onnx")
+    add("/dev/zero", False, Path("/dev/zero"))
+    return cases
+
+
+def checkpoint_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
+    """Checkpoints edited by hand, as every entry point loads them (load_checkpoint)."""
+    import pickle
+
+    import torch
+
+    from opnet.cli.build import load_checkpoint
+
+    ckpt = torch.load(base["ckpt"], map_location="cpu", weights_only=True)
+    folder = ws / "cases" / "ckpt"
+    folder.mkdir(parents=True, exist_ok=True)
+    cases: list[Case] = []
+
+    def edited(change: Callable[[dict], Any]) -> Any:
+        copy = pickle.loads(pickle.dumps(ckpt))
+        return change(copy)
+
+    def cfg(key: str, value: Any) -> Callable[[dict], dict]:
+        return lambda c: _nested_set(f"hyper_parameters.config.{key}", value)(c)
+
+    def sd(change: Callable[[dict], None]) -> Callable[[dict], dict]:
+        def apply(c: dict) -> dict:
+            change(c["state_dict"])
+            return c
+
+        return apply
+
+    first = next(k for k, v in ckpt["state_dict"].items() if v.is_floating_point() and v.ndim == 4)
+    evil = {"_target_": "opnet.datasets.atomic.write_text_atomic", "_args_": [str(ws / "pwned.txt"), "x"]}
+    rows: dict[str, tuple[bool, Callable[[dict], Any], str]] = {
+        "valid copy": (True, lambda c: c, ""),
+        "a list": (False, lambda c: [1, 2, 3], ""),
+        "no state_dict": (False, lambda c: {k: v for k, v in c.items() if k != "state_dict"}, "state_dict"),
+        "state_dict a list": (False, lambda c: {**c, "state_dict": [1, 2]}, "state_dict"),
+        "no hyper_parameters": (False, lambda c: {k: v for k, v in c.items() if k != "hyper_parameters"}, ""),
+        "config a string": (False, lambda c: {**c, "hyper_parameters": {"config": "loss: x"}}, "config"),
+        "another object's config (shaft, other rotation layout)": (False, cfg("object", {"name": "shaft", "builtin": "shaft"}), ""),
+        "another object's config (bunny, not a built-in)": (False, cfg("object", {"name": "bunny", "builtin": "bunny"}), "bunny"),
+        "unknown object": (False, cfg("object", {"name": "teapot"}), "teapot"),
+        "object mesh missing": (False, cfg("object", {"name": "part", "mesh": "/nonexistent/part.obj"}), "part.obj"),
+        "object symmetry [revolution]": (False, cfg("object.symmetry", ["revolution"]), "object.symmetry"),
+        "loss target writes a file": (False, cfg("loss", evil), "loss._target_"),
+        "model target os.system": (False, cfg("model._target_", "os.system"), "model._target_"),
+        "interpolation in data": (False, cfg("data.root", "${oc.env:HOME}"), "data.root"),
+        "parameterization with an unknown key": (False, cfg("parameterization.colour", "red"), "parameterization"),
+        "model without growth_rate (its default differs)": (False, cfg("model.growth_rate", _DROP), ""),
+        "wrong tensor shape": (False, sd(lambda s: s.__setitem__(first, s[first][:1])), ""),
+        "NaN weight": (False, sd(lambda s: s[first].view(-1).__setitem__(0, float("nan"))), "NaN"),
+        "missing weight": (False, sd(lambda s: s.pop(first)), ""),
+        "unexpected weight": (False, sd(lambda s: s.__setitem__("backbone.extra.weight", torch.zeros(3))), ""),
+        "weights as strings": (False, sd(lambda s: s.__setitem__(first, "abc")), ""),
+    }
+    for i, (name, (valid, change, key)) in enumerate(rows.items()):
+        path = folder / f"ck_{i}.ckpt"
+        torch.save(edited(change), path)
+        _reader(cases, "checkpoint", name, valid, lambda p=path: load_checkpoint(p), *((key,) if key else (path.name,)))
+    pk = folder / "object.ckpt"
+    pk.write_bytes(pickle.dumps({"state_dict": Path("x")}))
+    _reader(cases, "checkpoint", "pickle of a Path object", False, lambda: load_checkpoint(pk), pk.name)
+    return cases
+
+
+MOUNTS: list[Path] = []
+
+
+def full_disk(ws: Path, name: str, free_kb: int = 8) -> tuple[Path, str]:
+    """A folder on a 1 MB tmpfs with ``free_kb`` left, and "" (or the folder and why there is none)."""
+    mnt = ws / "full" / name
+    mnt.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        return mnt, f"no tmpfs here ({(proc.stderr.strip() or 'mount failed')[:80]}): not run"
+    MOUNTS.append(mnt)
+    filler = mnt / "filler"
+    with filler.open("wb") as f:
+        try:
+            f.write(b"\0" * (1024 - free_kb) * 1024)
+        except OSError:
+            pass
+    return mnt, ""
+
+
+def unmount_all() -> None:
+    for mnt in MOUNTS:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
+    MOUNTS.clear()
+
+
+def leftovers(folder: Path) -> Callable[[], str]:
+    """A check after the run: no temporary file or folder of a writer left in ``folder``."""
+    def check() -> str:
+        left = [p.name for p in folder.rglob("*") if p.name.endswith(".tmp")]
+        return f"left {left[:3]}" if left else ""
+
+    return check
+
+
+def nothing_written(out: Path) -> Callable[[], str]:
+    """A check after a refused run: it wrote no file into ``out``."""
+    def check() -> str:
+        written = sorted(p.name for p in out.rglob("*") if p.is_file()) if out.is_dir() else []
+        return f"left {written[:3]} in {out.name}" if written else ""
+
+    return check
+
+
+def complete_predictions(out: Path, n: int) -> Callable[[], str]:
+    """A check after concurrent runs: ``out`` holds the ``n`` pose files of one run, none lost."""
+    def check() -> str:
+        found = len([p for p in out.rglob("*.json") if p.parent.name != "results"])
+        return "" if found == n else f"{found} of {n} pose files in {out.name}"
+
+    return check
+
+
+def cli_more_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> list[Case]:
+    """Command lines: outputs that are files or devices, bad camera YAMLs, mesh and object keys,
+    edited checkpoints, full disks, concurrent runs into one folder."""
+    import torch
+
+    py = sys.executable
+    data, ckpt, model = base["data"], base["ckpt"], extra["onnx"]
+    png = data / "p_depth" / "cycle_0000" / "002_depth_uint16.png"
+    pngs = data / "p_depth"
+    n_pngs = len(list(pngs.rglob("*.png")))
+    c = ws / "cases" / "cli2"
+    c.mkdir(parents=True, exist_ok=True)
+    h = lambda name: f"hydra.run.dir={ws / 'hydra' / name}"  # noqa: E731
+    cam = ["camera.fx=100", "camera.fy=100", "camera.cx=47.5", "camera.cy=47.5", "camera.clip_start=0.5", "camera.clip_end=1.5"]
+    dcam = ["--fx", "100", "--fy", "100", "--cx", "47.5", "--cy", "47.5", "--clip-start", "0.5", "--clip-end", "1.5"]
+    np.save(c / "mm.npy", np.full((96, 96), 1000.0, np.float32))
+    np.save(c / "ok.npy", np.full((96, 96), 1.0, np.float32))
+    (c / "a_file").write_text("x")
+    (c / "dup.yaml").write_text(CAMERA_YAML + "fx: 6\n")
+    (c / "fxtrue.yaml").write_text(CAMERA_YAML.replace("fx: 100", "fx: true"))
+    (c / "pp.yaml").write_text(CAMERA_YAML.replace("cx: 47.5", "cx: 500"))
+    (c / "wide.yaml").write_text(CAMERA_YAML.replace("fx: 100", "fx: 0.0035"))
+    os.mkfifo(c / "fifo.stl")
+    os.mkfifo(c / "fifo.onnx")
+    (c / "huge.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+                                 b"property float y\nproperty float z\nelement face 5000000\n"
+                                 b"property list uchar int vertex_indices\nend_header\n")
+    import trimesh
+
+    inv = trimesh.creation.box((0.04, 0.03, 0.02))
+    inv.invert()
+    inv.export(c / "inside_out.ply")
+    sd = torch.load(ckpt, map_location="cpu", weights_only=True)
+    sd["hyper_parameters"]["config"]["data"]["input_size"] = "abc"
+    torch.save(sd, c / "input_size.ckpt")
+    torch.save([1, 2], c / "list.ckpt")
+    nan_model = _onnx_with_meta(model, c / "nan_threshold.onnx",
+                                lambda m: json.loads(json.dumps(m).replace('"threshold": ', '"threshold": NaN, "x": ')))
+    gen = [py, "generate.py", "cycles=1", "drops=1", "scene.resolution=64", "previews=0", "progress=false"]
+    predict = [py, "predict.py", f"ckpt={ckpt}"]
+    deploy = [py, "-m", "opnet.deploy", str(model)]
+    bop = [py, "-m", "opnet.datasets.bop", str(data)]
+    bop_full = ws / "bop_nonempty"
+    (bop_full / "keep").mkdir(parents=True, exist_ok=True)
+    rows: list[tuple[str, str, bool, list[str], tuple[str, ...]]] = [
+        ("predict.py", "out=/dev/null", False, [*predict, f"input={png}", "out=/dev/null", h("q1")], ("/dev/null",)),
+        ("predict.py", "out= an existing file", False, [*predict, f"input={png}", f"out={c / 'a_file'}", h("q2")], ("a_file",)),
+        ("predict.py", "out= the input PNG", False, [*predict, f"input={png}", f"out={png}", h("q3")], ("002_depth_uint16.png",)),
+        ("predict.py", "camera.file with a duplicate key", False, [*predict, f"input={c / 'ok.npy'}", f"out={c / 'q4'}",
+                                                                   f"camera.file={c / 'dup.yaml'}", h("q4")], ("dup.yaml",)),
+        ("predict.py", "camera.file fx: true", False, [*predict, f"input={c / 'ok.npy'}", f"out={c / 'q5'}",
+                                                       f"camera.file={c / 'fxtrue.yaml'}", h("q5")], ("fxtrue.yaml",)),
+        ("predict.py", "camera.fx=true", False, [*predict, f"input={c / 'ok.npy'}", f"out={c / 'q6'}", "camera.fx=true",
+                                                 *cam[1:], h("q6")], ("camera.fx",)),
+        ("predict.py", "camera.fx=1e12", False, [*predict, f"input={c / 'ok.npy'}", f"out={c / 'q7'}", "camera.fx=1e12",
+                                                 *cam[1:], h("q7")], ("camera.fx", "ok.npy")),
+        ("predict.py", ".npy depth in millimetres", False, [*predict, f"input={c / 'mm.npy'}", f"out={c / 'q8'}", *cam, h("q8")], ("mm.npy",)),
+        ("predict.py", "checkpoint a list", False, [py, "predict.py", f"ckpt={c / 'list.ckpt'}", f"input={png}",
+                                                    f"out={c / 'q9'}", h("q9")], ("list.ckpt",)),
+        ("predict.py", "checkpoint input_size 'abc'", False, [py, "predict.py", f"ckpt={c / 'input_size.ckpt'}", f"input={png}",
+                                                              f"out={c / 'q10'}", h("q10")], ("input_size",)),
+        ("export.py", "valid (no check)", True, [py, "export.py", f"ckpt={ckpt}", f"out={c / 'x1.onnx'}", "check=false", h("x1")], ()),
+        ("export.py", "out=/dev/null overwrite=true", False, [py, "export.py", f"ckpt={ckpt}", "out=/dev/null", "overwrite=true",
+                                                             "check=false", h("x2")], ("/dev/null",)),
+        ("export.py", "out= a folder", False, [py, "export.py", f"ckpt={ckpt}", f"out={c}", "overwrite=true", "check=false", h("x3")], ("cli2",)),
+        ("export.py", "out= an existing file", False, [py, "export.py", f"ckpt={ckpt}", f"out={c / 'a_file'}", "check=false", h("x4")], ("a_file",)),
+        ("export.py", "out= the checkpoint", False, [py, "export.py", f"ckpt={ckpt}", f"out={ckpt}", "overwrite=true", h("x5")], ("last.ckpt",)),
+        ("export.py", "format=tflite", False, [py, "export.py", f"ckpt={ckpt}", "format=tflite", h("x6")], ("format",)),
+        ("python -m opnet.deploy", "valid .npy", True, [*deploy, str(c / "ok.npy"), "--out", str(c / "d1"), *dcam], ()),
+        ("python -m opnet.deploy", "--threads 20000", False, [*deploy, str(c / "ok.npy"), "--out", str(c / "d2"), *dcam,
+                                                             "--threads", "20000"], ("threads",)),
+        ("python -m opnet.deploy", "model a FIFO", False, [py, "-m", "opnet.deploy", str(c / "fifo.onnx"), str(c / "ok.npy"),
+                                                          "--out", str(c / "d3"), *dcam], ("fifo.onnx",)),
+        ("python -m opnet.deploy", "--out /dev/null", False, [*deploy, str(c / "ok.npy"), "--out", "/dev/null", *dcam], ("/dev/null",)),
+        ("python -m opnet.deploy", "metadata threshold NaN", False, [py, "-m", "opnet.deploy", str(nan_model), str(c / "ok.npy"),
+                                                                    "--out", str(c / "d4"), *dcam], ("threshold",)),
+        ("python -m opnet.deploy", ".npy depth in millimetres", False, [*deploy, str(c / "mm.npy"), "--out", str(c / "d5"), *dcam], ("mm.npy",)),
+        ("python -m opnet.deploy", "--camera with a duplicate key", False, [*deploy, str(c / "ok.npy"), "--out", str(c / "d6"),
+                                                                           "--camera", str(c / "dup.yaml")], ("dup.yaml",)),
+        ("python -m opnet.deploy", "--fx 1e-9", False, [*deploy, str(c / "ok.npy"), "--out", str(c / "d7"), "--fx", "1e-9",
+                                                       *dcam[2:]], ("ok.npy", "fx")),
+        ("generate.py", "seed=-1", False, [*gen, "seed=-1", f"out={c / 'g1'}", h("g1")], ("seed",)),
+        ("generate.py", "seed=abc", False, [*gen, "seed=abc", f"out={c / 'g2'}", h("g2")], ("seed",)),
+        ("generate.py", "out=/dev/null", False, [*gen, "out=/dev/null", h("g3")], ("/dev/null",)),
+        ("generate.py", "out= an existing file", False, [*gen, f"out={c / 'a_file'}", h("g4")], ("a_file",)),
+        ("generate.py", "object.mesh_scale=abc", False, [*gen, "object=bunny", f"object.mesh={c / 'inside_out.ply'}",
+                                                        "object.mesh_scale=abc", f"out={c / 'g5'}", h("g5")], ("mesh_scale",)),
+        ("generate.py", "object.symmetry=[revolution]", False, [*gen, "object=bunny", f"object.mesh={c / 'inside_out.ply'}",
+                                                               "~object.symmetry", "+object.symmetry=[revolution]",
+                                                               f"out={c / 'g6'}", h("g6")], ("symmetry",)),
+        ("generate.py", "object.mesh= a FIFO", False, [*gen, "object=bunny", f"object.mesh={c / 'fifo.stl'}", f"out={c / 'g7'}",
+                                                      h("g7")], ("fifo.stl",)),
+        ("generate.py", "object.mesh= 5 million faces", False, [*gen, "object=bunny", f"object.mesh={c / 'huge.ply'}",
+                                                               f"out={c / 'g8'}", h("g8")], ("huge.ply",)),
+        ("generate.py", "inside-out mesh (repaired)", True, [*gen, "object=bunny", f"object.mesh={c / 'inside_out.ply'}",
+                                                            f"out={c / 'g9'}", h("g9")], ()),
+        ("generate.py", "scene.camera_file duplicate key", False, [*gen, f"scene.camera_file={c / 'dup.yaml'}", f"out={c / 'g10'}",
+                                                                  h("g10")], ("dup.yaml",)),
+        ("generate.py", "scene.camera_file fx: true", False, [*gen, f"scene.camera_file={c / 'fxtrue.yaml'}", f"out={c / 'g11'}",
+                                                             h("g11")], ("fxtrue.yaml",)),
+        ("generate.py", "scene.camera_file principal point outside", False, [*gen, f"scene.camera_file={c / 'pp.yaml'}",
+                                                                            f"out={c / 'g12'}", h("g12")], ("pp.yaml",)),
+        ("generate.py", "scene.camera_file fx 0.0035", False, [*gen, f"scene.camera_file={c / 'wide.yaml'}", f"out={c / 'g13'}",
+                                                              h("g13")], ("wide.yaml",)),
+        ("BOP writer", "valid", True, [*bop, str(c / "b1")], ()),
+        ("BOP writer", "--obj-id -1", False, [*bop, str(c / "b2"), "--obj-id", "-1"], ("obj-id",)),
+        ("BOP writer", "--obj-id 0", False, [*bop, str(c / "b3"), "--obj-id", "0"], ("obj-id",)),
+        ("BOP writer", "--obj-id 1.5", False, [*bop, str(c / "b4"), "--obj-id", "1.5"], ("obj-id",)),
+        ("BOP writer", "non-empty out without --overwrite", False, [*bop, str(bop_full)], ("bop_nonempty",)),
+        ("BOP writer", "out= the input dataset", False, [*bop, str(data)], ("data",)),
+        ("BOP writer", "out=/dev/null", False, [*bop, "/dev/null"], ("/dev/null",)),
+        ("BOP writer", "input not a dataset", False, [py, "-m", "opnet.datasets.bop", str(c), str(c / "b5")], ("cli2",)),
+    ]  # fmt: skip
+    cases = [Case(f, n, v, argv=a, names=names) for f, n, v, a, names in rows]
+    for case in cases:  # a refused camera leaves no dataset files behind to blame later
+        if "scene.camera_file" in case.name:
+            case.after = nothing_written(Path(next(a for a in case.argv or [] if a.startswith("out="))[4:]))
+    # --- full disks: a 1 MB tmpfs with 8 kB free for each writer
+    disk = [
+        ("export.py", lambda d: [py, "export.py", f"ckpt={ckpt}", f"out={d / 'm.onnx'}", "check=false", h("f1")]),
+        ("predict.py", lambda d: [*predict, f"input={pngs}", f"out={d / 'p'}", h("f2")]),
+        ("python -m opnet.deploy", lambda d: [*deploy, str(pngs), "--out", str(d / "p")]),
+        ("generate.py", lambda d: [*gen, f"out={d / 'g'}", h("f4")]),
+        ("BOP writer", lambda d: [*bop, str(d / "b")]),
+    ]
+    for i, (family, argv) in enumerate(disk):
+        mnt, why = full_disk(ws, f"full_{i}")
+        cases.append(Case(family, "disk full (1 MB tmpfs)", False, argv=argv(mnt), names=(mnt.name,), skip=why,
+                          after=leftovers(mnt)))
+    # --- concurrent writers into one folder: one run must stop, naming it; nothing lost
+    conc = ws / "concurrent"
+    cases.append(Case("predict.py", "two runs into one out at once", False, names=("c1",),
+                      concurrent=[[*predict, f"input={pngs}", f"out={conc / 'c1'}", h(f"c1{k}")] for k in "ab"],
+                      after=complete_predictions(conc / "c1", n_pngs)))
+    cases.append(Case("python -m opnet.deploy", "two runs into one --out at once", False, names=("c2",),
+                      concurrent=[[*deploy, str(pngs), "--out", str(conc / "c2")] for _ in "ab"],
+                      after=complete_predictions(conc / "c2", n_pngs)))
+    cases.append(Case("BOP writer", "two writers (obj 1 and 2) into one folder at once", False, names=("c3",),
+                      concurrent=[[*bop, str(conc / "c3"), "--obj-id", k] for k in "12"]))
+    return cases
+
+
 # ------------------------------------------------------------------------------------------ running
 
 
@@ -440,9 +1044,45 @@ def run_cli(case: Case) -> tuple[str, str]:
     text = proc.stdout + proc.stderr
     if "Traceback" in text:
         return "TRACEBACK", text.strip().splitlines()[-1][:200]
-    errors = [line for line in text.splitlines() if "error" in line.lower()]
+    # Hydra's hint line ("Set the environment variable HYDRA_FULL_ERROR=1 ...") is not a message
+    errors = [line for line in text.splitlines() if "error" in line.lower() and "HYDRA_FULL_ERROR" not in line]
     return _verdict(case, proc.returncode == 0 and not errors, proc.returncode != 0 or bool(errors),
                     (errors[-1] if errors else text.strip().splitlines()[-1] if text.strip() else "")[:300])
+
+
+def run_concurrent(case: Case) -> tuple[str, str]:
+    """Start every command line of the case at once; one of them must stop with a clear error."""
+    assert case.concurrent is not None
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
+    procs = [subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+             for argv in case.concurrent]
+    deadline, texts = time.monotonic() + CLI_TIMEOUT_S, []
+    try:
+        for proc in procs:
+            texts.append(proc.communicate(timeout=max(1.0, deadline - time.monotonic()))[0])
+    except subprocess.TimeoutExpired:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+        return "HANG", f"no answer in {CLI_TIMEOUT_S:g} s"
+    if any("Traceback" in t for t in texts):
+        return "TRACEBACK", next(t for t in texts if "Traceback" in t).strip().splitlines()[-1][:200]
+    failed = [t for t, proc in zip(texts, procs) if proc.returncode != 0]
+    errors = [line for t in failed for line in t.splitlines() if "error" in line.lower()]
+    return _verdict(case, not failed, bool(failed), (errors[-1] if errors else "")[:300])
+
+
+def run_case(case: Case) -> tuple[str, str]:
+    if case.skip:
+        return "skipped", case.skip
+    if case.run is not None:
+        verdict, message = run_reader(case)
+    elif case.concurrent is not None:
+        verdict, message = run_concurrent(case)
+    else:
+        verdict, message = run_cli(case)
+    problem = case.after() if case.after is not None and verdict in ("ok", "error") else ""
+    return ("DIRTY", f"{problem}; {message}") if problem else (verdict, message)
 
 
 def _verdict(case: Case, accepted: bool, user_error: bool, message: str) -> tuple[str, str]:
@@ -466,14 +1106,20 @@ def main(argv: list[str] | None = None) -> int:
     ws = args.keep or Path(tempfile.mkdtemp(prefix="opnet_fuzz_"))
     ws.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    base = make_base(ws)
-    cases = reader_cases(ws, base) + ([] if args.no_cli else cli_cases(ws, base))
     rows = []
-    for case in cases:
-        verdict, message = run_reader(case) if case.run is not None else run_cli(case)
-        message = message.replace(str(ws), "<ws>")
-        rows.append((case.family, case.name, "valid" if case.valid else "bad", verdict, message))
-        print(f"{verdict:9s} {case.family} / {case.name}: {message[:150]}", flush=True)
+    try:
+        base = make_base(ws)
+        extra = make_extra(ws, base)
+        cases = (reader_cases(ws, base) + bop_cases(ws, extra) + mesh_cases(ws) + camera_yaml_cases(ws)
+                 + onnx_cases(ws, extra) + checkpoint_cases(ws, base)
+                 + ([] if args.no_cli else cli_cases(ws, base) + cli_more_cases(ws, base, extra)))
+        for case in cases:
+            verdict, message = run_case(case)
+            message = message.replace(str(ws), "<ws>")
+            rows.append((case.family, case.name, "valid" if case.valid else "bad", verdict, message))
+            print(f"{verdict:9s} {case.family} / {case.name}: {message[:150]}", flush=True)
+    finally:
+        unmount_all()
     counts: dict[str, int] = {}
     for row in rows:
         counts[row[3]] = counts.get(row[3], 0) + 1
