@@ -352,3 +352,14 @@ def test_a_full_disk_while_replacing_a_folder_names_the_target(tmp_path: Path, m
         with folder_replaced(target, overwrite=False) as tmp:
             write_bytes_atomic(tmp / "models" / "x.json", b"{}")  # used to name the deleted temporary folder
     assert list(tmp_path.iterdir()) == []
+
+
+def test_deploy_names_its_own_overwrite_option(tmp_path: Path) -> None:
+    from opnet.datasets.depth_inputs import check_outputs
+
+    image = tmp_path / "x.npy"
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "x.json").write_text("{}")
+    with pytest.raises(ValueError, match=r"x.json: predictions exist already; pass --overwrite to replace them, or "
+                                         r"choose another --out$"):  # was predict.py's overwrite=true
+        check_outputs(tmp_path / "out", [(image, Path("x"))], False, option="--out")

@@ -314,9 +314,10 @@ def planned_outputs(out: Path, inputs: list[tuple[Path, Path]], suffixes: tuple[
 
 
 def check_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool,
-                  suffixes: tuple[str, ...] = POSE_SUFFIXES) -> None:
+                  suffixes: tuple[str, ...] = POSE_SUFFIXES, option: str = "out=") -> None:
     """Refuse outputs that would overwrite an input or each other, or existing outputs without
-    ``overwrite``."""
+    ``overwrite``; ``option`` is how the user names the output folder (``out=``, ``--out``)."""
+    overwrite_option = "--overwrite" if option.startswith("--") else "overwrite=true"
     sources = {p.resolve() for p, _ in inputs}
     existing = []
     for target in planned_outputs(out, inputs, suffixes):
@@ -326,8 +327,8 @@ def check_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool,
             existing.append(target)
     if existing and not overwrite:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
-        raise ValueError(f"{existing[0]}{more}: predictions exist already; pass overwrite=true to replace them, "
-                         "or choose another out=")
+        raise ValueError(f"{existing[0]}{more}: predictions exist already; pass {overwrite_option} to replace them, "
+                         f"or choose another {option}")
 
 
 @contextlib.contextmanager
@@ -340,7 +341,7 @@ def claimed_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool,
     require_output_folder(out, [*(p for p, _ in inputs), *other_inputs], option)
     planned_outputs(out, inputs, suffixes)  # name clashes: refused before anything is created
     with folder_lock(out):
-        check_outputs(out, inputs, overwrite, suffixes)
+        check_outputs(out, inputs, overwrite, suffixes, option)
         yield scene_names(inputs)
 
 
