@@ -154,3 +154,41 @@ def test_nan_network_output_stops_predict(checkpoint: Path, tmp_path: Path) -> N
                        Camera(180.0, 180.0, 63.5, 63.5, 128, 128, 0.5, 1.5))
     with pytest.raises(ValueError, match=r"in\.png: the network's output holds NaN or inf"):
         predict_cli.predict_image(system, image)
+
+
+def _as_list(ckpt: dict[str, Any]) -> Any:
+    return [ckpt["state_dict"]]
+
+
+def _without_state_dict(ckpt: dict[str, Any]) -> Any:
+    del ckpt["state_dict"]
+    return ckpt
+
+
+def _hyper_parameters_a_list(ckpt: dict[str, Any]) -> Any:
+    ckpt["hyper_parameters"] = [ckpt["hyper_parameters"]]
+    return ckpt
+
+
+def _mesh_gone(ckpt: dict[str, Any]) -> Any:
+    ckpt["hyper_parameters"]["config"]["object"] = {"name": "part", "mesh": "/nonexistent/part.ply"}
+    return ckpt
+
+
+SHAPES = {
+    "a list": (_as_list, r"not an opnet checkpoint \(holds a list, not a dict\)"),
+    "no state_dict": (_without_state_dict, r"checkpoint holds no state_dict"),
+    "hyper_parameters a list": (_hyper_parameters_a_list, r"checkpoint holds no opnet run config"),
+    "its mesh gone": (_mesh_gone, r"the checkpoint's config: /nonexistent/part\.ply: file not found"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_a_checkpoint_of_another_shape_is_a_one_line_error(shape: str, checkpoint: Path, tmp_path: Path) -> None:
+    # each raised a raw traceback (TypeError / KeyError / AttributeError) before it was checked
+    edit, message = SHAPES[shape]
+    ckpt = edit(torch.load(checkpoint, map_location="cpu", weights_only=True))
+    torch.save(ckpt, tmp_path / "odd.ckpt")
+    with pytest.raises(ValueError, match=f"^{tmp_path / 'odd.ckpt'}: {message}") as err:
+        load_checkpoint(tmp_path / "odd.ckpt")
+    assert "\n" not in str(err.value)

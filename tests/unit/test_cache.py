@@ -142,3 +142,20 @@ def test_every_reader_lists_the_files_it_reads(dataset: Path, tmp_path: Path):
             st = f.stat()
             os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1000))
             assert source_fingerprint(source, scene_keys(source)) != before, f
+
+
+def test_a_killed_build_leaves_no_orphan_temporary_file(dataset: Path, tmp_path: Path):
+    # SIGKILL while a shard was written left a 10 MB ".shard_*.tmp" behind for good (issue 24)
+    import os
+    import time
+
+    source = open_dataset(dataset)
+    path = tmp_path / "c"
+    build_scene_cache(source, path, size=64, shard_scenes=4)
+    orphan, fresh = path / ".shard_00001.depth.k1ll3d.tmp", path / ".shard_00002.depth.w0rk1ng.tmp"
+    orphan.write_bytes(b"x" * 1000)
+    fresh.write_bytes(b"y" * 1000)  # another process's write in progress
+    old = time.time() - 3600
+    os.utime(orphan, (old, old))
+    build_scene_cache(source, path, size=64, shard_scenes=4)
+    assert not orphan.exists() and fresh.exists()

@@ -33,6 +33,7 @@ import io
 import json
 import logging
 import os
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -192,6 +193,24 @@ def _discard(path: Path) -> None:
                          f"rebuilt there ({e.strerror}); delete it, or set data.cache_dir to a writable folder") from None
 
 
+ORPHAN_AGE_S = 600.0  # a shard's temporary file lives seconds; one this old was left by a killed build
+
+
+def _sweep_orphans(path: Path, now: float | None = None) -> int:
+    """Delete the temporary files that a build killed mid-write left behind (older than
+    :data:`ORPHAN_AGE_S`, so another process's write in progress is never touched); returns their number."""
+    now = time.time() if now is None else now
+    swept = 0
+    for f in [*path.glob(".shard_*.tmp"), *path.glob(".cache.json.*.tmp")]:
+        try:
+            if now - f.stat().st_mtime > ORPHAN_AGE_S:
+                f.unlink()
+                swept += 1
+        except OSError:  # gone meanwhile, or read-only storage: harmless either way
+            continue
+    return swept
+
+
 def _shard_stem(path: Path, shard: int) -> Path:
     return path / f"shard_{shard:05d}"
 
@@ -268,6 +287,8 @@ def build_scene_cache(
             log.warning("%s: cache of other settings, scenes or dataset files; rebuilding", path)
         _discard(path)
     path.mkdir(parents=True, exist_ok=True)
+    if _sweep_orphans(path):
+        log.info("%s: removed the temporary files of a build that was killed", path)
     write_text_if_changed(path / "cache.json", info.to_json())  # a complete cache is opened without writes
     todo = [s for s in range(info.num_shards) if not _shard_stem(path, s).with_suffix(".npz").is_file()]
     if todo:
