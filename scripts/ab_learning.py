@@ -105,10 +105,10 @@ def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> di
     from tune_decoding import decoder
 
     from opnet.cli.build import build_datamodule, load_checkpoint
-    from opnet.cli.eval import predict_split
     from opnet.data.sample import collate
     from opnet.metrics.bregier import evaluate_scenes
     from opnet.metrics.diagnostics import diagnose
+    from opnet.system import predict_split
 
     system, cfg = load_checkpoint(ckpt)
     if settings is not None:

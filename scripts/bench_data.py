@@ -27,7 +27,7 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from opnet.datasets.atomic import append_csv_rows  # noqa: E402
+from opnet.fileio.atomic import append_csv_rows  # noqa: E402
 
 
 class Memoized:
@@ -94,8 +94,8 @@ def run_one(data: Path, scenes: int, workers: int, cache: bool, batch: int, memo
     import torch
 
     from opnet.data.augment import DepthAugmenter
-    from opnet.data.datamodule import OPNetDataModule, SceneSamples
     from opnet.data.cache import build_scene_cache, default_cache_dir
+    from opnet.data.datamodule import OPNetDataModule, SceneSamples
     from opnet.datasets import open_dataset
     from opnet.objects.config import object_from_config
 

@@ -22,10 +22,10 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.geometry import Camera
 from opnet.objects import builtin_object
 from opnet.parameterizations import Parameterization
-from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 

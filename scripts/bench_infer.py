@@ -40,12 +40,12 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.data.preprocess import to_network_input
 from opnet.geometry import Camera
 from opnet.inference import InferenceSettings, fast_forward
 from opnet.models.stats import gflops_per_image
 from opnet.objects import builtin_object
-from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 
@@ -228,7 +228,6 @@ def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndar
         return None
     from opnet.deploy.export import export_onnx
     from opnet.deploy.runtime import OnnxPoseEstimator
-
     from opnet.models.fused import export_form
 
     folder = Path(tempfile.mkdtemp(prefix="opnet_bench_onnx_"))

@@ -26,9 +26,9 @@ import lightning as L  # noqa: E402
 import torch  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 
-from opnet.datasets.atomic import append_csv_rows  # noqa: E402
 from opnet.cli.build import build_components, build_datamodule  # noqa: E402
-from opnet.cli.train import resolve_precision  # noqa: E402
+from opnet.fileio.atomic import append_csv_rows  # noqa: E402
+from opnet.hardware import resolve_precision  # noqa: E402
 from opnet.paths import config_dir  # noqa: E402
 
 ARMS: dict[str, list[str]] = {

@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from opnet.cli.build import build_datamodule, load_checkpoint
-from opnet.cli.eval import predict_split
-from opnet.datasets.atomic import append_csv_rows
+from opnet.fileio.atomic import append_csv_rows
 from opnet.inference import InferenceSettings
 from opnet.metrics.bregier import evaluate_scenes
+from opnet.system import predict_split
 
 PATHS = {
     "fp32 eager (reference)": None,

@@ -780,7 +780,7 @@ def checkpoint_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
         return apply
 
     first = next(k for k, v in ckpt["state_dict"].items() if v.is_floating_point() and v.ndim == 4)
-    evil = {"_target_": "opnet.datasets.atomic.write_text_atomic", "_args_": [str(ws / "pwned.txt"), "x"]}
+    evil = {"_target_": "opnet.fileio.atomic.write_text_atomic", "_args_": [str(ws / "pwned.txt"), "x"]}
     rows: dict[str, tuple[bool, Callable[[dict], Any], str]] = {
         "valid copy": (True, lambda c: c, ""),
         "a list": (False, lambda c: [1, 2, 3], ""),

@@ -5,7 +5,7 @@
 
 Each dataset's object comes from its ``object.json`` (an object config), else from ``--object`` (a
 built-in or a conf/object/<name>.yaml). Prints the table and writes ceiling.md and ceiling.csv to
---out. The logic lives in :mod:`opnet.parameterizations.ceiling`.
+--out. The logic lives in :mod:`opnet.analysis.ceiling`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from opnet.analysis.ceiling import dataset_object, run_ceiling_study
 from opnet.datasets import IPADataset, open_dataset
-from opnet.parameterizations.ceiling import dataset_object, run_ceiling_study
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -267,7 +267,7 @@ def draw_ceiling_chart(results: Path) -> Path:
 def record_run(run_dir: Path, command: str, wall_s: float, note: str, into: Path) -> None:
     """Append a train run's test summary as a row of ``into`` (results/defaults/defaults.csv)."""
     sys.path.insert(0, str(REPO / "src"))
-    from opnet.datasets.atomic import append_csv_rows
+    from opnet.fileio.atomic import append_csv_rows
 
     d = json.loads((run_dir / "test" / "summary.json").read_text())
     g = d["diagnostics"]

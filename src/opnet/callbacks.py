@@ -12,7 +12,7 @@ from typing import Any
 import lightning as L
 import torch
 
-from opnet.datasets.atomic import write_text_atomic
+from opnet.fileio.atomic import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -76,8 +76,8 @@ class LearningCurve(L.Callback):
 
     @torch.no_grad()
     def _test_ap(self, trainer: L.Trainer, pl_module: L.LightningModule) -> float:
-        from opnet.cli.eval import predict_split
         from opnet.metrics.bregier import evaluate_scenes
+        from opnet.system import predict_split
 
         dm = trainer.datamodule
         was_training = pl_module.training

@@ -44,6 +44,7 @@ import torch
 
 from opnet._limits import check_threads
 from opnet._repr import short_repr
+from opnet.hardware import cpu_has_native_bf16
 
 PRECISIONS = ("auto", "32", "bf16")
 AUTO_BOOL = ("auto", True, False)
@@ -94,8 +95,6 @@ class InferenceSettings:
             ValueError: ``fused=true`` with bf16, ``compile`` or a network the fused form does not cover.
         """
         if self.precision == "auto":
-            from opnet.cli.train import cpu_has_native_bf16
-
             bf16 = device.type == "cuda" or (device.type == "cpu" and cpu_has_native_bf16())
         else:
             bf16 = self.precision == "bf16"

@@ -1,4 +1,5 @@
-"""Locations the library needs without Hydra: the repository root and the reference data folder."""
+"""Locations the library needs without Hydra: the repository root, the reference data folder and
+the user cache."""
 
 from __future__ import annotations
 
@@ -17,3 +18,9 @@ def shared_dir() -> Path:
 def config_dir() -> Path:
     """The Hydra config folder ``conf/`` of the repository."""
     return REPO_ROOT / "conf"
+
+
+def user_cache_dir() -> Path:
+    """$OPNET_CACHE, else ``~/.cache/opnet`` (collision hulls, caches of read-only datasets)."""
+    env = os.environ.get("OPNET_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "opnet"

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from conftest import compose_cfg, tiny_train_cfg
 
 from opnet.cli import eval as eval_cli
 from opnet.cli import export as export_cli
@@ -23,9 +24,8 @@ from opnet.cli.build import load_checkpoint
 from opnet.cli.train import resolve_ckpt_path
 from opnet.datasets.png import encode_depth, write_png
 from opnet.paths import REPO_ROOT
-from conftest import compose_cfg, tiny_train_cfg
 
-EVIL = "opnet.datasets.atomic.write_text_atomic"
+EVIL = "opnet.fileio.atomic.write_text_atomic"
 CAMERA = ["camera.fx=180", "camera.fy=180", "camera.cx=63.5", "camera.cy=63.5", "camera.clip_start=0.5",
           "camera.clip_end=1.5"]  # fmt: skip
 

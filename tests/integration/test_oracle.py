@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 import torch
 
+from opnet.analysis.ceiling import (
+    network_ground_truth,
+    parameterization_configs,
+    run_ceiling_study,
+)
+from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.datasets import SceneRecord
 from opnet.datasets.ipa import write_ipa_scene
 from opnet.datasets.ipa_params import IPAParameters, write_parameters
 from opnet.geometry import Camera
 from opnet.objects import builtin_object
-from opnet.parameterizations.ceiling import (
-    network_ground_truth,
-    parameterization_configs,
-    run_ceiling_study,
-)
-from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import REPO_ROOT
 
 # a full-resolution camera that is not square: the network input pads it to a square canvas

@@ -15,11 +15,11 @@ from hydra import compose, initialize_config_dir
 from torch.utils.data import DataLoader
 
 from opnet.cli.build import build_components, build_datamodule
-from opnet.cli.eval import predict_split
 from opnet.data.datamodule import SceneSamples
 from opnet.data.sample import collate
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.paths import config_dir
+from opnet.system import predict_split
 
 
 @pytest.fixture(scope="module")

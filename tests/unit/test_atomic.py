@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from opnet.datasets.atomic import write_bytes_atomic, write_text_atomic
+from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 
 
 @pytest.mark.skipif(not hasattr(os, "fchmod"), reason="POSIX file modes")

@@ -8,7 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-from opnet.data.cache import SceneCache, build_scene_cache, decode_depth, default_cache_dir, encode_depth
+from opnet.data.cache import (
+    SceneCache,
+    build_scene_cache,
+    decode_depth,
+    default_cache_dir,
+    encode_depth,
+)
 from opnet.data.sample import make_sample
 from opnet.datasets import open_dataset
 from opnet.geometry import Camera
@@ -125,10 +131,11 @@ def test_every_reader_lists_the_files_it_reads(dataset: Path, tmp_path: Path):
     last) changes the fingerprint."""
     import os
 
+    from test_sileane_reader import make_folder
+
     from opnet.data.cache import scene_keys, source_fingerprint
     from opnet.datasets import SileaneDataset
     from opnet.datasets.bop import BOPDataset, convert_ipa_to_bop
-    from test_sileane_reader import make_folder
 
     bop = BOPDataset(convert_ipa_to_bop(dataset, tmp_path / "bop", obj_id=2), 2)
     sileane = SileaneDataset(make_folder(tmp_path / "sileane"))

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from opnet.datasets.atomic import DiskFullError, write_bytes_atomic
 from opnet.datasets.bop import BOPDataset, symmetry_from_bop, write_bop_models
 from opnet.datasets.camera_file import read_camera_file, read_camera_yaml
 from opnet.datasets.depth_inputs import load_depth_image
 from opnet.datasets.png import write_png
+from opnet.fileio.atomic import DiskFullError, write_bytes_atomic
 from opnet.objects import builtin_object, object_from_config
 from opnet.objects import io as mesh_io
 
@@ -236,7 +236,7 @@ class _FullDisk:
 
 def test_a_full_disk_is_one_line_naming_the_file_and_leaves_no_temporary(tmp_path: Path,
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
-    import opnet.datasets.atomic as atomic
+    import opnet.fileio.atomic as atomic
 
     monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: _FullDisk(fd))
     with pytest.raises(DiskFullError, match=rf"^{tmp_path / 'x.json'}: No space left on device \(disk full\)"):
@@ -260,10 +260,10 @@ def test_entry_points_report_a_full_disk_in_one_line(capsys: pytest.CaptureFixtu
 def test_export_on_a_full_disk_removes_its_temporary_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("onnx")
     import onnx
+    from conftest import compose_cfg
 
     from opnet.cli.build import build_components
     from opnet.deploy.export import export_onnx
-    from conftest import compose_cfg
 
     def save(proto: Any, path: str) -> None:
         Path(path).write_bytes(b"half a model")
@@ -288,8 +288,9 @@ def test_a_fifo_onnx_model_is_named_a_fifo(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("out", ["file", "/dev/null"])
 def test_eval_refuses_out_that_is_a_file_before_evaluating(out: str, tmp_path: Path) -> None:
-    from opnet.cli import eval as eval_cli
     from conftest import compose_cfg
+
+    from opnet.cli import eval as eval_cli
 
     target = tmp_path / "file" if out == "file" else Path(out)
     (tmp_path / "file").write_text("x")  # used to fail with a raw FileExistsError after the whole evaluation
@@ -311,8 +312,9 @@ def test_a_folder_filled_by_another_run_meanwhile_is_not_replaced(tmp_path: Path
 
 
 def test_a_config_key_its_component_does_not_take_names_the_group() -> None:
-    from opnet.cli.build import build_components
     from conftest import compose_cfg
+
+    from opnet.cli.build import build_components
 
     cfg = compose_cfg("train", ["model=tiny", "object=zbracket", "+parameterization.colour=red"])
     with pytest.raises(ValueError, match=r"^config group 'parameterization': its keys do not fit its component \(.*colour"):
@@ -343,7 +345,7 @@ def test_a_checkpoint_framing_is_checked_where_it_is_loaded(data: dict, message:
 
 
 def test_a_full_disk_while_replacing_a_folder_names_the_target(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import opnet.datasets.atomic as atomic
+    import opnet.fileio.atomic as atomic
     from opnet.datasets.outputs import folder_replaced
 
     monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: _FullDisk(fd))

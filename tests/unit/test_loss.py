@@ -10,13 +10,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.geometry import Camera, axis_angle_rotation, quaternion_to_matrix
 from opnet.losses import MultiTaskLoss, symmetric_rotation_error
 from opnet.objects import builtin_object
 from opnet.parameterizations import GroundTruthBatch, SIParameterization, VanillaParameterization
 from opnet.parameterizations.positions import CameraBatch
 from opnet.parameterizations.rotation import SixDCodec
-from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 CAMERA = Camera.from_fov(60.0, 128, 128, 0.5, 1.5)

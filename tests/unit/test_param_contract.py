@@ -10,12 +10,12 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.geometry import Camera
 from opnet.objects import builtin_object
 from opnet.parameterizations import GroundTruthBatch, Parameterization, VanillaParameterization
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import SixDCodec
-from opnet.parameterizations.toy_scenes import random_scene_batch
 from opnet.paths import config_dir
 
 CAMERA = Camera.from_fov(60.0, 128, 128, 0.5, 1.5)

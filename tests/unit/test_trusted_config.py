@@ -9,12 +9,12 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
+from conftest import compose_cfg
 
 from opnet.cli.build import run_config
 from opnet.cli.trusted import QUOTE_CHARS, check_saved_config, saved_config, shipped_targets
-from conftest import compose_cfg
 
-EVIL = "opnet.datasets.atomic.write_text_atomic"
+EVIL = "opnet.fileio.atomic.write_text_atomic"
 PAYLOAD = {"_target_": EVIL, "_args_": ["/tmp/pwned.pth", "import os"]}
 
 
@@ -50,7 +50,7 @@ def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
 
 
 ATTACKS = [  # (edit of the saved config, the key the message names)
-    (_set("loss", PAYLOAD), "'loss._target_' names 'opnet.datasets.atomic.write_text_atomic'"),
+    (_set("loss", PAYLOAD), "'loss._target_' names 'opnet.fileio.atomic.write_text_atomic'"),
     (_set("model.extra", PAYLOAD), "'model.extra._target_'"),
     (_set("data.generate", {"scene": PAYLOAD}), "'data.generate.scene._target_'"),
     (_set("loss._args_", [PAYLOAD]), "'loss._args_[0]._target_'"),  # inside an allowed target's arguments

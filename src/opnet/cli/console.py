@@ -8,23 +8,21 @@
 - :func:`guarded`: a user error (bad file, bad value, missing file) prints ``error: <message>``,
   one line naming the file or config key, and exits with status 2. ``HYDRA_FULL_ERROR=1`` shows the
   traceback instead (the same switch as for Hydra's own errors).
-- :func:`quiet_c_output`: silences C-level prints (pybullet's build-time banner).
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import sys
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from omegaconf.errors import OmegaConfBaseException
 
-from opnet.datasets.atomic import DiskFullError
+from opnet.fileio.atomic import DiskFullError
 
 #: exceptions that mean "the input (or the disk) is wrong", not "the program is wrong"
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, NotADirectoryError,
@@ -134,36 +132,3 @@ def guarded(run: Callable[[Any], Any], cfg: Any) -> Any:
         message = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
         print(f"error: {message}", file=sys.stderr)
         sys.exit(2)
-
-
-def _flush_c_stdio() -> None:
-    try:
-        import ctypes
-
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, AttributeError):
-        pass
-
-
-@contextlib.contextmanager
-def quiet_c_output() -> Iterator[None]:
-    """Silence what C extensions write straight to file descriptors 1 and 2 (Python exceptions
-    raised inside still propagate)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    try:
-        saved = [os.dup(1), os.dup(2)]
-    except OSError:  # no real descriptors (e.g. captured by a test runner): nothing to silence
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        os.dup2(devnull, 2)
-        yield
-    finally:
-        _flush_c_stdio()  # C's printf buffers: flush them into /dev/null, not later into the console
-        for fd, copy in zip((1, 2), saved):
-            os.dup2(copy, fd)
-            os.close(copy)
-        os.close(devnull)

@@ -9,35 +9,20 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-import torch
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import build_datamodule, load_checkpoint
 from opnet.cli.console import report, result_summary
-from opnet.data.sample import Batch
-from opnet.datasets.atomic import write_bytes_atomic, write_text_atomic
 from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
+from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import diagnose
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
-from opnet.system import OPNetSystem
+from opnet.system import OPNetSystem, predict_split
 from opnet.visualize import draw_models
 
 log = logging.getLogger(__name__)
-
-
-@torch.no_grad()
-def predict_split(system: OPNetSystem, loader: Any) -> dict[str, tuple[GroundTruthSet, HypothesisSet]]:
-    """Decode every scene of a loader: scene name -> (ground truth, hypotheses), camera frame."""
-    system.eval()
-    out: dict[str, tuple[GroundTruthSet, HypothesisSet]] = {}
-    for batch in loader:
-        batch: Batch = batch.to(system.device)
-        hyps = system.predict_poses(batch)
-        for name, gt, h in zip(batch.names, batch.gt_sets, hyps):
-            out[name] = (gt, h)
-    return out
 
 
 def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Path, examples: int = 0) -> dict[str, Any]:
@@ -71,7 +56,13 @@ def _write_bop_results(datamodule: Any, split: str, scenes: dict[str, tuple[Grou
                        path: Path) -> None:
     """The predictions as a BOP results CSV (for the user's own bop_toolkit), when the scene names
     are BOP (``<scene>_<image>``) or IPA (``cycle_XXXX_NNN``) ones; poses back in the BOP model frame."""
-    from opnet.datasets.bop import bop_results_rows, is_bop_split, models_dir_of, model_info, symmetry_from_bop
+    from opnet.datasets.bop import (
+        bop_results_rows,
+        is_bop_split,
+        model_info,
+        models_dir_of,
+        symmetry_from_bop,
+    )
 
     obj_id = getattr(datamodule, "object_id", None)
     roots = getattr(datamodule, "test_roots", None) if split == "test" and getattr(datamodule, "test_roots", None) \

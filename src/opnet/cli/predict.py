@@ -39,8 +39,15 @@ from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import load_checkpoint
 from opnet.data.preprocess import to_network_input
-from opnet.datasets.atomic import write_bytes_atomic
-from opnet.datasets.depth_inputs import DepthImage, claimed_outputs, given_camera, list_inputs, predict_inputs, write_pose_files
+from opnet.datasets.depth_inputs import (
+    DepthImage,
+    claimed_outputs,
+    given_camera,
+    list_inputs,
+    predict_inputs,
+    write_pose_files,
+)
+from opnet.fileio.atomic import write_bytes_atomic
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models

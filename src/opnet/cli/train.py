@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
-import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig
 
@@ -23,6 +22,7 @@ from opnet.cli.build import (
 )
 from opnet.cli.console import format_duration, report, result_summary
 from opnet.cli.eval import evaluate_split
+from opnet.hardware import precision_path, resolve_precision
 
 log = logging.getLogger(__name__)
 
@@ -58,28 +58,12 @@ def check_checkpoint_file(path: Path) -> str:
     return str(path)
 
 
-def cpu_has_native_bf16() -> bool:
-    """The CPU computes bf16 natively (AVX512-BF16 or AMX): bf16 autocast is then faster than fp32.
-    Elsewhere bf16 is emulated and slower."""
-    probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
-    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
-
-
-def resolve_precision(precision: Any, accelerator: str) -> Any:
-    """``trainer.precision: auto``: bf16 mixed precision where the hardware has it (GPUs, CPUs with
-    native bf16), else 32-bit. Any other value is passed to Lightning as it is."""
-    if str(precision) != "auto":
-        return precision
-    if accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available()):
-        return "bf16-mixed"
-    return "bf16-mixed" if cpu_has_native_bf16() else "32-true"
-
-
 def build_trainer(cfg: DictConfig) -> L.Trainer:
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values() if c is not None]
     logger = instantiate(cfg.logger) if cfg.get("logger") is not None else False
-    precision = resolve_precision(cfg.trainer.get("precision", "32"), str(cfg.trainer.get("accelerator", "cpu")))
-    log.info("trainer precision: %s", precision)
+    requested, accelerator = cfg.trainer.get("precision", "32"), str(cfg.trainer.get("accelerator", "cpu"))
+    precision = resolve_precision(requested, accelerator)
+    log.info(precision_path(requested, accelerator))
     return instantiate(cfg.trainer, callbacks=callbacks, logger=logger, precision=precision)
 
 

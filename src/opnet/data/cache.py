@@ -42,10 +42,17 @@ from typing import Any
 import cv2
 import numpy as np
 
-from opnet.data.preprocess import network_camera, resize_segmentation, _depth_canvas, _resize_weighted, square_canvas
-from opnet.datasets.atomic import write_bytes_atomic, write_text_if_changed
+from opnet.data.preprocess import (
+    _depth_canvas,
+    _resize_weighted,
+    network_camera,
+    resize_segmentation,
+    square_canvas,
+)
 from opnet.datasets.record import SceneRecord
+from opnet.fileio.atomic import write_bytes_atomic, write_text_if_changed
 from opnet.geometry.camera import Camera
+from opnet.paths import user_cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -168,10 +175,8 @@ def default_cache_dir(root: str | Path, size: int, fit: str = "pad") -> Path:
     local = Path(root) / f"cache_{tag}"
     if not Path(root).exists() or os.access(root, os.W_OK) or (local / "cache.json").is_file() and not _incomplete(local):
         return local
-    from opnet.synthesis.collision import default_cache_dir as user_cache
-
     digest = hashlib.sha1(str(Path(root).resolve()).encode()).hexdigest()[:16]
-    return user_cache() / "scenes" / f"{Path(root).name}_{digest}_{tag}"
+    return user_cache_dir() / "scenes" / f"{Path(root).name}_{digest}_{tag}"
 
 
 def _incomplete(path: Path) -> bool:

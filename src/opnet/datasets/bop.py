@@ -22,7 +22,6 @@ Poses go to opnet's model frame, which puts a symmetry axis on z (``R_align``, s
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 from collections.abc import Iterable
@@ -32,21 +31,25 @@ from typing import Any
 import numpy as np
 
 from opnet._repr import short_repr
-from opnet.datasets.atomic import disk_full_named, write_text_atomic
-from opnet.datasets.files import read_json
 from opnet.datasets.png import read_png, write_png
 from opnet.datasets.record import SceneRecord
 from opnet.datasets.validate import check_poses, check_range
+from opnet.fileio.atomic import disk_full_named, write_text_atomic
+from opnet.fileio.files import read_json
 from opnet.geometry.camera import Camera
-from opnet.geometry.symmetry import MAX_GROUP_SIZE, Symmetry
+from opnet.objects.bop import (
+    MODELS_INFO,
+    bop_id,
+    bop_key,
+    bop_list,
+    bop_numbers,
+    bop_symmetry_entries,
+    model_info,
+    models_dir_of,
+    symmetry_from_bop,
+)
 
-MODELS_INFO = "models_info.json"
 SCENE_FILES = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json")
-#: a symmetry whose axis or translation misses the model origin by more than this share of the
-#: diameter cannot be expressed as a rotation about the origin (opnet's symmetry groups)
-ORIGIN_TOL = 0.01
-#: BOP ids name files of 6 digits (``obj_000001.ply``); 0 is no object
-MAX_BOP_ID = 999_999
 #: a ground-truth translation must lie within these factors of the image's depth range (nearest,
 #: farthest valid pixel): ``cam_t_m2c`` in metres instead of millimetres puts every part a thousand
 #: times too close
@@ -54,210 +57,6 @@ _T_RANGE_FACTORS = (0.5, 2.0)
 #: default working range of BOP data without clip planes: these quantiles of the valid depth of
 #: the first image, widened by the factors below
 _CLIP_QUANTILES, _CLIP_WIDEN = (0.01, 0.99), (0.8, 1.25)
-
-
-# ------------------------------------------------------------------------------------------ files
-
-
-def _numbers(value: Any, n: int, key: str, where: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        a = np.zeros(0)
-    if a.size != n or not np.isfinite(a).all() or _has_bool(value):
-        what = "a finite number" if n == 1 else f"{n} finite numbers"
-        raise ValueError(f"{where}: '{key}' must be {what}, got {short_repr(value)}")
-    return a
-
-
-def _has_bool(value: Any) -> bool:
-    return isinstance(value, bool) or (isinstance(value, list) and any(_has_bool(v) for v in value))
-
-
-def bop_id(value: Any, key: str, where: str) -> int:
-    """A BOP object id (``obj_id``, ``--obj-id``, ``data.object_id``) as an int in 1..999999: a
-    whole number, not a boolean or a fraction (``1.9`` is no id, not object 1).
-
-    Raises:
-        ValueError: naming ``where`` and ``key``.
-    """
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_BOP_ID:
-        raise ValueError(f"{where}: {key}={short_repr(value)} is not a BOP object id (a whole number in "
-                         f"1..{MAX_BOP_ID})")
-    return value
-
-
-def _list(value: Any, key: str, where: str) -> list[Any]:
-    if not isinstance(value, list):
-        raise ValueError(f"{where}: '{key}' must be a list, got {short_repr(value)}")
-    return value
-
-
-def _key(entry: Any, key: str, where: str) -> Any:
-    if not isinstance(entry, dict) or key not in entry:
-        raise ValueError(f"{where}: missing key '{key}'")
-    return entry[key]
-
-
-# ------------------------------------------------------------------------------------- symmetries
-
-
-def _rotation_to_z(axis: np.ndarray) -> np.ndarray:
-    """A rotation A with A @ axis = z (the identity when the axis already is +z)."""
-    a = axis / np.linalg.norm(axis)
-    z = np.array([0.0, 0.0, 1.0])
-    v, c = np.cross(a, z), float(a @ z)
-    if np.linalg.norm(v) < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + vx + vx @ vx * (1 / (1 + c))
-
-
-def _axis_angle(R: np.ndarray) -> tuple[np.ndarray, float]:
-    angle = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2)))
-    if angle > math.pi - 1e-6:  # 180 degrees: the axis from R + I
-        M = R + np.eye(3)
-        axis = M[:, int(np.argmax(np.linalg.norm(M, axis=0)))]
-    else:
-        axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return axis / max(np.linalg.norm(axis), 1e-12), angle
-
-
-def symmetry_from_bop(info: dict[str, Any], where: str) -> tuple[Symmetry, np.ndarray]:
-    """opnet's symmetry of a BOP ``models_info`` entry, and the alignment ``R_align`` of the model
-    frame (``x_opnet = R_align x_bop``) that puts the symmetry axis on z.
-
-    - no symmetries: none;
-    - ``symmetries_continuous`` with one axis: revolution about it; a discrete symmetry that turns
-      the axis over (e.g. 180 degrees about x for an axis z) adds the end-over-end flip;
-    - ``symmetries_discrete`` whose non-identity rotations share one axis and form C_k: cyclic k;
-    - other discrete sets: the finite group they form with the identity (closure checked).
-
-    Raises:
-        ValueError: naming ``where``: several continuous axes (a sphere), a symmetry that does not
-            pass through the model origin (translation or offset > 1 % of the diameter), a
-            discrete matrix that is not a rotation, or a set that is not a group.
-    """
-    if not isinstance(info, dict):
-        raise ValueError(f"{where}: expected an object of model info (diameter, symmetries), got a "
-                         f"{type(info).__name__}")
-    diameter = float(_numbers(info.get("diameter", 0.0) or 0.0, 1, "diameter", where)[0])
-    tol = ORIGIN_TOL * diameter if diameter > 0 else 1.0  # mm
-    discrete = []
-    for i, m in enumerate(_list(info.get("symmetries_discrete") or [], "symmetries_discrete", where)):
-        T = _numbers(m, 16, f"symmetries_discrete[{i}]", where).reshape(4, 4)
-        R, t = T[:3, :3], T[:3, 3]
-        if np.abs(R.T @ R - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
-            raise ValueError(f"{where}: symmetries_discrete[{i}] is not a rotation (a reflection or scaled matrix)")
-        if np.linalg.norm(t) > tol:
-            raise ValueError(f"{where}: symmetries_discrete[{i}] moves the origin by {np.linalg.norm(t):.3g} mm: opnet's "
-                             "symmetries are rotations about the model origin; centre the model on the symmetry axis")
-        if np.abs(R - np.eye(3)).max() > 1e-6 and all(np.abs(R - D).max() > 1e-6 for D in discrete):
-            discrete.append(R)  # a repeated element is one element of the group
-        if len(discrete) > MAX_GROUP_SIZE:
-            raise ValueError(f"{where}: symmetries_discrete holds more than {MAX_GROUP_SIZE} distinct rotations: "
-                             "not a part's symmetry group")
-    continuous = _list(info.get("symmetries_continuous") or [], "symmetries_continuous", where)
-    if len(continuous) > 1:
-        raise ValueError(f"{where}: {len(continuous)} continuous symmetry axes (a sphere?) cannot be mapped; "
-                         "opnet supports one axis of revolution")
-    if continuous:
-        axis = _numbers(_key(continuous[0], "axis", f"{where}: symmetries_continuous[0]"), 3, "axis", where)
-        offset = _numbers(continuous[0].get("offset", [0, 0, 0]), 3, "offset", where)
-        if np.linalg.norm(axis) < 1e-9:
-            raise ValueError(f"{where}: symmetries_continuous axis is zero")
-        # the offset is a point on the axis: only its distance to the axis line matters
-        a = axis / np.linalg.norm(axis)
-        miss = np.linalg.norm(offset - (offset @ a) * a)
-        if miss > tol:
-            raise ValueError(f"{where}: the continuous symmetry axis misses the model origin by {miss:.3g} mm; "
-                             "centre the model on the axis")
-        A = _rotation_to_z(a)
-        flip = False
-        for R in discrete:
-            Rz = A @ R @ A.T
-            if Rz[2, 2] < -1 + 1e-6:
-                flip = True
-            elif Rz[2, 2] < 1 - 1e-6:
-                raise ValueError(f"{where}: a discrete symmetry tilts the axis of revolution (neither keeps nor "
-                                 "turns it over): cannot be mapped")
-        return Symmetry("revolution", rotoreflection=flip), A
-    if not discrete:
-        return Symmetry("none"), np.eye(3)
-    axes_angles = [_axis_angle(R) for R in discrete]
-    axis0 = axes_angles[0][0]
-    k = len(discrete) + 1
-    if all(abs(abs(ax @ axis0) - 1) < 1e-6 for ax, _ in axes_angles):
-        steps = [ang / (2 * math.pi / k) for _, ang in axes_angles]
-        if all(abs(s - round(s)) < 1e-4 for s in steps):
-            return Symmetry("cyclic", order=k), _rotation_to_z(axis0)
-    try:
-        return Symmetry("finite", rotations=np.stack([np.eye(3), *discrete])), np.eye(3)
-    except ValueError as e:
-        raise ValueError(f"{where}: symmetries_discrete: {e}") from None
-
-
-def bop_symmetry_entries(symmetry: Symmetry) -> dict[str, Any]:
-    """``symmetries_discrete`` / ``symmetries_continuous`` of a models_info entry for ``symmetry``
-    (opnet's model frame, symmetries about the origin)."""
-    out: dict[str, Any] = {}
-    if symmetry.is_revolution:
-        out["symmetries_continuous"] = [{"axis": [0, 0, 1], "offset": [0, 0, 0]}]
-        if symmetry.rotoreflection:
-            out["symmetries_discrete"] = [_matrix16(np.diag([1.0, -1.0, -1.0]))]
-        return out
-    group = symmetry.group()
-    if len(group) > 1:
-        out["symmetries_discrete"] = [_matrix16(R) for R in group[1:]]
-    return out
-
-
-def _matrix16(R: np.ndarray) -> list[float]:
-    T = np.eye(4)
-    T[:3, :3] = R
-    return [float(v) for v in T.reshape(-1)]
-
-
-# ------------------------------------------------------------------------------------------ models
-
-
-def models_dir_of(root: Path) -> Path:
-    """``<dataset>/models`` for a split folder ``<dataset>/<split>`` (or the dataset folder itself)."""
-    for candidate in (root.parent / "models", root / "models"):
-        if (candidate / MODELS_INFO).is_file():
-            return candidate
-    raise FileNotFoundError(f"{root.parent / 'models' / MODELS_INFO}: file not found (a BOP split folder "
-                            "<dataset>/<split> needs <dataset>/models/models_info.json)")
-
-
-def model_info(models_dir: Path, obj_id: int) -> dict[str, Any]:
-    path = models_dir / MODELS_INFO
-    obj_id = bop_id(obj_id, "obj_id", str(path))
-    info = read_json(path)
-    if not isinstance(info, dict):
-        raise ValueError(f"{path}: expected an object of obj_id -> model info")
-    entry = info.get(str(obj_id))
-    if entry is None:
-        ids = ", ".join(sorted(info, key=lambda s: int(s) if s.isdigit() else 0)[:20])
-        raise ValueError(f"{path}: obj_id {obj_id} is not in this dataset's models (ids: {ids})")
-    return entry
-
-
-def bop_object(models_dir: str | Path, obj_id: int, name: str | None = None) -> Any:
-    """The opnet object model of BOP object ``obj_id``: its mesh (mm -> m, aligned so the symmetry
-    axis is z) and its symmetry from models_info.json."""
-    from opnet.objects.io import load_mesh
-    from opnet.objects.model import ObjectModel
-
-    models_dir = Path(models_dir)
-    info = model_info(models_dir, obj_id)
-    obj_id = bop_id(obj_id, "obj_id", str(models_dir / MODELS_INFO))
-    symmetry, A = symmetry_from_bop(info, f"{models_dir / MODELS_INFO}: obj_id {obj_id}")
-    mesh_path = models_dir / f"obj_{obj_id:06d}.ply"
-    mesh = load_mesh(mesh_path, 0.001, A if np.abs(A - np.eye(3)).max() > 0 else None)
-    return ObjectModel.from_mesh(name or f"obj_{obj_id:06d}", mesh, symmetry, source=str(mesh_path))
 
 
 # ------------------------------------------------------------------------------------------ reader
@@ -300,7 +99,7 @@ class BOPDataset:
                 raise ValueError(f"{gt_path}: image id {short_repr(bad[0])} is not a whole number")
             for key in sorted(meta["scene_gt.json"], key=int):
                 where = f"{gt_path}: image {key}"
-                entries = _list(meta["scene_gt.json"][key], "instances", where)
+                entries = bop_list(meta["scene_gt.json"][key], "instances", where)
                 n = sum(1 for k, e in enumerate(entries) if self._obj_id_of(e, f"{where}, instance {k}") == self.obj_id)
                 self._scenes.append((sid, int(key), n))
         if not self._scenes:
@@ -310,7 +109,7 @@ class BOPDataset:
 
     @staticmethod
     def _obj_id_of(entry: Any, where: str) -> int:
-        return bop_id(_key(entry, "obj_id", where), "obj_id", where)
+        return bop_id(bop_key(entry, "obj_id", where), "obj_id", where)
 
     def scenes(self) -> list[tuple[int, int, int]]:
         """(scene_id, im_id, number of instances of obj_id) per image, sorted."""
@@ -346,7 +145,7 @@ class BOPDataset:
     def _depth_mm(self, sid: int, im: int) -> tuple[np.ndarray, Path]:
         cam = self._camera_entry(sid, im)
         path = self.scene_dir(sid) / "depth" / f"{im:06d}.png"
-        scale = float(_numbers(_key(cam, "depth_scale", self._where(sid, "scene_camera.json", im)), 1, "depth_scale",
+        scale = float(bop_numbers(bop_key(cam, "depth_scale", self._where(sid, "scene_camera.json", im)), 1, "depth_scale",
                                self._where(sid, "scene_camera.json", im))[0])
         if scale <= 0:
             raise ValueError(f"{self._where(sid, 'scene_camera.json', im)}: 'depth_scale' = {scale:g}, expected > 0 "
@@ -378,7 +177,7 @@ class BOPDataset:
 
     def camera(self, sid: int, im: int, width: int, height: int) -> Camera:
         where = self._where(sid, "scene_camera.json", im)
-        K = _numbers(_key(self._camera_entry(sid, im), "cam_K", where), 9, "cam_K", where).reshape(3, 3)
+        K = bop_numbers(bop_key(self._camera_entry(sid, im), "cam_K", where), 9, "cam_K", where).reshape(3, 3)
         try:
             cam = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, *self.clip)
         except ValueError as e:
@@ -406,7 +205,7 @@ class BOPDataset:
         depth_range = (float(valid.min()) / 1000.0, float(valid.max()) / 1000.0) if valid.size else None
         camera = self.camera(sid, im, w, h)
         gt_path = self.scene_dir(sid) / "scene_gt.json"
-        entries = _list(self._meta[sid]["scene_gt.json"].get(str(im), []), "instances", f"{gt_path}: image {im}")
+        entries = bop_list(self._meta[sid]["scene_gt.json"].get(str(im), []), "instances", f"{gt_path}: image {im}")
         infos = self._meta[sid]["scene_gt_info.json"].get(str(im))
         if not isinstance(infos, list) or len(infos) != len(entries):
             raise ValueError(f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im} needs one entry per "
@@ -417,13 +216,13 @@ class BOPDataset:
             where = f"{gt_path}: image {im}, instance {k}"
             if self._obj_id_of(e, where) != self.obj_id:
                 continue
-            R = _numbers(_key(e, "cam_R_m2c", where), 9, "cam_R_m2c", where).reshape(3, 3)
-            t = _numbers(_key(e, "cam_t_m2c", where), 3, "cam_t_m2c", where) / 1000.0
+            R = bop_numbers(bop_key(e, "cam_R_m2c", where), 9, "cam_R_m2c", where).reshape(3, 3)
+            t = bop_numbers(bop_key(e, "cam_t_m2c", where), 3, "cam_t_m2c", where) / 1000.0
             self._check_translation(t, depth_range, where)
             Rs.append(R @ self.R_align.T)
             ts.append(t)
             info_where = f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im}, instance {k}"
-            vis.append(float(_numbers(_key(infos[k], "visib_fract", info_where), 1, "visib_fract", info_where)[0]))
+            vis.append(float(bop_numbers(bop_key(infos[k], "visib_fract", info_where), 1, "visib_fract", info_where)[0]))
             ids.append(k + 1)
             mask_path = self.scene_dir(sid) / "mask_visib" / f"{im:06d}_{k:06d}.png"
             if mask_path.is_file():
@@ -570,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
 
-    from opnet.datasets.atomic import DiskFullError
+    from opnet.fileio.atomic import DiskFullError
 
     parser = argparse.ArgumentParser(prog="python -m opnet.datasets.bop",
                                      description="Write an IPA-layout dataset (e.g. from generate.py) as a BOP dataset.")

@@ -15,7 +15,7 @@ from typing import Any
 import yaml
 
 from opnet._repr import short_repr
-from opnet.datasets.files import read_text
+from opnet.fileio.files import read_text
 from opnet.geometry.camera import Camera
 
 YAML_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")

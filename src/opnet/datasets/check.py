@@ -32,11 +32,11 @@ import numpy as np
 
 from opnet.datasets.autodetect import open_dataset
 from opnet.datasets.bop import BOPDataset
-from opnet.datasets.files import read_json
 from opnet.datasets.ipa import MAX_INSTANCE_ID, IPADataset, scene_paths
 from opnet.datasets.ipa_csv import CSV_HEADER, read_ipa_csv
 from opnet.datasets.sileane import SileaneDataset
 from opnet.datasets.sileane_json import read_gt_json
+from opnet.fileio.files import read_json
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_GREY = 0  # IHDR colour type of a single-channel image

@@ -17,14 +17,18 @@ from typing import Any
 
 import numpy as np
 
-from opnet.datasets.atomic import write_text_atomic
-from opnet.datasets.camera_file import camera_number, read_camera_yaml, require_principal_point_inside
-from opnet.datasets.files import require_regular_file
+from opnet.datasets.camera_file import (
+    camera_number,
+    read_camera_yaml,
+    require_principal_point_inside,
+)
 from opnet.datasets.ipa_params import read_parameters
 from opnet.datasets.outputs import folder_lock, require_output_folder
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.sileane import read_camera_params
 from opnet.datasets.sileane_json import write_results_json
+from opnet.fileio.atomic import write_text_atomic
+from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import MAX_CLIP_END_M, MAX_IMAGE_SIDE, Camera
 from opnet.geometry.frames import camera_to_world
 from opnet.metrics.records import HypothesisSet

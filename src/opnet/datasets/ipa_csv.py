@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from opnet.datasets.atomic import write_text_atomic
-from opnet.datasets.files import read_text
 from opnet.datasets.validate import MAX_IPA_VISIBILITY, check_poses, check_range
+from opnet.fileio.atomic import write_text_atomic
+from opnet.fileio.files import read_text
 from opnet.geometry.frames import camera_to_ipa, ipa_to_camera
 
 CSV_HEADER = (

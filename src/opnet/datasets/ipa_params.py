@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from opnet.datasets.atomic import write_text_if_changed
-from opnet.datasets.files import read_json
+from opnet.fileio.atomic import write_text_if_changed
+from opnet.fileio.files import read_json
 from opnet.geometry.camera import Camera
 
 PARAMETER_FILE = "parameter.json"

@@ -24,7 +24,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from opnet.datasets.atomic import DiskFullError, _umask
+from opnet.fileio.atomic import DiskFullError, _umask
 
 log = logging.getLogger(__name__)
 

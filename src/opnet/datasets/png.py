@@ -12,8 +12,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from opnet.datasets.atomic import write_bytes_atomic
-from opnet.datasets.files import read_bytes
+from opnet.fileio.atomic import write_bytes_atomic
+from opnet.fileio.files import read_bytes
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 DEPTH_MISSING = 65535

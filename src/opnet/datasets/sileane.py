@@ -20,10 +20,10 @@ from typing import Literal
 
 import numpy as np
 
-from opnet.datasets.files import read_text
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.record import SceneRecord
 from opnet.datasets.sileane_json import read_gt_json, scene_files
+from opnet.fileio.files import read_text
 from opnet.geometry.camera import Camera
 from opnet.geometry.frames import world_to_camera
 from opnet.geometry.pose_numpy import quaternion_to_matrix

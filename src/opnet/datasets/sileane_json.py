@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from opnet.datasets.atomic import write_text_atomic
-from opnet.datasets.files import read_json
 from opnet.datasets.validate import check_poses, check_range
+from opnet.fileio.atomic import write_text_atomic
+from opnet.fileio.files import read_json
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 
 #: segmentation ids are the instances' values in the 16-bit segmentation image
@@ -234,7 +234,7 @@ def _describe(value: Any) -> str:
 
 # ---- writing -----------------------------------------------------------------------------------
 def write_json_atomic(path: str | Path, data: Any) -> None:
-    """Write JSON data to ``path`` atomically (see :mod:`opnet.datasets.atomic`).
+    """Write JSON data to ``path`` atomically (see :mod:`opnet.fileio.atomic`).
 
     Raises:
         ValueError: the data holds NaN or inf (not valid JSON); nothing is written.

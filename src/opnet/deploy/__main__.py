@@ -19,8 +19,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from opnet.datasets.atomic import DiskFullError
-from opnet.datasets.depth_inputs import POSE_SUFFIXES, claimed_outputs, given_camera, list_inputs, predict_inputs, write_pose_files
+from opnet.datasets.depth_inputs import (
+    POSE_SUFFIXES,
+    claimed_outputs,
+    given_camera,
+    list_inputs,
+    predict_inputs,
+    write_pose_files,
+)
+from opnet.fileio.atomic import DiskFullError
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from opnet import __version__
-from opnet.datasets.atomic import disk_full_named
+from opnet.fileio.atomic import disk_full_named
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
 from opnet.parameterizations.base import Parameterization

@@ -24,10 +24,9 @@ import cv2
 import numpy as np
 
 from opnet._limits import check_threads
-from opnet._repr import short_repr
 from opnet.data.preprocess import to_network_input
-from opnet.datasets.files import require_regular_file
 from opnet.deploy.metadata import validate_metadata
+from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet

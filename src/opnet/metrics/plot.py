@@ -8,7 +8,7 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from opnet.datasets.atomic import write_bytes_atomic
+from opnet.fileio.atomic import write_bytes_atomic
 from opnet.metrics.report import EvaluationSummary
 
 

@@ -8,6 +8,7 @@ from typing import Any
 
 from opnet._repr import short_repr
 from opnet.geometry.symmetry import Symmetry
+from opnet.objects.bop import bop_id, bop_object
 from opnet.objects.io import load_object
 from opnet.objects.model import ObjectModel
 
@@ -23,10 +24,6 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
     if "name" not in cfg:
         raise ValueError("object config: missing key 'name'")
     if cfg.get("bop_models") is not None:  # a BOP model: mesh in mm and symmetries from models_info.json
-        from opnet.datasets.bop import bop_object
-
-        from opnet.datasets.bop import bop_id
-
         if cfg.get("bop_obj_id") is None:
             raise ValueError("object config: 'bop_models' needs 'bop_obj_id' (the BOP obj_id)")
         obj_id = bop_id(cfg["bop_obj_id"], "object.bop_obj_id", f"object {short_repr(cfg['name'])}")

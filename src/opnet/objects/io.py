@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 
 from opnet._repr import short_repr
-from opnet.datasets.files import require_regular_file
+from opnet.fileio.files import require_regular_file
 from opnet.geometry.rotations import euler_to_matrix
 from opnet.geometry.symmetry import Symmetry
 from opnet.objects.library import BUILTINS, builtin_names, builtin_object

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from opnet.datasets.files import read_json
+from opnet.fileio.files import read_json
 from opnet.geometry.distance import PoseSpace
 from opnet.geometry.symmetry import Symmetry, symmetry_from_rotations
 from opnet.objects.surface import SurfaceMoments, sqrtm_psd, surface_moments

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from opnet.paths import user_cache_dir
 from opnet.synthesis.config import SceneConfig
 
 DENSITY = 1000.0  # kg/m^3
@@ -65,12 +66,6 @@ class CollisionModel:
     com: np.ndarray
     R_model_inertial: np.ndarray
     inertia: np.ndarray
-
-
-def default_cache_dir() -> Path:
-    """$OPNET_CACHE, else ``~/.cache/opnet``."""
-    env = os.environ.get("OPNET_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "opnet"
 
 
 def convexity(mesh: trimesh.Trimesh) -> float:
@@ -110,7 +105,7 @@ def build_collision_model(mesh: trimesh.Trimesh, cfg: SceneConfig, cache_dir: Pa
 
 
 def _cfg_cache(cfg: SceneConfig) -> Path:
-    return Path(cfg.cache_dir).expanduser() if cfg.cache_dir else default_cache_dir()
+    return Path(cfg.cache_dir).expanduser() if cfg.cache_dir else user_cache_dir()
 
 
 def mesh_key(mesh: trimesh.Trimesh, resolution: int) -> str:
@@ -150,7 +145,7 @@ def vhacd_timeout_s() -> float:
 
 
 def _run_vhacd(src: str, dst: str, log: str, resolution: int) -> None:
-    from opnet.cli.console import quiet_c_output
+    from opnet._stdio import quiet_c_output
 
     with quiet_c_output():  # V-HACD prints its progress there
         import pybullet as pb

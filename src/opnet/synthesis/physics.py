@@ -36,7 +36,7 @@ from typing import Self
 
 import numpy as np
 
-from opnet.cli.console import quiet_c_output
+from opnet._stdio import quiet_c_output
 
 with quiet_c_output():  # pybullet prints its build time on import, once per process
     import pybullet as pb

@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from opnet.datasets.atomic import write_bytes_atomic
 from opnet.datasets.record import SceneRecord
+from opnet.fileio.atomic import write_bytes_atomic
 
 _PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]  # fixed settings: same image, same bytes
 

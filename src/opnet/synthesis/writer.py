@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from opnet.datasets.atomic import disk_full_named, write_text_if_changed
 from opnet.datasets.ipa import scene_paths, write_ipa_scene
 from opnet.datasets.ipa_params import IPAParameters, write_parameters
+from opnet.fileio.atomic import disk_full_named, write_text_if_changed
 from opnet.objects.library import BUILTINS, builtin_object
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig

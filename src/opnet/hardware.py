@@ -1,0 +1,43 @@
+"""What the hardware can do, probed once where the command line and the inference engine both
+need it: native bf16 on the CPU, and the training precision that follows from it.
+
+A low module (imports torch only): ``opnet.inference`` and ``opnet.cli`` both use it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+
+def cpu_has_native_bf16() -> bool:
+    """The CPU computes bf16 natively (AVX512-BF16 or AMX): bf16 autocast is then faster than fp32.
+    Elsewhere bf16 is emulated and slower."""
+    probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
+    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
+
+
+def resolve_precision(precision: Any, accelerator: str) -> Any:
+    """``trainer.precision: auto``: bf16 mixed precision where the hardware has it (GPUs, CPUs with
+    native bf16), else 32-bit. Any other value is passed to Lightning as it is."""
+    if str(precision) != "auto":
+        return precision
+    if accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available()):
+        return "bf16-mixed"
+    return "bf16-mixed" if cpu_has_native_bf16() else "32-true"
+
+
+def precision_path(precision: Any, accelerator: str) -> str:
+    """One line for the console: the numeric path a training takes and why. Models trained on
+    another path are other models (the quickstart's figure differs between the two)."""
+    resolved = resolve_precision(precision, accelerator)
+    if str(precision) != "auto":
+        return f"precision path: {resolved} (trainer.precision={precision})"
+    if str(resolved).startswith("bf16"):
+        why = "a GPU" if accelerator in ("gpu", "cuda") or torch.cuda.is_available() else "the CPU has native bf16"
+        return f"precision path: bf16 mixed ({why}; trainer.precision=auto)"
+    return "precision path: fp32 (this CPU has no native bf16; trainer.precision=auto)"
+
+
+__all__ = ["cpu_has_native_bf16", "precision_path", "resolve_precision"]
