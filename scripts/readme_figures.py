@@ -1,7 +1,11 @@
-"""The README's figures, rendered from the committed results files, so that they cannot drift.
+"""The figures of the README and of the docs pages, rendered from the committed results files, so
+that they cannot drift.
 
-Every number of the README's results section sits between ``<!-- figures:NAME -->`` and
-``<!-- /figures:NAME -->`` markers and is rendered here from a file under ``results/``:
+Every measured number of README.md and ``docs/*.md`` sits between ``<!-- figures:NAME -->`` and
+``<!-- /figures:NAME -->`` markers and is rendered here from a file under ``results/``. Each block
+below must sit in at least one of those files (it may sit in several); a marker of any other name is
+an error. The relative links a block holds are written from the file it sits in (``results/...``
+in the README, ``../results/...`` in a docs page):
 
 | block | source |
 |---|---|
@@ -12,12 +16,17 @@ Every number of the README's results section sits between ``<!-- figures:NAME --
 | speed | ``results/speed/{train,data}.csv`` (``scripts/bench_train.py`` / ``bench_data.py --out``) |
 | inference | ``results/speed/infer.csv`` (``scripts/bench_infer.py --out``), ``inference_check.csv`` (``scripts/check_inference.py``) |
 | benchmarks | ``results/benchmarks.csv`` (each row names the script that printed its figure) |
+| sensor | ``results/sensor/{holes,ab}.csv`` (``scripts/sensor_table.py``, ``scripts/sensor_ab.py``) |
+| real_frame | ``results/real_frame/summary.json`` (``scripts/real_frame.py``) |
+| framing | ``results/framing/framing.csv`` (``scripts/framing_table.py``) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
+| pictures_data | the real frame's overlay and the sensor models' missing depth |
+| pictures_method | the ceiling chart |
 
 Usage::
 
-    python scripts/readme_figures.py            # rewrite the README's blocks (and the ceiling chart)
-    python scripts/readme_figures.py --check    # exit 1, with a diff, when README and results disagree
+    python scripts/readme_figures.py            # rewrite the blocks of README.md and docs/*.md (and the ceiling chart)
+    python scripts/readme_figures.py --check    # exit 1, with a diff, when a page and results disagree
     python scripts/readme_figures.py --run-quickstart   # run the quickstart from an empty root, record it
 """
 
@@ -43,7 +52,10 @@ sys.path.insert(0, str(REPO / "src"))
 from opnet.cli.console import format_duration  # noqa: E402
 
 RESULTS = REPO / "results"
+DOCS = REPO / "docs"
+DOCS_PREFIX = "../"  # docs/*.md sit one folder below the repository root, where results/ is
 BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
+MARKER = re.compile(r"<!-- /?figures:(?P<name>[^ ]*) -->")
 QUICKSTART_COMMAND = "python train.py experiment=quickstart"
 
 
@@ -61,7 +73,7 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 # ---------------------------------------------------------------------------------------------- blocks
 
 
-def block_quickstart(results: Path) -> str:
+def block_quickstart(results: Path, prefix: str = "") -> str:
     q = json.loads((results / "quickstart" / "summary.json").read_text())
     return (
         f"**Quickstart** — `{q['command']}` from an empty `outputs/`: generates {q['cycles']} cycles of the "
@@ -72,18 +84,18 @@ def block_quickstart(results: Path) -> str:
         f"(MAP {q['map']:.4f}, F1 {q['f1']:.4f}, {100 * q['found']:.1f} % of the parts found), "
         f"**{format_duration(q['wall_s'])}** end to end on {q['machine']}. The console ends with that summary and the "
         f"paths of the checkpoint, TensorBoard logs, AP table and example prediction PNGs "
-        f"([its last lines](results/quickstart/console_tail.txt)).\n"
+        f"([its last lines]({prefix}results/quickstart/console_tail.txt)).\n"
     )
 
 
-def block_defaults(results: Path) -> str:
+def block_defaults(results: Path, prefix: str = "") -> str:
     rows = [[f"`{r['command']}`", f"**{float(r['ap']):.3f}**", f"{float(r['map']):.3f}", f"{float(r['f1']):.3f}",
              f"{100 * float(r['found']):.1f}", r["scenes"], format_duration(float(r["wall_s"])) + (f" ({r['note']})" if r["note"] else "")]
             for r in _csv(results / "defaults" / "defaults.csv")]  # fmt: skip
     return _table(["command", "test AP", "MAP", "F1", "found %", "test scenes", "wall time"], rows) + "\n"
 
 
-def block_learning(results: Path) -> str:
+def block_learning(results: Path, prefix: str = "") -> str:
     rows = []
     for r in _csv(results / "learning" / "learning.csv"):
         f = {k: float(r[k]) for k in ("train_minutes", "ap", "target", "found", "position", "orientation",
@@ -97,13 +109,13 @@ def block_learning(results: Path) -> str:
     return _table(header, rows) + "\n"
 
 
-def block_ab(results: Path) -> str:
+def block_ab(results: Path, prefix: str = "") -> str:
     rows = [[r["object"], r["arm"], r["change"], f"{float(r['ap']):.3f}", f"{float(r['f1']):.3f}"]
             for r in _csv(results / "learning" / "ab.csv")]
     return _table(["object", "arm", "what changes", "test AP", "F1"], rows) + "\n"
 
 
-def block_speed(results: Path) -> str:
+def block_speed(results: Path, prefix: str = "") -> str:
     names = {"fp32": "fp32 (before)", "cl": "fp32 + channels-last", "bf16": "bf16 autocast",
              "bf16+cl": "bf16 + channels-last (default here)"}
     train = _csv(results / "speed" / "train.csv")
@@ -123,7 +135,7 @@ def block_speed(results: Path) -> str:
     return _table(["training arm", "images/s", "", "data path, one epoch", "images/s", "peak RSS"], rows) + "\n"
 
 
-def block_inference(results: Path) -> str:
+def block_inference(results: Path, prefix: str = "") -> str:
     rows = _csv(results / "speed" / "infer.csv")
     head = rows[0]
     lines = [f"Roofline of this run: a 2048² fp32 matrix product, timed (warm) right before every repeat of every forward, "
@@ -147,12 +159,12 @@ def block_inference(results: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def block_benchmarks(results: Path) -> str:
+def block_benchmarks(results: Path, prefix: str = "") -> str:
     rows = [[f"`{r['command']}`", r["what"], r["figure"], r["target"]] for r in _csv(results / "benchmarks.csv")]
     return _table(["script", "what", "figure", "target"], rows) + "\n"
 
 
-def block_sensor(results: Path) -> str:
+def block_sensor(results: Path, prefix: str = "") -> str:
     def pct(x: str) -> str:
         return "–" if x in ("", "nan") else f"{100 * float(x):.0f} %"
 
@@ -167,13 +179,13 @@ def block_sensor(results: Path) -> str:
     sensors = list(dict.fromkeys(r["test_sensor"] for r in ab))
     ap = {(r["train_sensor"], r["test_sensor"]): float(r["ap"]) for r in ab}
     lines += [f"A/B on the same budget ({ab[0]['object']}, quickstart recipe, seed 0; test AP on {ab[0]['scenes']} "
-              f"held-out scenes of seed 1 per column, [`results/sensor/ab.csv`](results/sensor/ab.csv)):", ""]
+              f"held-out scenes of seed 1 per column, [`results/sensor/ab.csv`]({prefix}results/sensor/ab.csv)):", ""]
     lines.append(_table(["trained on ↓ / tested on →", *sensors],
                         [[f"`sensor={t}`", *(f"{ap[(t, s)]:.4f}" for s in sensors)] for t in sensors]))
     return "\n".join(lines) + "\n"
 
 
-def block_real_frame(results: Path) -> str:
+def block_real_frame(results: Path, prefix: str = "") -> str:
     s = json.loads((results / "real_frame" / "summary.json").read_text())
     cam = s["camera"]
     return (f"camera from its `camera_params.txt` (fx {cam['fx']:g}, principal point ({cam['cx']:g}, {cam['cy']:g}), "
@@ -182,7 +194,7 @@ def block_real_frame(results: Path) -> str:
             f"depths {', '.join(f'{x:.2f}' for x in s['depths_above_m'])} m).\n")
 
 
-def block_framing(results: Path) -> str:
+def block_framing(results: Path, prefix: str = "") -> str:
     rows = [[f"`{r['fit']}`", f"{100 * float(r['input_share']):.0f} %", f"{100 * float(r['image_share']):.0f} %",
              f"{float(r['image_px_per_input_px']):.2f}", f"**{float(r['ap']):.4f}**"]
             for r in _csv(results / "framing" / "framing.csv")]
@@ -200,30 +212,83 @@ PICTURES = [
 ]
 
 
-def block_pictures(results: Path) -> str:
+def _pictures(results: Path, prefix: str, pictures: list[tuple[str, str]]) -> str:
+    """The pictures two a row, with their captions; ``src`` written from the page's folder."""
     cells = []
-    for rel, caption in PICTURES:
+    for rel, caption in pictures:
         if not (results / rel).is_file():
             raise FileNotFoundError(f"{results / rel}: picture missing (python scripts/readme_figures.py [--run-quickstart])")
-        cells.append(f'<img src="results/{rel}" width="420" alt="{caption}"><br><sub>{caption}</sub>')
+        cells.append(f'<img src="{prefix}results/{rel}" width="420" alt="{caption}"><br><sub>{caption}</sub>')
     rows = ["<tr>" + "".join(f"<td>{c}</td>" for c in cells[i : i + 2]) + "</tr>" for i in range(0, len(cells), 2)]
     return "<table>" + "\n".join(rows) + "</table>\n"
+
+
+def block_pictures(results: Path, prefix: str = "") -> str:
+    return _pictures(results, prefix, PICTURES)
+
+
+def block_pictures_data(results: Path, prefix: str = "") -> str:
+    """docs/data.md: the real frame and the sensor models' missing depth."""
+    return _pictures(results, prefix, [p for p in PICTURES if p[0].startswith(("real_frame/", "sensor/"))])
+
+
+def block_pictures_method(results: Path, prefix: str = "") -> str:
+    """docs/method.md: the parameterization ceiling."""
+    return _pictures(results, prefix, [p for p in PICTURES if p[0].startswith("ceiling/")])
 
 
 BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning": block_learning, "ab": block_ab,
           "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures,
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
-          "real_frame": block_real_frame}
+          "real_frame": block_real_frame, "pictures_data": block_pictures_data,
+          "pictures_method": block_pictures_method}
 
 
-def render(readme: str, results: Path = RESULTS) -> str:
-    """The README with every figures block rendered from ``results``; unknown or missing blocks are errors."""
-    found = [m.group("name") for m in BLOCK.finditer(readme)]
-    unknown = sorted(set(found) - set(BLOCKS))
-    missing = sorted(set(BLOCKS) - set(found))
-    if unknown or missing:
-        raise ValueError(f"README figures blocks: unknown {unknown}, missing {missing}")
-    return BLOCK.sub(lambda m: m.group(1) + BLOCKS[m.group("name")](results) + m.group(4), readme)
+def docs_pages(docs: Path = DOCS) -> dict[Path, str]:
+    """The docs pages (``docs/*.md``) and their texts."""
+    return {path: path.read_text() for path in sorted(docs.glob("*.md"))}
+
+
+def blocks_of(text: str, name: str = "text") -> list[str]:
+    """The names of the figures blocks ``text`` holds; ValueError naming ``name`` when a marker
+    names no known block or has no pair."""
+    markers = [m.group("name") for m in MARKER.finditer(text)]
+    unknown = sorted(set(markers) - set(BLOCKS))
+    blocks = [m.group("name") for m in BLOCK.finditer(text)]
+    if unknown or len(markers) != 2 * len(blocks):
+        raise ValueError(f"{name}: figures blocks: unknown {unknown}, markers without their pair: "
+                         f"{sorted(set(markers) - set(blocks))}")
+    return blocks
+
+
+def check_blocks(texts: dict[str, str]) -> None:
+    """Every marker of ``texts`` (file name -> text) is a known, closed block, and every known block
+    sits in at least one of them; ValueError otherwise."""
+    found = {block for name, text in texts.items() for block in blocks_of(text, name)}
+    missing = sorted(set(BLOCKS) - found)
+    if missing:
+        raise ValueError(f"figures blocks: missing {missing} (each must sit in README.md or a docs page)")
+
+
+def render_text(text: str, results: Path = RESULTS, prefix: str = "") -> str:
+    """``text`` with the figures blocks it holds rendered from ``results``, their relative links
+    starting with ``prefix`` (the way from the file's folder to the repository root)."""
+    return BLOCK.sub(lambda m: m.group(1) + BLOCKS[m.group("name")](results, prefix) + m.group(4), text)
+
+
+def render(readme: str, results: Path = RESULTS, pages: dict[Path, str] | None = None) -> str:
+    """The README with its figures blocks rendered from ``results``. Unknown or missing blocks are
+    errors: each known block must sit in the README or in one of the docs ``pages`` (path -> text;
+    by default those under docs/)."""
+    pages = docs_pages() if pages is None else pages
+    check_blocks({"README.md": readme, **{str(path): text for path, text in pages.items()}})
+    return render_text(readme, results)
+
+
+def render_page(page: str, results: Path = RESULTS) -> str:
+    """A docs page (``docs/*.md``) with its figures blocks rendered, links written from docs/."""
+    blocks_of(page, "docs page")
+    return render_text(page, results, DOCS_PREFIX)
 
 
 # ------------------------------------------------------------------------------------------ pictures
@@ -337,8 +402,9 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--check", action="store_true", help="only compare; exit 1 when the README differs")
+    parser.add_argument("--check", action="store_true", help="only compare; exit 1 when a page differs")
     parser.add_argument("--readme", type=Path, default=REPO / "README.md")
+    parser.add_argument("--docs", type=Path, default=DOCS, help="the folder of the docs pages (*.md)")
     parser.add_argument("--results", type=Path, default=RESULTS)
     parser.add_argument("--run-quickstart", action="store_true", help="run the quickstart and record its figures first")
     parser.add_argument("--keep", type=Path, help="with --run-quickstart: run in this folder and keep it")
@@ -355,22 +421,29 @@ def main(argv: list[str] | None = None) -> int:
         q = run_quickstart(args.results, args.keep)
         print(f"quickstart: test AP {q['ap']:.4f}, {format_duration(q['wall_s'])}")
     readme = args.readme.read_text()
+    pages = docs_pages(args.docs)
     if not args.check:
         draw_ceiling_chart(args.results)
-    rendered = render(readme, args.results)
+    files = {args.readme: (readme, render(readme, args.results, pages))}
+    files.update({path: (page, render_page(page, args.results)) for path, page in pages.items()})
+    drifted = [path for path, (text, rendered) in files.items() if rendered != text]
     if args.check:
-        if rendered != readme:
-            sys.stdout.writelines(difflib.unified_diff(readme.splitlines(True), rendered.splitlines(True),
-                                                       "README.md", "rendered from results/"))  # fmt: skip
-            print("\nREADME figures differ from results/: run python scripts/readme_figures.py", file=sys.stderr)
+        for path in drifted:
+            text, rendered = files[path]
+            sys.stdout.writelines(difflib.unified_diff(text.splitlines(True), rendered.splitlines(True),
+                                                       str(path), "rendered from results/"))  # fmt: skip
+        if drifted:
+            print(f"\nfigures of {', '.join(map(str, drifted))} differ from results/: run python scripts/readme_figures.py",
+                  file=sys.stderr)
             return 1
-        print("README figures match results/")
+        print(f"figures of README.md and {len(pages)} docs pages match results/")
         return 0
-    if rendered != readme:
-        args.readme.write_text(rendered)
-        print(f"{args.readme}: figures updated")
-    else:
-        print(f"{args.readme}: figures already up to date")
+    for path, (text, rendered) in files.items():
+        if rendered != text:
+            path.write_text(rendered)
+            print(f"{path}: figures updated")
+        else:
+            print(f"{path}: figures already up to date")
     return 0
 
 

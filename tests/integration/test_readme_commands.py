@@ -1,9 +1,14 @@
-"""Every command of the README's task table runs as printed, on tiny data.
+"""Every command of the task tables of docs/commands.md and README.md runs as printed, on tiny data.
 
-The commands are read from README.md itself; each placeholder (``<ckpt>``, ``<dir>``, ...) is
-replaced by a real path of this test's workspace, optional ``[...]`` parts are kept, and only
-size overrides (fewer cycles, one epoch, the tiny network, a CPU trainer) are appended. A README
-row without a runner here fails the test, so the table and this test cannot part ways.
+docs/commands.md holds every command in one table (``| task | command |``); the README's "what
+next" table (``| task | command | read more |``) is a selection of its rows: each README row must be
+a row of docs/commands.md with the same task and, to the letter, the same command, so running the
+commands page's table runs the README's too (``readme_commands`` asserts it; the fast
+``tests/unit/test_doc_links.py`` calls it on every test run). The commands are read from the two
+pages themselves; each placeholder (``<ckpt>``, ``<dir>``, ...) is replaced by a real path of this
+test's workspace, optional ``[...]`` parts are kept, and only size overrides (fewer cycles, one
+epoch, the tiny network, a CPU trainer) are appended. A row of either table without a runner here
+fails the test, so the tables and this test cannot part ways.
 """
 
 from __future__ import annotations
@@ -28,15 +33,30 @@ TINY_FIT = ["trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.
             "trainer.enable_progress_bar=false", "example_predictions=1"]
 
 
-def readme_commands() -> dict[str, str]:
-    """task -> the first `command` of its row in the README's task table."""
-    text = (REPO_ROOT / "README.md").read_text()
-    table = text.split("| task | command |")[1].split("\n\n")[0]
+COMMANDS_PAGE = REPO_ROOT / "docs" / "commands.md"
+
+
+def task_table(page: Path) -> dict[str, str]:
+    """task -> the first `command` of its row in the page's task table (the table whose header
+    starts ``| task | command |``; further columns, such as the README's links, are ignored)."""
+    lines = page.read_text().split("\n| task | command |", 1)[1].split("\n\n")[0].splitlines()
+    assert re.fullmatch(r"\|(-+\|)+", lines[1]), f"{page}: the task table's header is not followed by its rule"
     rows = {}
-    for line in table.strip().splitlines()[1:]:
+    for line in lines[2:]:
         cells = line.split("|")
         task, command = cells[1].strip(), re.search(r"`([^`]+)`", cells[2]).group(1)
+        assert task not in rows, f"{page}: task {task!r} twice"
         rows[task] = command
+    return rows
+
+
+def readme_commands() -> dict[str, str]:
+    """task -> command of every row of docs/commands.md, after checking that each row of the
+    README's table is one of them, command for command."""
+    rows = task_table(COMMANDS_PAGE)
+    for task, command in task_table(REPO_ROOT / "README.md").items():
+        assert task in rows, f"README task {task!r} is not a row of docs/commands.md"
+        assert rows[task] == command, f"README task {task!r}: {command!r} but docs/commands.md {rows[task]!r}"
     return rows
 
 
@@ -59,14 +79,14 @@ def fill(command: str, values: list[tuple[str, str]]) -> list[str]:
 def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
     rows = readme_commands()
     ws = tmp_path
-    # a fresh machine: no reference data beside the clone (the README's commands must not need it)
+    # a fresh machine: no reference data beside the clone (the tables' commands must not need it)
     env = {**os.environ, "OPNET_ROOT": str(ws), "PYOPENGL_PLATFORM": "egl", "OPNET_SHARED": str(ws / "no_shared")}
     done: set[str] = set()
 
     def run(task: str, values: list[tuple[str, str]], extra: list[str] = ()) -> subprocess.CompletedProcess:
         argv = [*fill(rows[task], values), *extra]
         proc = subprocess.run(argv, cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=600)
-        assert proc.returncode == 0, f"README command failed: {shlex.join(argv)}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+        assert proc.returncode == 0, f"task table command failed: {shlex.join(argv)}\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
         assert "Traceback" not in proc.stdout + proc.stderr
         done.add(task)
         return proc
@@ -151,4 +171,4 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
 
     run("paper network on a GPU", [], ["trainer=cpu", "trainer.precision=32", *TINY_DATA, *TINY_FIT,
                                        "data.batch_size=2", "data.num_workers=0", f"hydra.run.dir={ws / 'paper_run'}"])
-    assert set(rows) == done, f"README rows without a runner here: {sorted(set(rows) - done)}"
+    assert set(rows) == done, f"task table rows without a runner here: {sorted(set(rows) - done)}"
