@@ -128,7 +128,9 @@ def merge_csv(path: Path, fields: tuple[str, ...], new: list[dict[str, Any]], ke
     writer.writeheader()
     writer.writerows(rows)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(buf.getvalue())
+    from opnet.fileio.atomic import write_text_atomic
+
+    write_text_atomic(path, buf.getvalue())  # a table cut short by a kill would lose earlier rows
     return rows
 
 

@@ -2,7 +2,7 @@
 precision, compilation.
 
 Measured on this 2-core CPU (AVX512-BF16), paper network, batch 1, same run
-(``scripts/bench_infer.py``, README "Inference speed"): fp32 eager ≈ 68 ms, fp32 channels-last
+(``scripts/bench_infer.py``, docs/deployment.md "Inference speed"): fp32 eager ≈ 68 ms, fp32 channels-last
 ≈ 67 ms, the fused fp32 form ≈ 50-56 ms (≈ 1.0 x the matrix-product roofline time of its 10
 GFLOP), bf16 autocast channels-last ≈ 36 ms.
 

@@ -1,6 +1,6 @@
 """Plausibility checks of ground-truth values, done once where they are read (the readers).
 
-Tolerances (documented in the README's data section):
+Tolerances (documented in docs/reliability.md):
 - a rotation must be orthonormal to ``ORTHONORMAL_TOL`` (max |RᵀR − I|; the official data is
   orthonormal to ~1e-6, values written with six decimals to ~1e-6) with det(R) = +1: a scaled
   matrix or a reflection is not a pose;

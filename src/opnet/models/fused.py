@@ -334,7 +334,7 @@ class FusedDenseNet(nn.Module):
 
 def export_form(net: torch.nn.Module) -> torch.nn.Module:
     """The network to trace into ONNX: a DenseNetBC's fused arithmetic in plain operators (no oneDNN
-    operators, no buffer writes), which ONNX Runtime also runs faster (README "Inference speed");
+    operators, no buffer writes), which ONNX Runtime also runs faster (docs/deployment.md "Inference speed");
     any other module as it is."""
     if not isinstance(net, DenseNetBC):
         return net
