@@ -51,6 +51,9 @@ sys.path.insert(0, str(REPO / "src"))
 
 from opnet.cli.console import format_duration  # noqa: E402
 
+sys.path.insert(0, str(REPO / "scripts"))
+import quickstart_seeds  # noqa: E402
+
 RESULTS = REPO / "results"
 DOCS = REPO / "docs"
 DOCS_PREFIX = "../"  # docs/*.md sit one folder below the repository root, where results/ is
@@ -82,10 +85,58 @@ def block_quickstart(results: Path, prefix: str = "") -> str:
         f"opnet's defaults and the {q['parameterization']} parameterization for {q['epochs']} epochs, and evaluates "
         f"the best checkpoint on its held-out cycles ({q['scenes']} scenes): **test AP {q['ap']:.4f}** "
         f"(MAP {q['map']:.4f}, F1 {q['f1']:.4f}, {100 * q['found']:.1f} % of the parts found), "
-        f"**{format_duration(q['wall_s'])}** end to end on {q['machine']}. The console ends with that summary and the "
+        f"**{format_duration(q['wall_s'])}** end to end on {q['machine']}"
+        f"{quickstart_path_note(q)}. The console ends with that summary and the "
         f"paths of the checkpoint, TensorBoard logs, AP table and example prediction PNGs "
         f"([its last lines]({prefix}results/quickstart/console_tail.txt)).\n"
+        f"{quickstart_seeds_table(results)}"
     )
+
+
+def quickstart_path_note(q: dict[str, Any]) -> str:
+    """The headline run's machine facts that change the model: its CPU and precision path."""
+    if "precision_path" not in q:
+        return ""
+    return f" ({q['cpu']}, {q['precision_path']})"
+
+
+def quickstart_seeds_table(results: Path) -> str:
+    """Mean ± sd of the quickstart's test AP over training seeds, per CPU and precision path
+    (``results/quickstart/seeds.csv``, ``scripts/quickstart_seeds.py``); empty without the file."""
+    path = results / "quickstart" / "seeds.csv"
+    if not path.is_file():
+        return ""
+    import statistics
+
+    groups: dict[tuple[str, str, str], list[dict[str, str]]] = {}
+    for r in _csv(path):
+        groups.setdefault((r["cpu"], r["native_bf16"], r["precision_path"]), []).append(r)
+    rows = []
+    for (cpu, native, precision), rs in sorted(groups.items()):
+        aps = [float(r["ap"]) for r in rs]
+        walls = [float(r["wall_s"]) for r in rs if r["with_generation"] != "True"]
+        sd = f"{statistics.stdev(aps):.3f}" if len(aps) > 1 else "—"
+        rows.append([cpu, "yes" if native == "True" else "no", f"**{precision}**", ", ".join(r["seed"] for r in rs),
+                     f"**{statistics.fmean(aps):.3f} ± {sd}**", f"{min(aps):.3f} – {max(aps):.3f}",
+                     format_duration(statistics.fmean(walls)) if walls else "—"])  # fmt: skip
+    return (
+        "\nThe precision path changes the model, so the figure to expect depends on the CPU: "
+        "`trainer.precision=auto` trains in bf16 mixed precision where the CPU computes bf16 natively "
+        "(AVX512-BF16 or AMX), else in fp32, and the console's `precision path:` line says which one a run took. "
+        "Over training seeds (`python scripts/quickstart_seeds.py --seeds 0 1 2 --precision auto 32`; the same "
+        "data, the sd is over seeds):\n\n"
+        + _table(["CPU", "native bf16", "precision path", "seeds", "test AP mean ± sd", "min – max",
+                  "train + test time per run"], rows)  # fmt: skip
+        + "\n"
+    )
+
+
+def console_precision_path(console: str) -> str:
+    """The precision path a train.py run printed (``precision path: bf16 mixed (...)`` -> ``bf16 mixed``)."""
+    found = re.search(r"precision path: ([^(\n]+)", console)
+    if not found:
+        raise RuntimeError("the quickstart's console names no precision path")
+    return found.group(1).strip()
 
 
 def block_defaults(results: Path, prefix: str = "") -> str:
@@ -380,6 +431,7 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
         "dataset_scenes": len(list((data_root / "p_depth").rglob("*.png"))), "model": "small",
         "params_m": params / 1e6, "parameterization": "vanilla", "epochs": cfg["trainer"]["max_epochs"],
         "machine": f"this {os.cpu_count()}-core CPU machine", "date": time.strftime("%Y-%m-%d"),
+        "cpu": quickstart_seeds.cpu_model(), "precision_path": console_precision_path(proc.stdout + proc.stderr),
         "checkpoint": ckpt.name,
     }  # fmt: skip
     (out / "summary.json").write_text(json.dumps(q, indent=1) + "\n")

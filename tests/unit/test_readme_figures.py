@@ -131,3 +131,25 @@ def test_unknown_or_missing_blocks_are_errors() -> None:
         figures.render_page("<!-- figures:nope -->\n<!-- /figures:nope -->\n")
     with pytest.raises(ValueError, match="without their pair"):
         figures.render_page("<!-- figures:ab -->\nno end\n")
+
+
+def test_quickstart_seeds_table_gives_mean_and_sd_per_precision_path(tmp_path: Path) -> None:
+    """results/quickstart/seeds.csv (scripts/quickstart_seeds.py) renders one row per CPU and
+    precision path with the sample mean ± sd over its seeds; runs that generated data are left out
+    of the time per run."""
+    results = tmp_path / "results"
+    shutil.copytree(REPO_ROOT / "results", results)
+    fields = ["cpu", "native_bf16", "precision_path", "seed", "ap", "map", "f1", "found", "wall_s",
+              "with_generation", "torch", "date", "command"]
+    rows = [["CPU A", "True", "bf16", s, ap, 0, 0, 0, wall, gen, "2.13.0", "2026-11-25", "c"]
+            for s, ap, wall, gen in ((0, 0.80, 500, True), (1, 0.82, 200, False), (2, 0.84, 220, False))]
+    rows += [["CPU A", "True", "fp32", 0, 0.70, 0, 0, 0, 300, False, "2.13.0", "2026-11-25", "c"]]
+    with (results / "quickstart" / "seeds.csv").open("w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(fields)
+        writer.writerows(rows)
+    block = figures.block_quickstart(results)
+    bf16 = next(line for line in block.splitlines() if "**bf16**" in line)
+    assert "**0.820 ± 0.020**" in bf16 and "0.800 – 0.840" in bf16 and "3 min 30 s" in bf16
+    fp32 = next(line for line in block.splitlines() if "**fp32**" in line)
+    assert "**0.700 ± —**" in fp32
