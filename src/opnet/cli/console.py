@@ -22,11 +22,13 @@ from typing import Any
 
 from omegaconf.errors import OmegaConfBaseException
 
+from opnet._deps import MissingDependencyError
 from opnet.fileio.atomic import DiskFullError
 
 #: exceptions that mean "the input (or the disk) is wrong", not "the program is wrong"
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, NotADirectoryError,
-                                                 PermissionError, OmegaConfBaseException, DiskFullError)
+                                                 PermissionError, OmegaConfBaseException, DiskFullError,
+                                                 MissingDependencyError)
 _ADVERTS = ("litlogger", "LitLogger", "Lightning Experiments platform")
 _HARMLESS_WARNINGS = (
     r".*isinstance\(treespec, LeafSpec\)` is deprecated.*",

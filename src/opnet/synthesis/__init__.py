@@ -3,30 +3,30 @@
 In memory: :class:`CycleGenerator` (``BinSimulator`` + ``SceneRenderer``) makes the
 :class:`~opnet.datasets.record.SceneRecord` of every scene of a cycle. On disk:
 :func:`generate_dataset` writes a resumable, deterministic Fraunhofer-IPA-layout dataset.
+
+Names are imported on first use: ``generate_dataset`` on a dataset that is already complete,
+``SceneConfig`` and ``read_generation`` load neither pybullet nor pyrender (a training box
+without them can use data generated elsewhere).
 """
 
-from opnet.synthesis.config import SceneConfig
-from opnet.synthesis.cycle import CycleGenerator, CycleResult, cycle_rngs
-from opnet.synthesis.generate import GenerationReport, generate_dataset
-from opnet.synthesis.layout import BinGeometry, CycleLayout, Rig, make_rig
-from opnet.synthesis.physics import BinSimulator, CycleStates
-from opnet.synthesis.rendering import RenderedScene, SceneRenderer
-from opnet.synthesis.writer import read_generation
+from opnet._lazy import lazy_exports
 
-__all__ = [
-    "BinGeometry",
-    "BinSimulator",
-    "CycleGenerator",
-    "CycleLayout",
-    "CycleResult",
-    "CycleStates",
-    "GenerationReport",
-    "RenderedScene",
-    "Rig",
-    "SceneConfig",
-    "SceneRenderer",
-    "cycle_rngs",
-    "generate_dataset",
-    "make_rig",
-    "read_generation",
-]
+_WHERE = {
+    "BinGeometry": "layout",
+    "BinSimulator": "physics",
+    "CycleGenerator": "cycle",
+    "CycleLayout": "layout",
+    "CycleResult": "cycle",
+    "CycleStates": "physics",
+    "GenerationReport": "generate",
+    "RenderedScene": "rendering",
+    "Rig": "layout",
+    "SceneConfig": "config",
+    "SceneRenderer": "rendering",
+    "cycle_rngs": "cycle",
+    "generate_dataset": "generate",
+    "make_rig": "layout",
+    "read_generation": "writer",
+}
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _WHERE)

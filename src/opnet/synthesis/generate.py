@@ -22,12 +22,12 @@ from typing import Any
 
 from tqdm import tqdm
 
+from opnet._deps import require
 from opnet._limits import check_threads
 from opnet._repr import short_repr
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.collision import CollisionModel, build_collision_model, check_solid
 from opnet.synthesis.config import SceneConfig
-from opnet.synthesis.cycle import CycleGenerator
 from opnet.synthesis.layout import make_rig
 from opnet.synthesis.sensor import SensorModel
 from opnet.synthesis.writer import (
@@ -118,6 +118,8 @@ class _CycleDone:
 
 class _Worker:
     def __init__(self, job: _Job) -> None:
+        from opnet.synthesis.cycle import CycleGenerator  # physics and rendering: only where piles are made
+
         self.job = job
         self.generator = CycleGenerator(job.obj, job.drops, job.scene, job.cycles, job.collision, job.sensor)
         self.ready_at = time.time()
@@ -209,8 +211,10 @@ def generate_dataset(
         # a re-run with fewer cycles leaves the dataset's other cycles in place: parameter.json
         # must keep counting them (number_cycles = cycle folders), not shrink below the folders
         params = dataclasses.replace(params, number_cycles=present[-1] + 1)
-    write_root_files(out, obj, config, params, scene, seed, drops, sensor)
     todo = [c for c in range(cycles) if not cycle_complete(out, c, drops)]
+    if todo:  # before anything is written: a dataset must not announce cycles that cannot be made here
+        _require_generator(out)
+    write_root_files(out, obj, config, params, scene, seed, drops, sensor)
     for c in todo:
         clear_cycle(out, c)
     report = GenerationReport(out, cycles, cycles_skipped=cycles - len(todo))
@@ -226,6 +230,15 @@ def generate_dataset(
     report.seconds = time.perf_counter() - start
     report.startup_seconds = min(report.startup_seconds, report.seconds)
     return report
+
+
+def _require_generator(out: Path) -> None:
+    """Physics and rendering are installed (only checked when cycles are to be made: a complete
+    dataset is used without them)."""
+    hint = (f"install it, or generate {out} on a machine that has it (pybullet: CPython 3.11 wheels) and copy "
+            "it here: a complete dataset is used without the generator")
+    require("pybullet", f"generating cycles of {out}", hint)
+    require("pyrender", f"generating cycles of {out}", hint)
 
 
 def _cycles_present(root: Path) -> list[int]:

@@ -18,7 +18,7 @@ import json
 import shutil
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,9 +28,11 @@ from opnet.fileio.atomic import disk_full_named, write_text_if_changed
 from opnet.objects.library import BUILTINS, builtin_object
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
-from opnet.synthesis.cycle import CycleResult
 from opnet.synthesis.preview import write_preview
 from opnet.synthesis.sensor import SensorModel
+
+if TYPE_CHECKING:  # the generator (pybullet, pyrender) is not needed to read or check a dataset
+    from opnet.synthesis.cycle import CycleResult
 
 OBJECT_FILE = "object.json"
 POSEUTILS_FILE = "poseutils.json"
