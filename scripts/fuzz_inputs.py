@@ -27,6 +27,7 @@ import argparse
 import json
 import multiprocessing as mp
 import os
+import random
 import shutil
 import subprocess
 import sys
@@ -61,6 +62,11 @@ class Case:
 
 
 # ---------------------------------------------------------------------------------------- fixtures
+
+
+def garbage(size: int, tag: str) -> bytes:
+    """``size`` random bytes, the same in every run (the table is deterministic): seeded by ``tag``."""
+    return random.Random(f"fuzz garbage {tag}").randbytes(size)
 
 
 def make_base(ws: Path) -> dict[str, Path]:
@@ -327,7 +333,7 @@ def cli_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
     out = ws / "cli_out"
     evil = ws / "cases" / "evil.ckpt"
     evil.parent.mkdir(parents=True, exist_ok=True)
-    evil.write_bytes(b"PK\x03\x04" + os.urandom(200))
+    evil.write_bytes(b"PK\x03\x04" + garbage(200, "zip"))
     trunc = ws / "cases" / "trunc.ckpt"
     trunc.write_bytes(ckpt.read_bytes()[: ckpt.stat().st_size // 3])
     npy_zero = ws / "cases" / "zero.npy"
@@ -562,7 +568,7 @@ def mesh_cases(ws: Path) -> list[Case]:
                     b"property float z\nelement face 5000000\nproperty list uchar int vertex_indices\nend_header\n",
         "huge.stl": b"\0" * 80 + (5_000_000).to_bytes(4, "little") + b"\0" * 100,
         "empty.obj": b"",
-        "garbage.stl": os.urandom(300),
+        "garbage.stl": garbage(300, "stl"),
         "nan.obj": b"v 0 0 0\nv nan 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\nf 1 2 4\nf 2 3 4\n",
         "bad_index.obj": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
         "points.ply": b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
@@ -712,8 +718,8 @@ def onnx_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
         _reader(cases, "ONNX", name, valid, lambda p=path: OnnxPoseEstimator(p), *(names or (path.name,)))
 
     data = src.read_bytes()
-    for i, (name, content) in enumerate({"truncated": data[: len(data) // 2], "empty": b"", "garbage": os.urandom(2000),
-                                         "a PNG renamed": b"\x89PNG\r\n\x1a\n" + os.urandom(100)}.items()):
+    for i, (name, content) in enumerate({"truncated": data[: len(data) // 2], "empty": b"", "garbage": garbage(2000, "onnx"),
+                                         "a PNG renamed": b"\x89PNG\r\n\x1a\n" + garbage(100, "png")}.items()):
         path = folder / f"file_{i}.onnx"
         path.write_bytes(content)
         add(name, False, path)
