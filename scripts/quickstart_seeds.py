@@ -86,18 +86,21 @@ def run_one(root: Path, seed: int, precision: str) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def spread(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, float]]:
-    """(CPU, precision path) -> n, AP mean and sd (sample), mean wall time of the runs without generation."""
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+def spread(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One entry per (CPU, native bf16, precision path), sorted: its seeds, the test AP's mean, sample
+    sd (NaN for one run), min and max, and the mean wall time of the runs that did not generate data
+    (NaN when all did). Rows as written by :func:`run_one` or read back from the CSV."""
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
     for r in rows:
-        groups.setdefault((r["cpu"], r["precision_path"]), []).append(r)
-    out = {}
-    for key, rs in groups.items():
+        groups.setdefault((str(r["cpu"]), str(r["native_bf16"]), str(r["precision_path"])), []).append(r)
+    out = []
+    for (cpu, native, precision), rs in sorted(groups.items()):
         aps = [float(r["ap"]) for r in rs]
-        walls = [float(r["wall_s"]) for r in rs if str(r["with_generation"]) not in ("True", "true", "1")]
-        out[key] = {"n": len(aps), "ap_mean": statistics.fmean(aps),
-                    "ap_sd": statistics.stdev(aps) if len(aps) > 1 else float("nan"),
-                    "wall_s": statistics.fmean(walls) if walls else float("nan")}  # fmt: skip
+        walls = [float(r["wall_s"]) for r in rs if str(r["with_generation"]) != "True"]
+        out.append({"cpu": cpu, "native_bf16": native == "True", "precision_path": precision,
+                    "seeds": [str(r["seed"]) for r in rs], "ap_mean": statistics.fmean(aps),
+                    "ap_sd": statistics.stdev(aps) if len(aps) > 1 else float("nan"), "ap_min": min(aps),
+                    "ap_max": max(aps), "wall_s": statistics.fmean(walls) if walls else float("nan")})  # fmt: skip
     return out
 
 
@@ -132,9 +135,10 @@ def main(argv: list[str] | None = None) -> int:
         import shutil
 
         shutil.rmtree(root, ignore_errors=True)
-    print(f"\n| CPU | precision path | seeds | test AP mean ± sd | wall (s, without generation) |\n|---|---|---|---|---|")
-    for (c, p), s in sorted(spread(done).items()):
-        print(f"| {c} | {p} | {s['n']} | {s['ap_mean']:.3f} ± {s['ap_sd']:.3f} | {s['wall_s']:.0f} |")
+    print("\n| CPU | precision path | seeds | test AP mean ± sd | wall (s, without generation) |\n|---|---|---|---|---|")
+    for g in spread(done):
+        print(f"| {g['cpu']} | {g['precision_path']} | {len(g['seeds'])} | {g['ap_mean']:.3f} ± {g['ap_sd']:.3f} | "
+              f"{g['wall_s']:.0f} |")
     return 0
 
 

@@ -106,19 +106,14 @@ def quickstart_seeds_table(results: Path) -> str:
     path = results / "quickstart" / "seeds.csv"
     if not path.is_file():
         return ""
-    import statistics
 
-    groups: dict[tuple[str, str, str], list[dict[str, str]]] = {}
-    for r in _csv(path):
-        groups.setdefault((r["cpu"], r["native_bf16"], r["precision_path"]), []).append(r)
-    rows = []
-    for (cpu, native, precision), rs in sorted(groups.items()):
-        aps = [float(r["ap"]) for r in rs]
-        walls = [float(r["wall_s"]) for r in rs if r["with_generation"] != "True"]
-        sd = f"{statistics.stdev(aps):.3f}" if len(aps) > 1 else "—"
-        rows.append([cpu, "yes" if native == "True" else "no", f"**{precision}**", ", ".join(r["seed"] for r in rs),
-                     f"**{statistics.fmean(aps):.3f} ± {sd}**", f"{min(aps):.3f} – {max(aps):.3f}",
-                     format_duration(statistics.fmean(walls)) if walls else "—"])  # fmt: skip
+    def known(x: float, show: Any) -> str:  # NaN: one run (no sd), or every run generated data (no time)
+        return "—" if x != x else show(x)
+
+    rows = [[g["cpu"], "yes" if g["native_bf16"] else "no", f"**{g['precision_path']}**", ", ".join(g["seeds"]),
+             f"**{g['ap_mean']:.3f} ± {known(g['ap_sd'], '{:.3f}'.format)}**",
+             f"{g['ap_min']:.3f} – {g['ap_max']:.3f}", known(g["wall_s"], format_duration)]
+            for g in quickstart_seeds.spread(_csv(path))]  # fmt: skip
     return (
         "\nThe precision path changes the model, so the figure to expect depends on the CPU: "
         "`trainer.precision=auto` trains in bf16 mixed precision where the CPU computes bf16 natively "
