@@ -150,12 +150,7 @@ def main(argv: list[str] | None = None) -> None:
 
     fast = InferenceSettings()  # the default of predict.py / eval.py: the fused fp32 form on the CPU
     onnx = None if args.no_onnx or device.type != "cpu" else onnx_paths(model, param)
-    paths = {"forward fp32 eager": InferenceSettings("32", False, fused=False),
-             "forward fp32 channels-last": InferenceSettings("32", True, fused=False),
-             f"forward {fast.describe(device, model).split(',')[0]} (default)": fast,
-             "forward bf16 autocast channels-last": InferenceSettings("bf16", True)}
-    if args.compile:
-        paths["forward bf16 channels-last compiled"] = InferenceSettings("bf16", True, compile=True)
+    variants = forward_variants(device, model, args.compile)
     for b in [int(x) for x in args.batches.split(",")]:
         depths = [depth_image(camera, rng) for _ in range(b)]
         pre = lambda: [to_network_input(d, camera, 128, cv2.INTER_AREA) for d in depths]  # noqa: E731
@@ -163,9 +158,8 @@ def main(argv: list[str] | None = None) -> None:
         out = noisy.expand(b, -1, -1, -1).contiguous().to(device)
         cams = [net_cam] * b
         record(b, "preprocess", timeit(pre, args.repeats, sync))
-        for name, settings in paths.items():
-            run = fast_forward(copy.deepcopy(model), settings)
-            record_forward(b, name, lambda: run(x), args.repeats if b == 1 else max(3, args.repeats // 3))
+        for name, make in variants.items():
+            record_forward(b, name, make(copy.deepcopy(model), x), args.repeats if b == 1 else max(3, args.repeats // 3))
         record(b, "decode + averaging", timeit(lambda: param.decode(out, cams), args.repeats, sync))
         run = fast_forward(copy.deepcopy(model), fast)
 
@@ -255,30 +249,83 @@ def _setup(name: str, model_name: str, obj: object, net_cam: Camera, device: tor
     return param, model, noisy
 
 
-def cuda_variants(model: torch.nn.Module, x: torch.Tensor) -> dict[str, Callable[[], object]]:
-    """bf16 autocast, channels-last + bf16, and a CUDA graph of the bf16 channels-last forward."""
-    cl = model.to(memory_format=torch.channels_last)
-    xc = x.to(memory_format=torch.channels_last)
+#: builds, from a network (a copy of its own) and an input batch on the device, the call to time
+Variant = Callable[[torch.nn.Module, torch.Tensor], Callable[[], object]]
 
-    def bf16() -> object:
-        with torch.inference_mode(), torch.autocast("cuda", dtype=torch.bfloat16):
+
+def forward_variants(device: torch.device, model: torch.nn.Module, compile: bool = False) -> dict[str, Variant]:
+    """The forward rows timed on ``device`` by name, in table order (nothing is built or run here):
+    the inference paths of :func:`opnet.inference.fast_forward`, then on a CUDA device
+    :data:`CUDA_VARIANTS` (bf16 autocast, channels-last and a CUDA-graph replay)."""
+    fast = InferenceSettings()
+    paths = {"forward fp32 eager": InferenceSettings("32", False, fused=False),
+             "forward fp32 channels-last": InferenceSettings("32", True, fused=False),
+             f"forward {fast.describe(device, model).split(',')[0]} (default)": fast,
+             "forward bf16 autocast channels-last": InferenceSettings("bf16", True)}
+    if compile:
+        paths["forward bf16 channels-last compiled"] = InferenceSettings("bf16", True, compile=True)
+    variants: dict[str, Variant] = {name: _inference_path(settings) for name, settings in paths.items()}
+    if device.type == "cuda":
+        variants.update(CUDA_VARIANTS)
+    return variants
+
+
+def _inference_path(settings: InferenceSettings) -> Variant:
+    def make(model: torch.nn.Module, x: torch.Tensor) -> Callable[[], object]:
+        run = fast_forward(model, settings)
+        return lambda: run(x)
+
+    return make
+
+
+def _bf16() -> torch.autocast:
+    """bf16 autocast on CUDA; no weight cache, which a CUDA-graph capture must not use."""
+    return torch.autocast("cuda", dtype=torch.bfloat16, cache_enabled=False)
+
+
+def cuda_bf16(model: torch.nn.Module, x: torch.Tensor) -> Callable[[], object]:
+    """The network as it is (contiguous) under bf16 autocast."""
+    model.eval()
+
+    def run() -> object:
+        with torch.inference_mode(), _bf16():
             return model(x)
 
-    def bf16_cl() -> object:
-        with torch.inference_mode(), torch.autocast("cuda", dtype=torch.bfloat16):
-            return cl(xc)
+    return run
 
-    static_in = xc.clone()
-    s = torch.cuda.Stream()
-    s.wait_stream(torch.cuda.current_stream())
-    with torch.cuda.stream(s), torch.inference_mode(), torch.autocast("cuda", dtype=torch.bfloat16):
+
+def cuda_bf16_channels_last(model: torch.nn.Module, x: torch.Tensor) -> Callable[[], object]:
+    """Channels-last weights and input under bf16 autocast, one call for the whole batch."""
+    model.eval().to(memory_format=torch.channels_last)
+    xc = x.contiguous(memory_format=torch.channels_last)
+
+    def run() -> object:
+        with torch.inference_mode(), _bf16():
+            return model(xc)
+
+    return run
+
+
+def cuda_graph(model: torch.nn.Module, x: torch.Tensor) -> Callable[[], object]:
+    """A CUDA graph of the bf16 channels-last forward of ``x`` (captured after three warm-up calls
+    on a side stream), replayed: one launch instead of one per kernel."""
+    model.eval().to(memory_format=torch.channels_last)
+    static_in = x.contiguous(memory_format=torch.channels_last).clone()
+    side = torch.cuda.Stream()
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side), torch.inference_mode(), _bf16():
         for _ in range(3):
-            cl(static_in)
-    torch.cuda.current_stream().wait_stream(s)
+            model(static_in)
+    torch.cuda.current_stream().wait_stream(side)
     graph = torch.cuda.CUDAGraph()
-    with torch.cuda.graph(graph), torch.inference_mode(), torch.autocast("cuda", dtype=torch.bfloat16):
-        cl(static_in)
-    return {"forward bf16": bf16, "forward bf16 channels-last": bf16_cl, "forward bf16 CUDA graph": graph.replay}
+    with torch.cuda.graph(graph), torch.inference_mode(), _bf16():
+        model(static_in)
+    return graph.replay
+
+
+#: the forward rows only a CUDA device has
+CUDA_VARIANTS: dict[str, Variant] = {"forward bf16": cuda_bf16, "forward bf16 channels-last": cuda_bf16_channels_last,
+                                     "forward bf16 CUDA graph": cuda_graph}
 
 
 def train_throughput(model: torch.nn.Module, channels: int, device: torch.device, batch: int = 32, steps: int = 20) -> float:

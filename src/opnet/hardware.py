@@ -1,5 +1,6 @@
 """What the hardware can do, probed once where the command line and the inference engine both
-need it: native bf16 on the CPU, and the training precision that follows from it.
+need it: native bf16 on the CPU, whether a training runs on a CUDA GPU, and the training
+precision that follows from them.
 
 A low module (imports torch only): ``opnet.inference`` and ``opnet.cli`` both use it.
 """
@@ -18,12 +19,28 @@ def cpu_has_native_bf16() -> bool:
     return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
 
 
+def on_cuda(accelerator: str) -> bool:
+    """``trainer.accelerator`` puts the run on a CUDA GPU (``auto``: where one is available)."""
+    return accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available())
+
+
+def configure_matmul_precision(accelerator: str) -> bool:
+    """On a CUDA GPU, let float32 matrix products and convolutions use the tensor cores (TF32:
+    ``torch.set_float32_matmul_precision("high")``), unless the process chose a precision already;
+    Lightning warns on tensor-core GPUs while it is PyTorch's default ``highest``. A CPU run is left
+    as it is. Returns whether the precision was set."""
+    if not on_cuda(accelerator) or torch.get_float32_matmul_precision() != "highest":
+        return False
+    torch.set_float32_matmul_precision("high")
+    return True
+
+
 def resolve_precision(precision: Any, accelerator: str) -> Any:
     """``trainer.precision: auto``: bf16 mixed precision where the hardware has it (GPUs, CPUs with
     native bf16), else 32-bit. Any other value is passed to Lightning as it is."""
     if str(precision) != "auto":
         return precision
-    if accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available()):
+    if on_cuda(accelerator):
         return "bf16-mixed"
     return "bf16-mixed" if cpu_has_native_bf16() else "32-true"
 
@@ -35,9 +52,9 @@ def precision_path(precision: Any, accelerator: str) -> str:
     if str(precision) != "auto":
         return f"precision path: {resolved} (trainer.precision={precision})"
     if str(resolved).startswith("bf16"):
-        why = "a GPU" if accelerator in ("gpu", "cuda") or torch.cuda.is_available() else "the CPU has native bf16"
+        why = "a GPU" if on_cuda(accelerator) else "the CPU has native bf16"
         return f"precision path: bf16 mixed ({why}; trainer.precision=auto)"
     return "precision path: fp32 (this CPU has no native bf16; trainer.precision=auto)"
 
 
-__all__ = ["cpu_has_native_bf16", "precision_path", "resolve_precision"]
+__all__ = ["configure_matmul_precision", "cpu_has_native_bf16", "on_cuda", "precision_path", "resolve_precision"]

@@ -40,3 +40,26 @@ def test_timings_are_positive_for_tiny() -> None:
 def test_unknown_preset_names_the_file() -> None:
     with pytest.raises(ValueError, match="nosuch.yaml"):
         load_model_preset("nosuch", 8, 16)
+
+
+def test_probe_inputs_are_made_on_the_models_device() -> None:
+    """A model on another device than the CPU is measured there (a CUDA model crashed on CPU probes);
+    the meta device stands in for a GPU: its tensors have shapes and a device but no data."""
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Conv2d(1, 4, 3, padding=1, bias=False), torch.nn.ReLU())
+    on_cpu = gflops_per_image(model, 32)
+    model.to(torch.device("meta"))
+    seen: list[torch.device] = []
+    model.register_forward_pre_hook(lambda module, args: seen.append(args[0].device))
+    measurements = {
+        "gflops": lambda: gflops_per_image(model, 32),
+        "forward": lambda: forward_ms_per_image(model, batch=2, in_size=32, repeats=1),
+        "training": lambda: train_images_per_s(model, batch=2, in_size=32, steps=1),
+    }
+    values = {}
+    for name, measure in measurements.items():
+        seen.clear()
+        values[name] = measure()
+        assert seen and set(seen) == {torch.device("meta")}, (name, seen)
+    assert values["gflops"] == pytest.approx(on_cpu)  # counted as on the CPU
+    assert values["forward"] > 0 and values["training"] > 0

@@ -22,7 +22,7 @@ from opnet.cli.build import (
 )
 from opnet.cli.console import format_duration, report, result_summary
 from opnet.cli.eval import evaluate_split
-from opnet.hardware import precision_path, resolve_precision
+from opnet.hardware import configure_matmul_precision, precision_path, resolve_precision
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +64,7 @@ def build_trainer(cfg: DictConfig) -> L.Trainer:
     requested, accelerator = cfg.trainer.get("precision", "32"), str(cfg.trainer.get("accelerator", "cpu"))
     precision = resolve_precision(requested, accelerator)
     log.info(precision_path(requested, accelerator))
+    configure_matmul_precision(accelerator)  # TF32 tensor cores for the fp32 matrix products on a GPU
     return instantiate(cfg.trainer, callbacks=callbacks, logger=logger, precision=precision)
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 
-import albumentations as A
+import albumentations as A  # offline: opnet/__init__.py has turned its update check off
 import cv2
 import numpy as np
 

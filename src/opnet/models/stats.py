@@ -1,13 +1,17 @@
-"""Size and speed measurements of a backbone: parameters, FLOPs, CPU forward and training speed.
+"""Size and speed measurements of a backbone: parameters, FLOPs, forward and training speed.
 
 FLOPs are measured with :class:`torch.utils.flop_counter.FlopCounterMode`, which counts a
 multiply-add as 2 FLOPs and counts convolutions and matrix products only (batch norm, ReLU,
 pooling and the sigmoid are not counted; they are < 1 % of the total here).
+
+Every measurement runs on the device the model is on: its probe inputs are made there.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import itertools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -53,9 +57,24 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
+def model_device(model: nn.Module) -> torch.device:
+    """The device of ``model``'s first parameter or buffer (the CPU for a module without either)."""
+    first = next(itertools.chain(model.parameters(), model.buffers()), None)
+    return torch.device("cpu") if first is None else first.device
+
+
 def _input(model: nn.Module, batch: int, in_size: int) -> torch.Tensor:
+    """A seeded (batch, C, in_size, in_size) probe on the model's device (drawn on the CPU, so
+    every device sees the same values)."""
     channels = getattr(model, "in_channels", 1)
-    return torch.rand(batch, channels, in_size, in_size, generator=torch.Generator().manual_seed(0))
+    x = torch.rand(batch, channels, in_size, in_size, generator=torch.Generator().manual_seed(0))
+    return x.to(model_device(model))
+
+
+def _sync(device: torch.device) -> None:
+    """Wait for the device's queued work (CUDA runs asynchronously: a timer would see the launch only)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 @torch.no_grad()
@@ -73,7 +92,8 @@ def gflops_per_image(model: nn.Module, in_size: int = 128) -> float:
 def forward_ms_per_image(
     model: nn.Module, batch: int, in_size: int = 128, repeats: int = 5, warmup: int = 1
 ) -> float:
-    """Best-of-``repeats`` CPU forward time per image in milliseconds (eval mode, no grad).
+    """Best-of-``repeats`` forward time per image in milliseconds (eval mode, no grad) on the
+    model's device.
 
     The minimum (timeit's convention) is the least disturbed by other processes on a shared machine.
     """
@@ -82,10 +102,12 @@ def forward_ms_per_image(
     x = _input(model, batch, in_size)
     for _ in range(warmup):
         model(x)
+    _sync(x.device)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
         model(x)
+        _sync(x.device)
         times.append(time.perf_counter() - start)
     model.train(was_training)
     return min(times) * 1e3 / batch
@@ -94,9 +116,9 @@ def forward_ms_per_image(
 def train_images_per_s(
     model: nn.Module, batch: int = 16, in_size: int = 128, steps: int = 5, warmup: int = 1, fast: bool = False
 ) -> float:
-    """CPU training throughput (images/s, best step of ``steps``): forward, squared-L2 loss,
-    backward and an Adam step; ``fast``: bf16 autocast and channels-last (the training defaults
-    where the CPU has native bf16).
+    """Training throughput on the model's device (images/s, best step of ``steps``): forward,
+    squared-L2 loss, backward and an Adam step; ``fast``: bf16 autocast and channels-last (the
+    training defaults where the CPU has native bf16).
 
     The model's weights are changed by the measurement; pass a copy to keep them.
     """
@@ -110,13 +132,14 @@ def train_images_per_s(
     times = []
     for step in range(warmup + steps):
         start = time.perf_counter()
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=fast):
+        with torch.autocast(x.device.type, dtype=torch.bfloat16) if fast else contextlib.nullcontext():
             y = model(x).float()
         target = torch.full_like(y, 0.5) if target is None else target
         loss = (y - target).square().mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
+        _sync(x.device)
         if step >= warmup:
             times.append(time.perf_counter() - start)
     return batch / min(times)
