@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from conftest import small_builtin_dataset, tiny_train_cfg
 
 from opnet.cli import train as train_cli
-from opnet.objects import builtin_object
+from opnet.objects import builtin_object, object_from_config
 from opnet.paths import REPO_ROOT
 from opnet.synthesis import SceneConfig, generate_dataset
-from opnet.synthesis.collision import build_collision_model, vhacd_cached
-from conftest import small_builtin_dataset, tiny_train_cfg
+from opnet.synthesis.collision import build_collision_model, coacd_cached, vhacd_cached
 
 
 def _copy(dataset: Path, dest: Path) -> Path:
@@ -95,13 +95,37 @@ def test_flat_mesh_is_refused_at_once(tmp_path: Path) -> None:
     assert not (tmp_path / "out").exists()
 
 
-def test_vhacd_time_cap_falls_back_to_the_hull(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("engine", ["mujoco", "pybullet"])
+def test_decomposition_time_cap_falls_back_to_the_hull(engine: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    if engine == "pybullet":
+        pytest.importorskip("pybullet", reason="pybullet not installed (its V-HACD)")
     mesh = builtin_object("zbracket").mesh
-    assert vhacd_cached(mesh, 1_000_000, tmp_path, timeout_s=0.05) is None
+    decompose = (lambda m, d, timeout_s: vhacd_cached(m, 1_000_000, d, timeout_s)) if engine == "pybullet" else (
+        lambda m, d, timeout_s: coacd_cached(m, 0.1, d, timeout_s))
+    assert decompose(mesh, tmp_path, timeout_s=0.05) is None
     assert not list(tmp_path.iterdir())  # no temporary folder left behind
     monkeypatch.setenv("OPNET_VHACD_TIMEOUT", "0.05")
-    model = build_collision_model(mesh, SceneConfig(collision="vhacd", cache_dir=str(tmp_path)))
+    model = build_collision_model(mesh, SceneConfig(collision="vhacd", cache_dir=str(tmp_path), physics=engine))
     assert model.mode == "convex_hull" and model.obj_file is None
+
+
+def test_a_failing_decomposition_is_one_line_naming_the_mesh(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # CoACD raising inside its child process: a ValueError naming the mesh file, before anything is written
+    import opnet.synthesis.collision as collision
+
+    def broken(src: str, dst: str, log: str, threshold: float) -> None:
+        raise RuntimeError("qhull: input is degenerate")
+
+    monkeypatch.setattr(collision, "_run_coacd", broken)
+    mesh = tmp_path / "part.obj"
+    builtin_object("zbracket").mesh.export(mesh)
+    cfg = {"name": "part", "mesh": str(mesh)}
+    with pytest.raises(ValueError, match=r"part.obj: convex decomposition of the mesh failed \(CoACD wrote nothing; "
+                                         r"log: RuntimeError: qhull: input is degenerate\)"):
+        generate_dataset(object_from_config(cfg), tmp_path / "out", cycles=1, drops=1, workers=1, progress=False,
+                         previews=0, scene=SceneConfig(resolution=64, collision="vhacd", cache_dir=str(tmp_path)),
+                         object_config=cfg)
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("special", ["/dev/zero", "fifo"])
@@ -132,8 +156,9 @@ def _mtimes(root: Path) -> dict[str, tuple[int, int]]:
 def test_complete_dataset_is_used_without_a_single_write(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A complete synthetic dataset (and its cache) on read-only storage: data=synthetic used to
     rewrite its root files; a missing cache now goes to the user cache instead of the dataset."""
-    from opnet.cli.build import build_datamodule, build_components
     from conftest import compose_cfg
+
+    from opnet.cli.build import build_components, build_datamodule
 
     root = tmp_path / "ds"
     cfg = compose_cfg("train", ["model=tiny", "object=zbracket", f"data.root={root}", "data.generate.cycles=3",

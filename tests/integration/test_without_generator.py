@@ -1,8 +1,10 @@
-"""Training on a complete synthetic dataset needs neither pybullet nor pyrender (a training box
-without them uses data generated elsewhere); making cycles without them is a one-line error.
+"""Training, evaluation, prediction and export on a complete synthetic dataset need neither a
+physics engine (MuJoCo, pybullet), the convex decomposition (CoACD) nor the renderer (pyrender):
+a training box without them uses data generated elsewhere; making cycles without them is a
+one-line error.
 
-Each run blocks both packages (``sys.modules[name] = None`` makes ``import name`` fail) before
-train.py starts, as on a Python version without pybullet wheels.
+Each run blocks those packages (``sys.modules[name] = None`` makes ``import name`` fail) before
+the script starts, as on a machine where they cannot be installed.
 """
 
 from __future__ import annotations
@@ -20,28 +22,33 @@ TINY = ["experiment=quickstart", "data.generate.cycles=4", "data.generate.drops=
         "data.generate.scene.resolution=128", "model=tiny", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
         "+trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "example_predictions=0"]  # fmt: skip
 
+GENERATOR = ("pybullet", "mujoco", "coacd", "pyrender")
 BLOCKED_RUN = """
 import runpy, sys
-for name in ("pybullet", "pyrender"):
+for name in %r:
     sys.modules[name] = None
-sys.argv = ["train.py", *sys.argv[1:]]
+script = sys.argv[1]
+sys.argv = [script, *sys.argv[2:]]
 try:
-    runpy.run_path("train.py", run_name="__main__")
+    runpy.run_path(script, run_name="__main__")
 finally:
-    loaded = [m for m in ("pybullet", "pyrender", "OpenGL") if sys.modules.get(m) is not None]
+    loaded = [m for m in (*%r, "OpenGL") if sys.modules.get(m) is not None]
     print("generator modules loaded:", loaded or "none")
-"""
+""" % (GENERATOR, GENERATOR)
+
+
+def _run(ws: Path, script: str, args: list[str], blocked: bool) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OPNET_ROOT": str(ws), "PYOPENGL_PLATFORM": "egl"}
+    head = [sys.executable, "-c", BLOCKED_RUN, script] if blocked else [sys.executable, script]
+    return subprocess.run([*head, *args], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=600)
 
 
 def _train(ws: Path, overrides: list[str], blocked: bool) -> subprocess.CompletedProcess:
-    env = {**os.environ, "OPNET_ROOT": str(ws), "PYOPENGL_PLATFORM": "egl"}
-    head = [sys.executable, "-c", BLOCKED_RUN] if blocked else [sys.executable, "train.py"]
-    return subprocess.run([*head, *TINY, f"data.root={ws / 'data'}", *overrides], cwd=REPO_ROOT, env=env,
-                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    return _run(ws, "train.py", [*TINY, f"data.root={ws / 'data'}", *overrides], blocked)
 
 
 @pytest.mark.slow
-def test_a_complete_dataset_trains_without_pybullet_and_pyrender(tmp_path: Path) -> None:
+def test_a_complete_dataset_trains_evaluates_predicts_and_exports_without_the_generator(tmp_path: Path) -> None:
     made = _train(tmp_path, [f"hydra.run.dir={tmp_path / 'run_made'}"], blocked=False)
     assert made.returncode == 0, made.stderr[-2000:]
 
@@ -50,9 +57,21 @@ def test_a_complete_dataset_trains_without_pybullet_and_pyrender(tmp_path: Path)
     assert "generator modules loaded: none" in used.stdout
     assert (tmp_path / "run_used" / "test" / "summary.json").is_file()
 
+    ckpt = tmp_path / "run_used" / "checkpoints" / "last.ckpt"
+    png = sorted((tmp_path / "data" / "p_depth").rglob("*.png"))[-1]
+    for script, args, made_file in (
+        ("eval.py", [f"ckpt={ckpt}", f"out={tmp_path / 'eval'}"], tmp_path / "eval" / "summary.json"),
+        ("predict.py", [f"ckpt={ckpt}", f"input={png}", f"out={tmp_path / 'pred'}"], tmp_path / "pred" / f"{png.stem}.json"),
+        ("export.py", [f"ckpt={ckpt}", f"out={tmp_path / 'model.onnx'}"], tmp_path / "model.onnx"),
+    ):
+        done = _run(tmp_path, script, [*args, f"hydra.run.dir={tmp_path / ('run_' + script)}"], blocked=True)
+        assert done.returncode == 0, (script, done.stderr[-2000:])
+        assert "generator modules loaded: none" in done.stdout, script
+        assert made_file.is_file(), script
+
     # one more cycle to make: the generator is needed, and its absence is one line naming it and the folder
     more = _train(tmp_path, ["data.generate.cycles=5", f"hydra.run.dir={tmp_path / 'run_more'}"], blocked=True)
     assert more.returncode != 0
     assert "Traceback" not in more.stderr, more.stderr[-2000:]
-    error = [line for line in more.stderr.splitlines() if "pybullet" in line]
+    error = [line for line in more.stderr.splitlines() if "mujoco" in line]
     assert error and str(tmp_path / "data") in error[0] and "not installed" in error[0], more.stderr[-2000:]

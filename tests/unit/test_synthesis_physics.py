@@ -1,18 +1,30 @@
-"""Physics drops: resting contact, staying in the bin, determinism, collision shapes and their cache."""
+"""Physics drops: resting contact, staying in the bin, determinism, collision shapes and their cache,
+for both engines (MuJoCo, the default, and pybullet where it is installed)."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from opnet._deps import MissingDependencyError
 from opnet.objects import builtin_object
-from opnet.synthesis.collision import build_collision_model, choose_mode, vhacd_cached
+from opnet.synthesis.collision import (
+    build_collision_model,
+    choose_mode,
+    coacd_cached,
+    convex_parts,
+    vhacd_cached,
+)
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.cycle import cycle_rngs
 from opnet.synthesis.layout import inverse_pose, make_rig, sample_layout
-from opnet.synthesis.physics import BinSimulator
+from opnet.synthesis.physics import BinSimulator, make_simulator
+
+HAS_PYBULLET = importlib.util.find_spec("pybullet") is not None
+ENGINES = ["mujoco", pytest.param("pybullet", marks=pytest.mark.skipif(not HAS_PYBULLET, reason="pybullet not installed (CPython 3.11 only)"))]
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +36,7 @@ def _simulate(name: str, drops: int, cycle: int, cfg: SceneConfig, sim: BinSimul
     obj = builtin_object(name)
     rig = make_rig(obj, drops, 1, cfg)
     own = sim is None
-    sim = sim or BinSimulator(rig, build_collision_model(obj.mesh, cfg), cfg)
+    sim = sim or make_simulator(rig, build_collision_model(obj.mesh, cfg), cfg)
     layout_rng, drop_rng = cycle_rngs(0, cycle)
     layout = sample_layout(rig, cfg, layout_rng)
     states = sim.simulate(layout, drops, drop_rng)
@@ -38,11 +50,12 @@ def _vertices_in_bin(obj, layout, T_world_obj: np.ndarray) -> np.ndarray:
     return obj.mesh.vertices @ T[:3, :3].T + T[:3, 3]
 
 
+@pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize(("name", "mode"), [("pin", "convex_hull"), ("bracket", "vhacd")])
-def test_a_dropped_part_rests_on_the_bin_floor(name: str, mode: str, cache_dir: Path) -> None:
-    # the recorded pose is the model frame (not pybullet's inertial frame): its lowest vertex
+def test_a_dropped_part_rests_on_the_bin_floor(name: str, mode: str, engine: str, cache_dir: Path) -> None:
+    # the recorded pose is the model frame (not the engine's inertial frame): its lowest vertex
     # touches the floor top, up to the collision margin / the decomposition's voxel inflation
-    cfg = SceneConfig(collision=mode, cache_dir=str(cache_dir))
+    cfg = SceneConfig(collision=mode, cache_dir=str(cache_dir), physics=engine)
     obj, rig, layout, states = _simulate(name, 1, 0, cfg)
     assert states.stats.unsettled == 0
     v = _vertices_in_bin(obj, layout, states.T_world_obj[1][0])
@@ -50,8 +63,9 @@ def test_a_dropped_part_rests_on_the_bin_floor(name: str, mode: str, cache_dir: 
     assert np.abs(v[:, :2]).max() < rig.bin.inner / 2 + 1e-3
 
 
-def test_every_recorded_pile_is_in_the_bin_with_one_more_part_each_drop() -> None:
-    cfg = SceneConfig(collision="convex_hull")
+@pytest.mark.parametrize("engine", ENGINES)
+def test_every_recorded_pile_is_in_the_bin_with_one_more_part_each_drop(engine: str) -> None:
+    cfg = SceneConfig(collision="convex_hull", physics=engine)
     obj, rig, layout, states = _simulate("shaft", 6, 3, cfg)
     assert [len(p) for p in states.T_world_obj] == list(range(7))
     for pile in states.T_world_obj[1:]:
@@ -60,11 +74,12 @@ def test_every_recorded_pile_is_in_the_bin_with_one_more_part_each_drop() -> Non
         np.testing.assert_allclose(pile[:, :3, :3] @ pile[:, :3, :3].transpose(0, 2, 1), np.broadcast_to(np.eye(3), (len(pile), 3, 3)), atol=1e-6)
 
 
-def test_a_cycle_does_not_depend_on_what_the_client_simulated_before() -> None:
-    cfg = SceneConfig(collision="convex_hull")
+@pytest.mark.parametrize("engine", ENGINES)
+def test_a_cycle_does_not_depend_on_what_the_client_simulated_before(engine: str) -> None:
+    cfg = SceneConfig(collision="convex_hull", physics=engine)
     obj = builtin_object("zbracket")
     rig = make_rig(obj, 4, 1, cfg)
-    with BinSimulator(rig, build_collision_model(obj.mesh, cfg), cfg) as sim:
+    with make_simulator(rig, build_collision_model(obj.mesh, cfg), cfg) as sim:
         _simulate("zbracket", 4, 0, cfg, sim)
         after_other = _simulate("zbracket", 4, 1, cfg, sim)[3]
     fresh = _simulate("zbracket", 4, 1, cfg)[3]
@@ -74,9 +89,10 @@ def test_a_cycle_does_not_depend_on_what_the_client_simulated_before() -> None:
     assert not np.allclose(other_seed.T_world_obj[-1], fresh.T_world_obj[-1])
 
 
-def test_parts_that_cannot_stay_in_the_bin_end_in_a_clear_error() -> None:
-    # a 4 mm pedestal instead of a bin, hit from 30 cm: every drop falls off
-    cfg = SceneConfig(collision="convex_hull", bin_inner=0.002, bin_wall_height=0.001, bin_wall_thickness=0.001, camera_height=0.5,
+@pytest.mark.parametrize("engine", ENGINES)
+def test_parts_that_cannot_stay_in_the_bin_end_in_a_clear_error(engine: str) -> None:
+    # a 4 mm pedestal instead of a bin, hit from 30 cm: every drop falls off (redrops restore the world)
+    cfg = SceneConfig(physics=engine, collision="convex_hull", bin_inner=0.002, bin_wall_height=0.001, bin_wall_thickness=0.001, camera_height=0.5,
                       drop_gap=0.3, max_redrops=2, max_cycle_restarts=1, settle_time_cap=1.0)
     with pytest.raises(RuntimeError, match="bin_inner"):
         _simulate("pin", 1, 0, cfg)
@@ -90,12 +106,68 @@ def test_auto_collision_mode_decomposes_concave_parts_only() -> None:
     assert choose_mode(builtin_object("pin").mesh, SceneConfig(collision="vhacd")) == "vhacd"
 
 
-def test_vhacd_decomposition_is_cached_and_deterministic(tmp_path: Path, cache_dir: Path) -> None:
+@pytest.mark.parametrize(("engine", "setting", "other"), [("mujoco", 0.1, 0.05), ("pybullet", 1_000_000, 500_000)])
+def test_the_decomposition_is_cached_deterministic_and_covers_the_part(engine: str, setting: float, other: float,
+                                                                      tmp_path: Path, cache_dir: Path) -> None:
+    if engine == "pybullet" and not HAS_PYBULLET:
+        pytest.skip("pybullet not installed (its V-HACD makes the decomposition)")
+    decompose = coacd_cached if engine == "mujoco" else vhacd_cached
     mesh = builtin_object("bracket").mesh
-    first = vhacd_cached(mesh, 1_000_000, cache_dir)
+    first = decompose(mesh, setting, cache_dir)
     stamp = first.stat().st_mtime_ns
-    assert vhacd_cached(mesh, 1_000_000, cache_dir) == first and first.stat().st_mtime_ns == stamp  # a hit
-    elsewhere = vhacd_cached(mesh, 1_000_000, tmp_path)
+    assert decompose(mesh, setting, cache_dir) == first and first.stat().st_mtime_ns == stamp  # a hit
+    elsewhere = decompose(mesh, setting, tmp_path)
     assert elsewhere.name == first.name and elsewhere.read_bytes() == first.read_bytes()
-    assert first.read_text().count("\no ") + first.read_text().startswith("o ") >= 2  # L-shape: 2+ convex parts
-    assert vhacd_cached(mesh, 500_000, tmp_path).name != first.name  # settings are part of the key
+    parts = convex_parts(first)
+    assert len(parts) >= 2  # an L-shape: two or more convex parts
+    hull = np.concatenate(parts)  # the parts span the part's extent, within the decomposition's inflation
+    np.testing.assert_allclose(hull.min(0), mesh.bounds[0], atol=2e-3)
+    np.testing.assert_allclose(hull.max(0), mesh.bounds[1], atol=2e-3)
+    assert decompose(mesh, other, tmp_path).name != first.name  # settings are part of the key
+
+
+def test_the_engine_follows_the_config_and_an_unknown_engine_is_named() -> None:
+    with pytest.raises(ValueError, match=r"physics='bullet'.*mujoco"):
+        SceneConfig(physics="bullet")
+    cfg = SceneConfig(collision="convex_hull")
+    assert cfg.physics == "mujoco"
+    obj = builtin_object("pin")
+    with make_simulator(make_rig(obj, 2, 1, cfg), build_collision_model(obj.mesh, cfg), cfg) as sim:
+        assert type(sim).__name__ == "MujocoSimulator" and isinstance(sim, BinSimulator)
+
+
+def test_a_missing_engine_is_a_one_line_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    import opnet._deps as deps
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(deps.importlib.util, "find_spec", lambda name, *a: None if name == "pybullet" else real(name, *a))
+    cfg = SceneConfig(collision="convex_hull", physics="pybullet")
+    obj = builtin_object("pin")
+    with pytest.raises(MissingDependencyError, match=r"scene.physics=pybullet needs the package 'pybullet'.*mujoco"):
+        make_simulator(make_rig(obj, 2, 1, cfg), build_collision_model(obj.mesh, cfg), cfg)
+
+
+def test_a_malformed_decomposition_file_names_the_file(tmp_path: Path) -> None:
+    bad = tmp_path / "parts.obj"
+    bad.write_text("o part_0\nv 0 0 zero\n")
+    with pytest.raises(ValueError, match=r"parts.obj:2: malformed vertex"):
+        convex_parts(bad)
+    bad.write_text("# nothing\n")
+    with pytest.raises(ValueError, match=r"parts.obj: the convex decomposition holds no vertices"):
+        convex_parts(bad)
+
+
+def test_mujoco_piles_rest_without_parts_sinking_into_each_other() -> None:
+    # 12 brackets (a CoACD decomposition) in a pile: at rest, no contact is deeper than 0.5 mm
+    import mujoco
+
+    cfg = SceneConfig(collision="vhacd")
+    obj = builtin_object("bracket")
+    rig = make_rig(obj, 12, 1, cfg)
+    with make_simulator(rig, build_collision_model(obj.mesh, cfg), cfg) as sim:
+        layout_rng, drop_rng = cycle_rngs(0, 0)
+        states = sim.simulate(sample_layout(rig, cfg, layout_rng), 12, drop_rng)
+        mujoco.mj_forward(sim.model, sim.data)
+        depth = -min(c.dist for c in sim.data.contact[: sim.data.ncon])
+    assert len(states.T_world_obj[-1]) == 12 and states.stats.unsettled <= 1
+    assert depth < 5e-4

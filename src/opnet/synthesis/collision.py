@@ -1,14 +1,16 @@
-"""Collision shapes and mass properties of a part for pybullet.
+"""Collision shapes and mass properties of a part for the physics engines.
 
 Decisions:
-- "convex_hull": pybullet builds the convex hull of the mesh vertices. Fast and stable, right for
-  convex-ish parts (the pin).
-- "vhacd": an approximate convex decomposition (pybullet's built-in V-HACD 2.2, voxel mode) made
-  once per mesh and cached as an OBJ file named by a hash of the mesh and the V-HACD settings, in
-  ``cache_dir`` (default $OPNET_CACHE or ~/.cache/opnet). V-HACD is single-threaded here and
-  deterministic (same input, same bytes), and the cache is written atomically, so parallel workers
-  and later runs all load the same decomposition. pybullet turns the multi-object OBJ into a
-  compound of convex hulls.
+- "convex_hull": the engine builds the convex hull of the mesh vertices. Fast and stable, right
+  for convex-ish parts (the pin).
+- "vhacd": an approximate convex decomposition made once per mesh and cached as a multi-object OBJ
+  file named by a hash of the mesh and the decomposition settings, in ``cache_dir`` (default
+  $OPNET_CACHE or ~/.cache/opnet): for MuJoCo (the default engine) CoACD (``coacd_threshold``;
+  maintained, wheels for every CPython 3), for pybullet its built-in V-HACD 2.2 (voxel mode), as
+  the datasets made before MuJoCo were. Both run single-threaded in a child process with a time
+  cap, are deterministic (same input, same bytes), and the cache is written atomically, so
+  parallel workers and later runs all load the same decomposition. The engine turns the OBJ's
+  objects into a compound of convex hulls (:func:`convex_parts`).
 - "auto": "vhacd" when the mesh volume is below ``convexity_threshold`` times its hull volume
   (the L/Z brackets, the stepped shaft, the bunny, the ring screw, the gear shaft), else the hull.
 - Mass and centre of mass come from the closed mesh (uniform density 1000 kg/m^3, only ratios
@@ -37,6 +39,7 @@ from opnet.synthesis.config import SceneConfig
 
 DENSITY = 1000.0  # kg/m^3
 _VHACD_VERSION = "pybullet-vhacd-2.2-v1"  # bump to invalidate old cache entries
+_COACD_VERSION = "coacd-1-v1"
 #: vertices per convex part: 32 steps about 25 % faster than V-HACD's 64 in piles, same shape
 VHACD_MAX_VERTICES = 32
 #: default time cap of one decomposition (the meshes here take 5..60 s)
@@ -52,7 +55,8 @@ class CollisionModel:
     Attributes:
         mode: "convex_hull" or "vhacd".
         vertices: (V, 3) float64 mesh vertices, model frame, metres (convex_hull mode).
-        obj_file: the cached decomposition, model frame, metres (vhacd mode).
+        obj_file: the cached decomposition, model frame, metres (vhacd mode; one OBJ object per
+            convex part).
         mass: kg.
         com: (3,) centre of mass in the model frame, metres.
         R_model_inertial: (3, 3) principal axes of inertia as columns, model frame (det +1).
@@ -97,9 +101,15 @@ def build_collision_model(mesh: trimesh.Trimesh, cfg: SceneConfig, cache_dir: Pa
     """Collision model of ``mesh`` (metres, model frame); runs V-HACD on a cache miss (seconds)."""
     check_solid(mesh)
     mode = choose_mode(mesh, cfg)
-    obj_file = vhacd_cached(mesh, cfg.vhacd_resolution, cache_dir or _cfg_cache(cfg)) if mode == "vhacd" else None
+    obj_file = None
+    if mode == "vhacd":
+        cache = cache_dir or _cfg_cache(cfg)
+        if cfg.physics == "pybullet":
+            obj_file = vhacd_cached(mesh, cfg.vhacd_resolution, cache)
+        else:
+            obj_file = coacd_cached(mesh, cfg.coacd_threshold, cache)
     if mode == "vhacd" and obj_file is None:
-        mode = "convex_hull"  # V-HACD ran past its time cap (warned): the hull still simulates
+        mode = "convex_hull"  # the decomposition ran past its time cap (warned): the hull still simulates
     mass, com, axes, moments = mass_properties(mesh)
     return CollisionModel(mode, np.asarray(mesh.vertices, dtype=np.float64), obj_file, mass, com, axes, moments)
 
@@ -158,6 +168,59 @@ def _run_vhacd(src: str, dst: str, log: str, resolution: int) -> None:
             pb.disconnect(client)
 
 
+def _run_coacd(src: str, dst: str, log: str, threshold: float) -> None:
+    import coacd
+
+    mesh = trimesh.load(src, force="mesh", process=False)
+    coacd.set_log_level("error")
+    parts = coacd.run_coacd(coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), threshold=float(threshold),
+                            max_ch_vertex=VHACD_MAX_VERTICES, seed=0)
+    Path(dst).write_text(_parts_obj([np.asarray(v, dtype=np.float64) for v, _ in parts],
+                                    [np.asarray(f, dtype=np.int64) for _, f in parts]))
+
+
+def _parts_obj(vertices: list[np.ndarray], faces: list[np.ndarray]) -> str:
+    """A multi-object OBJ: one object per convex part (1-based, file-wide vertex indices)."""
+    lines, base = [], 1
+    for k, (v, f) in enumerate(zip(vertices, faces, strict=True)):
+        lines.append(f"o part_{k}")
+        lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in v]
+        lines += [f"f {a + base} {b + base} {c + base}" for a, b, c in f]
+        base += len(v)
+    return "\n".join(lines) + "\n"
+
+
+def convex_parts(obj_file: Path) -> list[np.ndarray]:
+    """The vertices (V_k, 3) of each object of a decomposition OBJ file, in file order.
+
+    Raises:
+        ValueError: the file holds no vertices or a malformed vertex line (names the file).
+    """
+    parts: list[list[list[float]]] = []
+    for number, line in enumerate(Path(obj_file).read_text().splitlines(), 1):
+        if line.startswith(("o ", "g ")) or (line.startswith("v ") and not parts):
+            parts.append([])
+        if line.startswith("v "):
+            try:
+                parts[-1].append([float(x) for x in line.split()[1:4]])
+            except ValueError:
+                raise ValueError(f"{obj_file}:{number}: malformed vertex line {line[:60]!r}") from None
+    parts = [p for p in parts if p]
+    if not parts:
+        raise ValueError(f"{obj_file}: the convex decomposition holds no vertices")
+    return [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in parts]
+
+
+def coacd_cached(mesh: trimesh.Trimesh, threshold: float, cache_dir: Path, timeout_s: float | None = None) -> Path | None:
+    """The CoACD decomposition of ``mesh`` as an OBJ file in ``cache_dir`` (see :func:`vhacd_cached`)."""
+    h = hashlib.sha256(_COACD_VERSION.encode())
+    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+    h.update(f"{float(threshold)!r}/{VHACD_MAX_VERTICES}".encode())
+    out = Path(cache_dir) / f"coacd_{h.hexdigest()[:24]}.obj"
+    return _decomposition_cached(mesh, out, _run_coacd, threshold, "CoACD", timeout_s)
+
+
 def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path, timeout_s: float | None = None) -> Path | None:
     """The convex decomposition of ``mesh`` as an OBJ file in ``cache_dir``, computed if missing.
 
@@ -166,6 +229,21 @@ def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path, timeou
     the convex hull).
     """
     out = Path(cache_dir) / f"vhacd_{mesh_key(mesh, resolution)}.obj"
+    return _decomposition_cached(mesh, out, _run_vhacd, resolution, "V-HACD", timeout_s)
+
+
+def _child(run, src: str, dst: str, log: str, setting: float) -> None:
+    """Run a decomposition; an exception goes to ``log`` (one line for the parent's error), not stderr."""
+    try:
+        run(src, dst, log, setting)
+    except Exception as e:  # noqa: BLE001 - reported by the parent
+        Path(log).write_text(f"{type(e).__name__}: {e}")
+        Path(dst).unlink(missing_ok=True)
+
+
+def _decomposition_cached(mesh: trimesh.Trimesh, out: Path, run, setting: float, name: str,
+                          timeout_s: float | None) -> Path | None:
+    """``out``, made by ``run(src, dst, log, setting)`` in a child process if missing (time cap)."""
     if out.is_file():
         return out
     timeout_s = vhacd_timeout_s() if timeout_s is None else timeout_s
@@ -174,17 +252,18 @@ def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path, timeou
         src, dst, log = Path(tmp) / "in.obj", Path(tmp) / "out.obj", Path(tmp) / "log.txt"
         mesh.export(src)
         ctx = multiprocessing.get_context("fork" if sys.platform != "win32" else "spawn")
-        child = ctx.Process(target=_run_vhacd, args=(str(src), str(dst), str(log), resolution), daemon=True)
+        child = ctx.Process(target=_child, args=(run, str(src), str(dst), str(log), setting), daemon=True)
         child.start()
         child.join(timeout_s)
         if child.is_alive():
             child.kill()
             child.join()
             logging.getLogger(__name__).warning(
-                "V-HACD did not finish within %g s (OPNET_VHACD_TIMEOUT); using the convex hull of the mesh", timeout_s)
+                "%s did not finish within %g s (OPNET_VHACD_TIMEOUT); using the convex hull of the mesh", name, timeout_s)
             return None
         if not dst.is_file() or dst.stat().st_size == 0:
             tail = log.read_text()[-500:] if log.is_file() else "no log"
-            raise ValueError(f"convex decomposition of the mesh failed (V-HACD wrote nothing; log: {tail})")
+            raise ValueError(f"convex decomposition of the mesh failed ({name} wrote nothing; log: {tail}); "
+                             "try scene.collision=convex_hull")
         os.replace(dst, out)
     return out

@@ -15,8 +15,13 @@ from typing import Any
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
+#: physics engines of the generator (opnet.synthesis.physics)
+PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
-_LATER_FIELDS = ("camera_file", "camera_file_clip", "views")
+_LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold")
+#: datasets made before ``physics`` existed were made with pybullet: the key is left out of
+#: to_dict for that engine, so their generation.json still matches ``physics=pybullet``
+_LEGACY_PHYSICS = "pybullet"
 
 
 def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -> Any:
@@ -56,16 +61,21 @@ class SceneConfig:
         bin_wall_factor: see ``bin_wall_height``.
         bin_wall_thickness: metres, walls and floor.
 
-    Physics (pybullet):
-        collision: "convex_hull", "vhacd" (approximate convex decomposition, cached) or "auto"
-            (vhacd when the mesh volume is below ``convexity_threshold`` x its hull volume).
+    Physics:
+        physics: the engine, "mujoco" (default) or "pybullet" (the datasets made before MuJoCo;
+            the ``pybullet`` extra, CPython 3.11 only).
+        collision: "convex_hull", "vhacd" (approximate convex decomposition, cached: CoACD for
+            MuJoCo, pybullet's V-HACD for pybullet) or "auto" (a decomposition when the mesh volume
+            is below ``convexity_threshold`` x its hull volume).
         convexity_threshold: see ``collision``.
-        vhacd_resolution: voxel budget of the convex decomposition.
+        vhacd_resolution: voxel budget of pybullet's V-HACD.
+        coacd_threshold: concavity threshold of CoACD (MuJoCo): smaller = more, finer hulls.
         cache_dir: folder of the decomposition cache; None = $OPNET_CACHE or ~/.cache/opnet.
         time_step: simulation step, seconds.
         solver_iterations: constraint solver iterations per step.
         friction, rolling_friction, restitution: contact parameters of every body.
-        linear_damping, angular_damping: velocity damping of the parts (pybullet's), per second.
+        linear_damping, angular_damping: velocity damping of the parts, per second (a part left
+            alone loses this fraction of its velocity per second).
         drop_gap: metres between the pile top and the lowest possible point of a spawned part.
         settle_linear, settle_angular: a pile is at rest when every part moves slower than these
             (m/s, rad/s) ...
@@ -137,6 +147,8 @@ class SceneConfig:
     camera_file: str | None = None
     camera_file_clip: bool = False
     views: int = 1
+    physics: str = "mujoco"
+    coacd_threshold: float = 0.1
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -155,6 +167,7 @@ class SceneConfig:
         if self.clip_start is not None and self.clip_end is not None:
             need(self.clip_start < self.clip_end, "clip_end", f"> clip_start={self.clip_start}")
         need(self.collision in COLLISION_MODES, "collision", f"one of {COLLISION_MODES}")
+        need(self.physics in PHYSICS_ENGINES, "physics", f"one of {PHYSICS_ENGINES} (the physics engine)")
         # a negative margin brings the camera closer than the rim: parts at the walls leave the view,
         # as on real cells where the camera sees only the middle of the bin
         need(math.isfinite(self.view_margin) and self.view_margin > -0.9, "view_margin", "a number > -0.9")
@@ -162,7 +175,7 @@ class SceneConfig:
                     "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) >= 0, key, "a number >= 0")
         for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
-                    "settle_angular", "settle_time_cap", "convexity_threshold"):
+                    "settle_angular", "settle_time_cap", "convexity_threshold", "coacd_threshold"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) > 0, key, "a number > 0")
         for key in ("vhacd_resolution", "solver_iterations", "settle_checks", "check_every", "max_redrops"):
             need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
@@ -189,4 +202,6 @@ class SceneConfig:
         for key in _LATER_FIELDS:
             if out[key] == getattr(SceneConfig, key):
                 del out[key]
+        if out["physics"] == _LEGACY_PHYSICS:
+            del out["physics"]
         return out

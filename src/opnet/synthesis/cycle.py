@@ -19,7 +19,7 @@ from opnet.objects.model import ObjectModel
 from opnet.synthesis.collision import CollisionModel, build_collision_model
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, view_layout
-from opnet.synthesis.physics import BinSimulator, CycleStates, CycleStats
+from opnet.synthesis.physics import CycleStates, CycleStats, make_simulator
 from opnet.synthesis.rendering import SceneRenderer
 from opnet.synthesis.sensor import SensorModel, sensor_rng
 
@@ -67,7 +67,7 @@ class CycleResult:
 
 
 class CycleGenerator:
-    """Makes whole cycles of one part in memory: one pybullet client and one EGL renderer.
+    """Makes whole cycles of one part in memory: one physics simulator and one EGL renderer.
 
     Args:
         obj: the part (needs a mesh).
@@ -95,7 +95,7 @@ class CycleGenerator:
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects
         self.collision = collision or build_collision_model(obj.mesh, self.scene)
-        self.simulator = BinSimulator(self.rig, self.collision, self.scene)
+        self.simulator = make_simulator(self.rig, self.collision, self.scene)
         self.renderer = SceneRenderer(
             obj.mesh,
             self.rig.camera,

@@ -212,15 +212,20 @@ def generate_dataset(
         # must keep counting them (number_cycles = cycle folders), not shrink below the folders
         params = dataclasses.replace(params, number_cycles=present[-1] + 1)
     todo = [c for c in range(cycles) if not cycle_complete(out, c, drops)]
+    collision = None
     if todo:  # before anything is written: a dataset must not announce cycles that cannot be made here
-        _require_generator(out)
+        _require_generator(out, scene)
+        assert obj.mesh is not None
+        try:
+            collision = build_collision_model(obj.mesh, scene)
+        except ValueError as e:  # the convex decomposition failed
+            raise ValueError(f"{config.get('mesh') or obj.name}: {e}") from None
     write_root_files(out, obj, config, params, scene, seed, drops, sensor)
     for c in todo:
         clear_cycle(out, c)
     report = GenerationReport(out, cycles, cycles_skipped=cycles - len(todo))
-    if todo:
-        assert obj.mesh is not None
-        job = _Job(obj, out, drops, cycles, seed, scene, build_collision_model(obj.mesh, scene),
+    if collision is not None:
+        job = _Job(obj, out, drops, cycles, seed, scene, collision,
                    frozenset(preview_cycles(cycles, previews)), sensor)
         piles = piles_to_make(todo, scene.views)
         with tqdm(total=len(todo) * (drops + 1), unit="scene", disable=not progress, desc=f"generating {out.name}") as bar:
@@ -232,12 +237,13 @@ def generate_dataset(
     return report
 
 
-def _require_generator(out: Path) -> None:
-    """Physics and rendering are installed (only checked when cycles are to be made: a complete
-    dataset is used without them)."""
-    hint = (f"install it, or generate {out} on a machine that has it (pybullet: CPython 3.11 wheels) and copy "
-            "it here: a complete dataset is used without the generator")
-    require("pybullet", f"generating cycles of {out}", hint)
+def _require_generator(out: Path, scene: SceneConfig) -> None:
+    """Physics (the engine ``scene.physics`` names) and rendering are installed (only checked when
+    cycles are to be made: a complete dataset is used without them)."""
+    hint = (f"install it, or generate {out} on a machine that has it and copy it here: a complete dataset is "
+            "used without the generator")
+    extra = " (scene.physics=pybullet: CPython 3.11 wheels only; scene.physics=mujoco needs no pybullet)"
+    require(scene.physics, f"generating cycles of {out}", hint + (extra if scene.physics == "pybullet" else ""))
     require("pyrender", f"generating cycles of {out}", hint)
 
 

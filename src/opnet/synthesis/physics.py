@@ -1,10 +1,17 @@
-"""Rigid-body drops into the bin with pybullet (DIRECT mode, one client per simulator).
+"""Rigid-body drops into the bin: the rules of a cycle, independent of the physics engine.
 
-Parts are maximal-coordinate rigid bodies (``useMaximalCoordinates``: 2-3x faster than pybullet's
-default multibodies for piles of single-link parts); pybullet reports their inertial (centre of
-mass, principal axes) frame, which :meth:`BinSimulator.poses` converts back to the model frame.
-Defaults (120 Hz, 10 solver iterations, angular damping 0.5 so round parts stop rocking) settle a
-20-part pile in about 60-90 steps per drop.
+:class:`BinSimulator` holds the rules below; an engine supplies a handful of primitives (make the
+world, add / remove / place a body, step, read velocities and poses, save and restore the state).
+Two engines (``scene.physics``):
+
+- ``mujoco`` (default; :mod:`opnet.synthesis.physics_mujoco`): wheels for CPython 3.10-3.14,
+  maintained. Concave parts collide as a CoACD convex decomposition.
+- ``pybullet`` (:mod:`opnet.synthesis.physics_pybullet`; the ``pybullet`` extra, wheels for
+  CPython 3.11 only, last release January 2025): the engine of the datasets made before MuJoCo;
+  concave parts as pybullet's V-HACD. Kept so that those datasets resume byte for byte.
+
+Defaults (120 Hz, angular damping 0.5 so round parts stop rocking) settle a 20-part pile in about
+60-90 steps per drop.
 
 A cycle (IPA style): scene 0 is the empty bin; then parts are dropped one at a time and the pile
 is recorded after each drop has settled.
@@ -31,19 +38,15 @@ Rules (values in :class:`SceneConfig`):
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Self
 
 import numpy as np
 
-from opnet._stdio import quiet_c_output
-
-with quiet_c_output():  # pybullet prints its build time on import, once per process
-    import pybullet as pb
-
-from opnet.geometry.rotations import matrix_to_quaternion
+from opnet._deps import require
 from opnet.synthesis.collision import CollisionModel
-from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.config import PHYSICS_ENGINES, SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, homogeneous, inverse_pose, random_rotation
 
 GRAVITY = 9.81
@@ -78,13 +81,10 @@ class _DropFailed(Exception):
     """A drop kept pushing parts out of the bin."""
 
 
-def _xyzw(R: np.ndarray) -> list[float]:
-    w, x, y, z = matrix_to_quaternion(np.asarray(R, dtype=np.float64))
-    return [float(x), float(y), float(z), float(w)]
+class BinSimulator(ABC):
+    """Drops parts into a bin, one cycle at a time (the engine-independent rules).
 
-
-class BinSimulator:
-    """Drops parts into a bin, one cycle at a time.
+    Make one with :func:`make_simulator`. Bodies are integer handles of the engine.
 
     Args:
         rig: the bin and camera set-up (only the bin and the part radius are used).
@@ -94,22 +94,69 @@ class BinSimulator:
 
     def __init__(self, rig: Rig, collision: CollisionModel, cfg: SceneConfig) -> None:
         self.rig, self.collision, self.cfg = rig, collision, cfg
-        self._client = pb.connect(pb.DIRECT)
-        # link (model) frame -> inertial frame of a part; pybullet reports the inertial frame
-        self._T_model_inertial = homogeneous(collision.R_model_inertial, collision.com)
-        self._T_inertial_model = inverse_pose(self._T_model_inertial)
-
-    def close(self) -> None:
-        """Disconnect the pybullet client (idempotent)."""
-        if self._client is not None and pb.isConnected(self._client):
-            pb.disconnect(self._client)
-        self._client = None
+        self._T_world_bin = np.eye(4)
 
     def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # ---- what an engine supplies -------------------------------------------------------------
+    @abstractmethod
+    def close(self) -> None:
+        """Free the engine (idempotent)."""
+
+    @abstractmethod
+    def _make_world(self, layout: CycleLayout, drops: int) -> None:
+        """An empty world: ground plane, the bin at ``layout.T_world_bin``, room for ``drops`` parts."""
+
+    @abstractmethod
+    def _new_body(self) -> int:
+        """Add a part (placed later with :meth:`set_pose`); returns its handle."""
+
+    @abstractmethod
+    def _remove_body(self, body: int) -> None:
+        """Take a part out of the world again."""
+
+    @abstractmethod
+    def set_pose(self, body: int, T_world_obj: np.ndarray) -> None:
+        """Place a part's model frame at ``T_world_obj`` (4, 4), at rest."""
+
+    @abstractmethod
+    def poses(self, bodies: list[int]) -> np.ndarray:
+        """(N, 4, 4) float64 model-to-world poses of ``bodies``, metres."""
+
+    @abstractmethod
+    def _aabbs(self, bodies: list[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """World axis-aligned boxes (low (3,), high (3,)) of ``bodies``."""
+
+    @abstractmethod
+    def _touches(self, body: int, bodies: list[int]) -> bool:
+        """Whether ``body`` overlaps or touches the bin or any of ``bodies``."""
+
+    @abstractmethod
+    def _step(self) -> None:
+        """One time step of ``cfg.time_step``."""
+
+    @abstractmethod
+    def _max_speeds_sq(self, bodies: list[int]) -> tuple[float, float]:
+        """(max squared linear speed, max squared angular speed) over ``bodies``."""
+
+    @abstractmethod
+    def _coms(self, bodies: list[int]) -> np.ndarray:
+        """(N, 3) centres of mass of ``bodies`` in the world, metres."""
+
+    @abstractmethod
+    def _save(self) -> object:
+        """A snapshot of the world's dynamic state."""
+
+    @abstractmethod
+    def _restore(self, state: object) -> None:
+        """Go back to ``state`` (bodies added since must have been removed)."""
+
+    def _discard(self, state: object) -> None:
+        """Forget ``state``."""
 
     # ---- a cycle -----------------------------------------------------------------------------
     def simulate(self, layout: CycleLayout, drops: int, rng: np.random.Generator) -> CycleStates:
@@ -133,11 +180,11 @@ class BinSimulator:
         )
 
     def _simulate_once(self, layout: CycleLayout, drops: int, rng: np.random.Generator, stats: CycleStats) -> list[np.ndarray]:
-        self._build_world(layout)
+        self._build_world(layout, drops)
         bodies: list[int] = []
         piles = [np.zeros((0, 4, 4))]
         for _ in range(drops):
-            state = pb.saveState(physicsClientId=self._client)
+            state = self._save()
             for _attempt in range(self.cfg.max_redrops):
                 body = self._spawn(bodies, rng)
                 settled, steps = self._settle([*bodies, body])
@@ -147,83 +194,25 @@ class BinSimulator:
                     bodies.append(body)
                     break
                 stats.redrops += 1
-                pb.removeBody(body, physicsClientId=self._client)
-                pb.restoreState(stateId=state, physicsClientId=self._client)
+                self._remove_body(body)
+                self._restore(state)
             else:
-                pb.removeState(state, physicsClientId=self._client)
+                self._discard(state)
                 raise _DropFailed
-            pb.removeState(state, physicsClientId=self._client)
+            self._discard(state)
             piles.append(self.poses(bodies))
         return piles
 
-    # ---- world -------------------------------------------------------------------------------
-    def _build_world(self, layout: CycleLayout) -> None:
-        c, cfg = self._client, self.cfg
-        pb.resetSimulation(physicsClientId=c)
-        pb.setPhysicsEngineParameter(
-            fixedTimeStep=cfg.time_step, numSolverIterations=cfg.solver_iterations,
-            deterministicOverlappingPairs=1, physicsClientId=c,
-        )
-        pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
-        plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
-        ground = [0.0, 0.0, -self.rig.bin.thickness]
-        self._static = [pb.createMultiBody(0.0, plane, -1, ground, useMaximalCoordinates=True, physicsClientId=c)]
-        for half, centre in self.rig.bin.boxes():
-            T = layout.T_world_bin @ homogeneous(np.eye(3), centre)
-            shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=c)
-            self._static.append(
-                pb.createMultiBody(0.0, shape, -1, T[:3, 3].tolist(), _xyzw(T[:3, :3]), useMaximalCoordinates=True, physicsClientId=c)
-            )
-        for body in self._static:
-            self._set_contact(body)
+    def _build_world(self, layout: CycleLayout, drops: int) -> None:
         self._T_world_bin = layout.T_world_bin
-        col = self.collision
-        if col.mode == "vhacd":
-            self._shape = pb.createCollisionShape(pb.GEOM_MESH, fileName=str(col.obj_file), physicsClientId=c)
-        else:
-            self._shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=col.vertices.tolist(), physicsClientId=c)
-
-    def _set_contact(self, body: int) -> None:
-        cfg = self.cfg
-        pb.changeDynamics(
-            body, -1, lateralFriction=cfg.friction, rollingFriction=cfg.rolling_friction,
-            spinningFriction=cfg.rolling_friction, restitution=cfg.restitution, linearDamping=cfg.linear_damping,
-            angularDamping=cfg.angular_damping, physicsClientId=self._client,
-        )
-
-    def _new_body(self) -> int:
-        c, col = self._client, self.collision
-        body = pb.createMultiBody(
-            col.mass, self._shape, -1, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0],
-            baseInertialFramePosition=col.com.tolist(),
-            baseInertialFrameOrientation=_xyzw(col.R_model_inertial), useMaximalCoordinates=True, physicsClientId=c,
-        )
-        self._set_contact(body)
-        return body
-
-    # ---- poses -------------------------------------------------------------------------------
-    def set_pose(self, body: int, T_world_obj: np.ndarray) -> None:
-        """Place a part's model frame at ``T_world_obj`` (4, 4), at rest."""
-        T = T_world_obj @ self._T_model_inertial
-        pb.resetBasePositionAndOrientation(body, T[:3, 3].tolist(), _xyzw(T[:3, :3]), physicsClientId=self._client)
-        pb.resetBaseVelocity(body, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=self._client)
-
-    def poses(self, bodies: list[int]) -> np.ndarray:
-        """(N, 4, 4) float64 model-to-world poses of ``bodies``, metres."""
-        out = np.zeros((len(bodies), 4, 4))
-        for i, body in enumerate(bodies):
-            pos, quat = pb.getBasePositionAndOrientation(body, physicsClientId=self._client)
-            R = np.asarray(pb.getMatrixFromQuaternion(quat), dtype=np.float64).reshape(3, 3)
-            out[i] = homogeneous(R, np.asarray(pos)) @ self._T_inertial_model
-        return out
+        self._make_world(layout, drops)
 
     # ---- one drop ----------------------------------------------------------------------------
     def _spawn(self, bodies: list[int], rng: np.random.Generator) -> int:
-        c, r = self._client, self.rig.object_radius
-        boxes = [pb.getAABB(b, physicsClientId=c) for b in bodies]
+        r = self.rig.object_radius
+        boxes = self._aabbs(bodies)
         reach = max(self.rig.bin.inner / 2.0 - r, 0.0)
         body = self._new_body()
-        others = self._static[1:] + bodies  # the ground plane is below the floor
         for attempt in range(_SPAWN_TRIES):
             x, y = rng.uniform(-reach, reach, 2)
             R = random_rotation(rng)
@@ -232,33 +221,49 @@ class BinSimulator:
             top = max([0.0, *(hi[2] for lo, hi in boxes if lo[0] < xw + r and hi[0] > xw - r and lo[1] < yw + r and hi[1] > yw - r)])
             z = top + r + self.cfg.drop_gap + r * (attempt // 5)
             self.set_pose(body, self._T_world_bin @ homogeneous(R, np.array([x, y, z])))
-            pb.performCollisionDetection(physicsClientId=c)
-            if not any(pb.getClosestPoints(body, o, 0.0, physicsClientId=c) for o in others):
+            if not self._touches(body, bodies):
                 return body
         return body  # keep the last, highest try: the solver separates a marginal overlap
 
     def _settle(self, bodies: list[int]) -> tuple[bool, int]:
         """Step until the pile rests or the time cap; returns (settled, steps taken)."""
-        c, cfg = self._client, self.cfg
+        cfg = self.cfg
         fall = math.sqrt(2.0 * (cfg.drop_gap + 0.002) / GRAVITY)
         first_check = math.ceil(fall / cfg.time_step)
         cap = max(math.ceil(cfg.settle_time_cap / cfg.time_step), first_check + 1)
         calm = 0
         for step in range(1, cap + 1):
-            pb.stepSimulation(physicsClientId=c)
+            self._step()
             if step < first_check or step % cfg.check_every:
                 continue
-            lin, ang = 0.0, 0.0
-            for b in bodies:
-                v, w = pb.getBaseVelocity(b, physicsClientId=c)
-                lin, ang = max(lin, v[0] ** 2 + v[1] ** 2 + v[2] ** 2), max(ang, w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
+            lin, ang = self._max_speeds_sq(bodies)
             calm = calm + 1 if lin < cfg.settle_linear**2 and ang < cfg.settle_angular**2 else 0
             if calm >= cfg.settle_checks:
                 return True, step
         return False, cap
 
     def _all_inside(self, bodies: list[int]) -> bool:
-        com_world = np.array([pb.getBasePositionAndOrientation(b, physicsClientId=self._client)[0] for b in bodies])
+        com_world = self._coms(bodies)
         T_bin_world = inverse_pose(self._T_world_bin)
         com_bin = com_world @ T_bin_world[:3, :3].T + T_bin_world[:3, 3]
         return bool(self.rig.bin.inside(com_bin).all())
+
+
+def make_simulator(rig: Rig, collision: CollisionModel, cfg: SceneConfig) -> BinSimulator:
+    """The simulator of the engine ``cfg.physics`` names ("mujoco" or "pybullet").
+
+    Raises:
+        MissingDependencyError: that engine's package is not installed.
+    """
+    if cfg.physics == "pybullet":
+        require("pybullet", "scene.physics=pybullet", "pip install 'opnet[pybullet]' (CPython 3.11 wheels only), "
+                "or use scene.physics=mujoco")
+        from opnet.synthesis.physics_pybullet import PybulletSimulator
+
+        return PybulletSimulator(rig, collision, cfg)
+    if cfg.physics == "mujoco":
+        require("mujoco", "scene.physics=mujoco", "pip install mujoco")
+        from opnet.synthesis.physics_mujoco import MujocoSimulator
+
+        return MujocoSimulator(rig, collision, cfg)
+    raise ValueError(f"scene.physics={cfg.physics!r}: unknown physics engine; expected one of {PHYSICS_ENGINES}")
