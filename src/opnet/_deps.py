@@ -1,7 +1,8 @@
 """Optional heavy dependencies, asked for where they are needed with a message that says what to do.
 
-The generator needs pybullet (physics) and pyrender (rendering); training on data generated
-elsewhere, evaluation and prediction need neither. pybullet has wheels for CPython 3.11 only.
+The generator needs a physics engine (MuJoCo by default, pybullet on request: its wheels stop at
+CPython 3.11) and pyrender (rendering); training on data generated elsewhere, evaluation,
+prediction and export need neither.
 """
 
 from __future__ import annotations

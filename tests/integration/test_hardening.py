@@ -110,13 +110,22 @@ def test_decomposition_time_cap_falls_back_to_the_hull(engine: str, tmp_path: Pa
 
 
 def test_a_failing_decomposition_is_one_line_naming_the_mesh(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    # CoACD raising inside its child process: a ValueError naming the mesh file, before anything is written
-    import opnet.synthesis.collision as collision
+    from opnet.synthesis import collision
 
+    # in the child: an exception of the decomposition becomes the log line the parent reports, no output file
     def broken(src: str, dst: str, log: str, threshold: float) -> None:
+        Path(dst).write_text("half")
         raise RuntimeError("qhull: input is degenerate")
 
-    monkeypatch.setattr(collision, "_run_coacd", broken)
+    dst, log = tmp_path / "out.obj", tmp_path / "log.txt"
+    collision._child(broken, str(tmp_path / "in.obj"), str(dst), str(log), 0.1)
+    assert log.read_text() == "RuntimeError: qhull: input is degenerate" and not dst.exists()
+
+    # in generate_dataset: the message names the mesh file, and nothing is written
+    def failed(mesh, threshold, cache_dir, timeout_s=None):
+        raise ValueError(f"convex decomposition of the mesh failed (CoACD wrote nothing; log: {log.read_text()})")
+
+    monkeypatch.setattr(collision, "coacd_cached", failed)
     mesh = tmp_path / "part.obj"
     builtin_object("zbracket").mesh.export(mesh)
     cfg = {"name": "part", "mesh": str(mesh)}

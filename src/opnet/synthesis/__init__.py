@@ -1,12 +1,12 @@
-"""Synthetic bin-picking data: physics drops (pybullet), rendering (pyrender), IPA-layout writer.
+"""Synthetic bin-picking data: physics drops (MuJoCo or pybullet), rendering (pyrender), IPA-layout writer.
 
 In memory: :class:`CycleGenerator` (``BinSimulator`` + ``SceneRenderer``) makes the
 :class:`~opnet.datasets.record.SceneRecord` of every scene of a cycle. On disk:
 :func:`generate_dataset` writes a resumable, deterministic Fraunhofer-IPA-layout dataset.
 
 Names are imported on first use: ``generate_dataset`` on a dataset that is already complete,
-``SceneConfig`` and ``read_generation`` load neither pybullet nor pyrender (a training box
-without them can use data generated elsewhere).
+``SceneConfig`` and ``read_generation`` load neither a physics engine nor pyrender (a training
+box without them can use data generated elsewhere).
 """
 
 from opnet._lazy import lazy_exports
@@ -14,6 +14,7 @@ from opnet._lazy import lazy_exports
 _WHERE = {
     "BinGeometry": "layout",
     "BinSimulator": "physics",
+    "make_simulator": "physics",
     "CycleGenerator": "cycle",
     "CycleLayout": "layout",
     "CycleResult": "cycle",

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import multiprocessing
 import os
+import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -218,7 +218,7 @@ def coacd_cached(mesh: trimesh.Trimesh, threshold: float, cache_dir: Path, timeo
     h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
     h.update(f"{float(threshold)!r}/{VHACD_MAX_VERTICES}".encode())
     out = Path(cache_dir) / f"coacd_{h.hexdigest()[:24]}.obj"
-    return _decomposition_cached(mesh, out, _run_coacd, threshold, "CoACD", timeout_s)
+    return _decomposition_cached(mesh, out, "coacd", threshold, "CoACD", timeout_s)
 
 
 def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path, timeout_s: float | None = None) -> Path | None:
@@ -229,7 +229,7 @@ def vhacd_cached(mesh: trimesh.Trimesh, resolution: int, cache_dir: Path, timeou
     the convex hull).
     """
     out = Path(cache_dir) / f"vhacd_{mesh_key(mesh, resolution)}.obj"
-    return _decomposition_cached(mesh, out, _run_vhacd, resolution, "V-HACD", timeout_s)
+    return _decomposition_cached(mesh, out, "vhacd", resolution, "V-HACD", timeout_s)
 
 
 def _child(run, src: str, dst: str, log: str, setting: float) -> None:
@@ -241,9 +241,20 @@ def _child(run, src: str, dst: str, log: str, setting: float) -> None:
         Path(dst).unlink(missing_ok=True)
 
 
-def _decomposition_cached(mesh: trimesh.Trimesh, out: Path, run, setting: float, name: str,
+def _child_main(argv: list[str]) -> None:
+    """Entry of the decomposition process: ``<coacd|vhacd> src dst log setting``."""
+    method, src, dst, log, setting = argv
+    run = {"coacd": _run_coacd, "vhacd": _run_vhacd}[method]
+    _child(run, src, dst, log, float(setting) if method == "coacd" else int(setting))
+
+
+def _decomposition_cached(mesh: trimesh.Trimesh, out: Path, method: str, setting: float, name: str,
                           timeout_s: float | None) -> Path | None:
-    """``out``, made by ``run(src, dst, log, setting)`` in a child process if missing (time cap)."""
+    """``out``, made by ``method`` ("coacd" or "vhacd") in a child process if missing (time cap).
+
+    The child is a fresh interpreter (not a fork: a forked child of a process whose OpenMP pool is
+    running, torch's in train.py and the tests, deadlocks in CoACD's OpenMP start-up; nor
+    multiprocessing's spawn, which re-imports the caller's main script)."""
     if out.is_file():
         return out
     timeout_s = vhacd_timeout_s() if timeout_s is None else timeout_s
@@ -251,13 +262,13 @@ def _decomposition_cached(mesh: trimesh.Trimesh, out: Path, run, setting: float,
     with tempfile.TemporaryDirectory(dir=out.parent, prefix=".vhacd_") as tmp:
         src, dst, log = Path(tmp) / "in.obj", Path(tmp) / "out.obj", Path(tmp) / "log.txt"
         mesh.export(src)
-        ctx = multiprocessing.get_context("fork" if sys.platform != "win32" else "spawn")
-        child = ctx.Process(target=_child, args=(run, str(src), str(dst), str(log), setting), daemon=True)
-        child.start()
-        child.join(timeout_s)
-        if child.is_alive():
-            child.kill()
-            child.join()
+        code = "import sys; from opnet.synthesis.collision import _child_main; _child_main(sys.argv[1:])"
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+        try:
+            subprocess.run([sys.executable, "-c", code, method, str(src), str(dst), str(log), repr(setting)], env=env,
+                           stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                           timeout=timeout_s, check=False)
+        except subprocess.TimeoutExpired:  # the child is killed
             logging.getLogger(__name__).warning(
                 "%s did not finish within %g s (OPNET_VHACD_TIMEOUT); using the convex hull of the mesh", name, timeout_s)
             return None

@@ -1,7 +1,7 @@
 """Generate a synthetic IPA-layout dataset: parallel, resumable, byte-deterministic.
 
-Work is split by whole cycles. Each worker process (``spawn`` start method: pybullet and EGL do
-not survive a fork) owns one :class:`CycleGenerator` (one pybullet client, one EGL context). Every
+Work is split by whole cycles. Each worker process (``spawn`` start method: physics engines and EGL do
+not survive a fork) owns one :class:`CycleGenerator` (one physics simulator, one EGL context). Every
 cycle draws its random numbers from ``SeedSequence([seed, cycle])`` and starts its physics world
 from scratch, so the files do not depend on the number of workers or on the order of the cycles.
 Files are written atomically and the scene CSVs last, so a killed run leaves complete cycles and
@@ -52,7 +52,7 @@ class GenerationReport:
             ``scene.views`` cycles).
         scenes_written: scenes written by this call (``cycles_generated * (drops + 1)``).
         seconds: wall time of the call; startup_seconds: until the first worker was ready
-            (process start, imports, EGL and pybullet set-up).
+            (process start, imports, EGL and physics set-up).
         scenes_per_second: ``scenes_written`` / (``seconds`` - ``startup_seconds``).
         redrops, unsettled, restarts, physics_steps, solo_renders: totals over generated cycles.
         per_cycle_seconds: time each simulated pile took (simulate, render and write its views).

@@ -140,6 +140,8 @@ class MujocoSimulator(BinSimulator):
         self._dof = model.jnt_dofadr[model.body_jntadr[2:2 + drops]] if drops else np.zeros(0, dtype=int)
         self._geoms = [np.flatnonzero(model.geom_bodyid == self._body_id(model, i)) for i in range(drops)]
         self._ground = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "ground")
+        for body in range(drops):  # the cached model may hold the last cycle's active parts
+            self._set_active(body, False)
         self._active = 0
         mujoco.mj_forward(model, self.data)
 
