@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import subprocess
@@ -106,3 +107,25 @@ def test_a_mesh_without_faces_is_refused_naming_the_file(tmp_path: Path) -> None
     with pytest.raises(ValueError, match="points_only.obj"):
         run(cfg)
     assert not (tmp_path / "ds").exists()
+
+
+def test_a_complete_pybullet_dataset_is_used_by_the_mujoco_default_but_not_completed_by_it(tmp_path: Path) -> None:
+    # a dataset made before MuJoCo became the default: generation.json without scene.physics
+    obj = builtin_object("pin")
+    scene = SceneConfig(resolution=32, collision="convex_hull")
+    root = tmp_path / "ds"
+    generate_dataset(obj, root, cycles=2, drops=1, workers=1, progress=False, previews=0, scene=scene)
+    gen_file = root / "generation.json"
+    made = json.loads(gen_file.read_text())
+    made["scene"].pop("physics")  # as pybullet-era datasets wrote it
+    gen_file.write_text(json.dumps(made))
+    # complete: used as it is, with the default engine's settings, and its generation.json kept
+    report = generate_dataset(obj, root, cycles=2, drops=1, workers=1, progress=False, previews=0, scene=scene)
+    assert report.cycles_skipped == 2 and json.loads(gen_file.read_text()) == made
+    # a cycle to make: refused, naming the key and the engine it was made with
+    with pytest.raises(ValueError, match=r"\['scene.physics'\] differ; to complete it, generate with scene.physics=pybullet"):
+        generate_dataset(obj, root, cycles=3, drops=1, workers=1, progress=False, previews=0, scene=scene)
+    # other settings still count on a complete dataset
+    with pytest.raises(ValueError, match=r"\['scene.friction', 'scene.physics'\] differ"):
+        generate_dataset(obj, root, cycles=2, drops=1, workers=1, progress=False, previews=0,
+                         scene=SceneConfig(resolution=32, collision="convex_hull", friction=0.3))

@@ -220,7 +220,7 @@ def generate_dataset(
             collision = build_collision_model(obj.mesh, scene)
         except ValueError as e:  # the convex decomposition failed
             raise ValueError(f"{config.get('mesh') or obj.name}: {e}") from None
-    write_root_files(out, obj, config, params, scene, seed, drops, sensor)
+    write_root_files(out, obj, config, params, scene, seed, drops, sensor, complete=not todo)
     for c in todo:
         clear_cycle(out, c)
     report = GenerationReport(out, cycles, cycles_skipped=cycles - len(todo))

@@ -68,11 +68,34 @@ def normalized_object_config(config: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+#: generation settings that only say how new cycles would be simulated
+_ENGINE_KEYS = ("scene.physics", "scene.coacd_threshold")
+
+
+def _differing(existing: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
+    """Keys whose values differ, ``scene`` down to its fields (``scene.physics``); a dataset
+    without ``scene.physics`` was made with pybullet."""
+    out = []
+    for key in sorted(set(expected) | set(existing)):
+        a, b = existing.get(key), expected.get(key)
+        if key == "scene" and isinstance(a, dict) and isinstance(b, dict):
+            a, b = {"physics": "pybullet", **a}, {"physics": "pybullet", **b}
+            out += [f"{key}.{k}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+        elif a != b:
+            out.append(key)
+    return out
+
+
 def write_root_files(
     root: Path, obj: ObjectModel, object_config: Mapping[str, Any], params: IPAParameters, scene: SceneConfig,
-    seed: int, drops: int, sensor: SensorModel | None = None,
+    seed: int, drops: int, sensor: SensorModel | None = None, complete: bool = False,
 ) -> None:
     """Write (or check and rewrite) the dataset's root files before any scene.
+
+    ``complete``: every cycle exists and none is to be made. Then the settings that only say how
+    new cycles would be simulated (``scene.physics``, ``scene.coacd_threshold``: a dataset made
+    with pybullet before MuJoCo became the default) may differ; the dataset's own
+    ``generation.json`` is kept.
 
     Raises:
         ValueError: ``root`` already holds a dataset made with another object, seed, number of
@@ -89,11 +112,17 @@ def write_root_files(
         except (OSError, json.JSONDecodeError) as e:
             raise ValueError(f"{existing_file}: unreadable ({e}); delete the folder or choose another 'out'") from e
         expected = json.loads(_json_text(generation))
-        differing = sorted(k for k in set(expected) | set(existing) if existing.get(k) != expected.get(k))
-        if differing:
+        differing = _differing(existing, expected)
+        if complete and differing and all(key in _ENGINE_KEYS for key in differing):
+            generation = existing  # a finished dataset is used as it was made
+        elif differing:
+            hint = ""
+            if "scene.physics" in differing:
+                made = existing.get("scene", {}).get("physics", "pybullet")
+                hint = f"; to complete it, generate with scene.physics={made}"
             raise ValueError(
-                f"{existing_file}: the folder holds a dataset generated with other settings (keys {differing} differ); "
-                f"choose another output folder or delete it"
+                f"{existing_file}: the folder holds a dataset generated with other settings (keys {differing} differ"
+                f"{hint}); choose another output folder or delete it"
             )
     root.mkdir(parents=True, exist_ok=True)
     # unchanged files are not rewritten: a complete dataset on read-only storage stays usable
