@@ -18,7 +18,10 @@ Choices, measured against pybullet on the same piles (``scripts/bench_physics.py
   second" as in Bullet; they become joint damping of rate -ln(1 - c) times the mass (translation)
   and the principal moments (rotation), integrated implicitly (``implicitfast``).
 - Contacts are MuJoCo's soft contacts with a time constant of two steps (the stiffest the step
-  allows), so parts sink less than a tenth of a millimetre into each other at rest.
+  allows): in a settled 75-part bunny pile the contacts are 0.02 mm deep (median), 0.2 mm at most.
+- Not used: rolling friction (``condim`` 6) made a ring-screw pile 43 % slower to simulate;
+  MuJoCo's sleeping islands would save the time of buried parts but need waking rules this code
+  does not have yet.
 """
 
 from __future__ import annotations
