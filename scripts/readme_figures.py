@@ -119,8 +119,7 @@ def quickstart_seeds_table(results: Path) -> str:
         "`trainer.precision=auto` trains in bf16 mixed precision where the CPU computes bf16 natively "
         "(AVX512-BF16 or AMX), else in fp32, and the console's `precision path:` line says which one a run took. "
         "Over training seeds (`python scripts/quickstart_seeds.py --seeds 0 1 2 --precision auto 32`; the same "
-        "data, the sd is over seeds; measured on the quickstart data as pybullet made it, before MuJoCo became "
-        "the default engine, so its training and held-out scenes differ from the run above):\n\n"
+        "data, made with MuJoCo like the run above; the sd is over seeds):\n\n"
         + _table(["CPU", "native bf16", "precision path", "seeds", "test AP mean ± sd", "min – max",
                   "train + test time per run"], rows)  # fmt: skip
         + "\n"
