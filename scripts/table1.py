@@ -121,13 +121,14 @@ def _mean(values: list[float | None]) -> float | None:
     return statistics.fmean(known) if known else None
 
 
-def report(rows: list[dict[str, object]], steps: int) -> tuple[str, str]:
-    """(README.md text, table1.csv text) of the finished arms."""
+def report(rows: list[dict[str, object]], steps: int, requested: int | None = None) -> tuple[str, str]:
+    """(README.md text, table1.csv text) of the finished arms (``requested``: arms asked for)."""
     params, objects, cells = compare_runs.table(rows)
     lines = ["# Table I on this machine", "",
              (f"Held-out test AP (Brégier, max occlusion 0.5) per parameterization and object, mean ± sample sd over the "
               f"seeds (runs); each arm `experiment=table1`, {steps} steps; the paper's Table I value in brackets. "
-              "Made by `python scripts/table1.py` (its docstring has the command and the budget)."), "",
+              "Made by `python scripts/table1.py` (its docstring has the command and the budget)."
+              + (f" **Arms finished: {len(rows)} of {requested}.**" if requested and len(rows) < requested else "")), "",
              "| parameterization | " + " | ".join(objects) + " | found % (mean) | t p50 mm | r p50 ° |",
              "|" + "---|" * (len(objects) + 4)]
     buf = io.StringIO()
@@ -190,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     if not rows:
         print(f"error: {args.runs_dir}: no finished arm of this table", file=sys.stderr)
         return 2
-    text, table_csv = report(rows, args.steps)
+    text, table_csv = report(rows, args.steps, len(todo))
     args.out.mkdir(parents=True, exist_ok=True)
     for name, body in (("README.md", text), ("table1.csv", table_csv)):
         tmp = args.out / f".{name}.tmp"

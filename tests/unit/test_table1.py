@@ -62,7 +62,9 @@ def test_collect_writes_mean_sd_paper_and_the_checks(tmp_path: Path) -> None:
     text = (out / "README.md").read_text()
     assert "| vanilla | 0.800 ± 0.100 (3) [0.92] | 0.600 ± 0.000 (3) [0.88] |" in text
     assert "| ap | 0.850 ± 0.050 (3) [0.92] | 0.500 ± 0.000 (3) [0.96] |" in text
-    assert "gear_shaft" not in text
+    assert "gear_shaft" not in text and "Arms finished" not in text  # all 12 asked for are there
     assert "- ap >= vanilla on 1 of 2 objects (bunny); needed 2: does not hold" in text
     rows = (out / "table1.csv").read_text().splitlines()
+    assert table1.main([*argv[:-1], "--seeds", "0", "1", "2", "3", "--collect"]) == 0
+    assert "**Arms finished: 12 of 16.**" in (out / "README.md").read_text()
     assert rows[0].startswith("parameterization,object,runs,ap_mean,ap_sd,paper") and len(rows) == 5
