@@ -94,7 +94,8 @@ def arms(args: argparse.Namespace) -> list[tuple[Path, list[str]]]:
             for seed in args.seeds:
                 run = args.runs_dir / f"{param}_{obj}_s{seed}"
                 cmd = [sys.executable, "train.py", "experiment=table1", f"object={obj}", f"parameterization={param}",
-                       f"seed={seed}", f"trainer.max_steps={args.steps}", *args.extra, f"hydra.run.dir={run}"]
+                       f"seed={seed}", f"trainer.max_steps={args.steps}", "trainer.enable_progress_bar=false", *args.extra,
+                       f"hydra.run.dir={run}"]
                 out.append((run, cmd))
     return out
 
