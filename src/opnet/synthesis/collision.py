@@ -118,12 +118,13 @@ def _cfg_cache(cfg: SceneConfig) -> Path:
     return Path(cfg.cache_dir).expanduser() if cfg.cache_dir else user_cache_dir()
 
 
-def mesh_key(mesh: trimesh.Trimesh, resolution: int) -> str:
-    """Hash of the mesh geometry and the V-HACD settings: the cache file name."""
-    h = hashlib.sha256(_VHACD_VERSION.encode())
+def mesh_key(mesh: trimesh.Trimesh, resolution: int, version: str = _VHACD_VERSION, setting: str | None = None) -> str:
+    """Hash of the mesh geometry and the decomposition's settings: the cache file name (V-HACD's
+    ``resolution`` by default; another method gives its ``version`` and ``setting`` text)."""
+    h = hashlib.sha256(version.encode())
     h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
-    h.update(f"{int(resolution)}/{VHACD_MAX_VERTICES}".encode())
+    h.update((f"{int(resolution)}" if setting is None else setting).encode() + f"/{VHACD_MAX_VERTICES}".encode())
     return h.hexdigest()[:24]
 
 
@@ -213,11 +214,7 @@ def convex_parts(obj_file: Path) -> list[np.ndarray]:
 
 def coacd_cached(mesh: trimesh.Trimesh, threshold: float, cache_dir: Path, timeout_s: float | None = None) -> Path | None:
     """The CoACD decomposition of ``mesh`` as an OBJ file in ``cache_dir`` (see :func:`vhacd_cached`)."""
-    h = hashlib.sha256(_COACD_VERSION.encode())
-    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
-    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
-    h.update(f"{float(threshold)!r}/{VHACD_MAX_VERTICES}".encode())
-    out = Path(cache_dir) / f"coacd_{h.hexdigest()[:24]}.obj"
+    out = Path(cache_dir) / f"coacd_{mesh_key(mesh, 0, _COACD_VERSION, repr(float(threshold)))}.obj"
     return _decomposition_cached(mesh, out, "coacd", threshold, "CoACD", timeout_s)
 
 

@@ -95,6 +95,10 @@ class BinSimulator(ABC):
     def __init__(self, rig: Rig, collision: CollisionModel, cfg: SceneConfig) -> None:
         self.rig, self.collision, self.cfg = rig, collision, cfg
         self._T_world_bin = np.eye(4)
+        # model frame -> inertial frame (centre of mass, principal axes) of a part: the engines'
+        # bodies live in the inertial frame
+        self._T_model_inertial = homogeneous(collision.R_model_inertial, collision.com)
+        self._T_inertial_model = inverse_pose(self._T_model_inertial)
 
     def __enter__(self) -> Self:
         return self

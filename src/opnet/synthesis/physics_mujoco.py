@@ -31,10 +31,10 @@ import math
 import mujoco
 import numpy as np
 
-from opnet.geometry.rotations import matrix_to_quaternion
+from opnet.geometry.rotations import matrix_to_quaternion, quaternion_to_matrix
 from opnet.synthesis.collision import CollisionModel, convex_parts
 from opnet.synthesis.config import SceneConfig
-from opnet.synthesis.layout import CycleLayout, Rig, homogeneous, inverse_pose
+from opnet.synthesis.layout import CycleLayout, Rig
 from opnet.synthesis.physics import GRAVITY, BinSimulator
 
 #: where parked parts wait (metres below the ground, one metre apart): far from everything
@@ -49,18 +49,6 @@ def _wxyz(R: np.ndarray) -> np.ndarray:
     return np.asarray(matrix_to_quaternion(np.asarray(R, dtype=np.float64)), dtype=np.float64)
 
 
-def quaternions_to_matrices(q: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions (w, x, y, z) -> (N, 3, 3) rotation matrices."""
-    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], 1)
-
-
 def damping_rate(fraction_per_second: float) -> float:
     """Bullet's damping c (velocity times (1 - c) per second) as a continuous rate, 1/s."""
     return -math.log(max(1.0 - float(fraction_per_second), 1e-9))
@@ -71,8 +59,6 @@ class MujocoSimulator(BinSimulator):
 
     def __init__(self, rig: Rig, collision: CollisionModel, cfg: SceneConfig) -> None:
         super().__init__(rig, collision, cfg)
-        self._T_model_inertial = homogeneous(collision.R_model_inertial, collision.com)
-        self._T_inertial_model = inverse_pose(self._T_model_inertial)
         if collision.mode == "vhacd" and collision.obj_file is not None:
             parts = convex_parts(collision.obj_file)
         else:
@@ -121,8 +107,7 @@ class MujocoSimulator(BinSimulator):
             model = mujoco.MjModel.from_xml_string(self._xml(drops))
             cfg, col = self.cfg, self.collision
             lin, ang = damping_rate(cfg.linear_damping), damping_rate(cfg.angular_damping)
-            for i in range(drops):
-                dof = model.jnt_dofadr[model.body_jntadr[self._body_id(model, i)]]
+            for dof in self._addresses(model, drops)[1]:
                 model.dof_damping[dof:dof + 3] = lin * col.mass
                 model.dof_damping[dof + 3:dof + 6] = ang * np.asarray(col.inertia)
             self._models[drops] = model
@@ -132,6 +117,12 @@ class MujocoSimulator(BinSimulator):
     def _body_id(model: mujoco.MjModel, i: int) -> int:
         return 2 + i  # world 0, bin 1, then the parts in order
 
+    @classmethod
+    def _addresses(cls, model: mujoco.MjModel, drops: int) -> tuple[np.ndarray, np.ndarray]:
+        """(qpos address, dof address) of each part's free joint."""
+        joints = model.body_jntadr[[cls._body_id(model, i) for i in range(drops)]].astype(int)
+        return model.jnt_qposadr[joints].astype(int), model.jnt_dofadr[joints].astype(int)
+
     def _make_world(self, layout: CycleLayout, drops: int) -> None:
         model = self._compile(drops)
         T = layout.T_world_bin
@@ -139,8 +130,7 @@ class MujocoSimulator(BinSimulator):
         model.body_quat[1] = _wxyz(T[:3, :3])
         self.model = model
         self.data = mujoco.MjData(model)
-        self._qpos = model.jnt_qposadr[model.body_jntadr[2:2 + drops]] if drops else np.zeros(0, dtype=int)
-        self._dof = model.jnt_dofadr[model.body_jntadr[2:2 + drops]] if drops else np.zeros(0, dtype=int)
+        self._qpos, self._dof = self._addresses(model, drops)
         self._geoms = [np.flatnonzero(model.geom_bodyid == self._body_id(model, i)) for i in range(drops)]
         self._ground = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "ground")
         for body in range(drops):  # the cached model may hold the last cycle's active parts
@@ -187,7 +177,7 @@ class MujocoSimulator(BinSimulator):
         q = self.data.qpos
         pos = np.stack([q[a:a + 3] for a in idx]) if len(idx) else np.zeros((0, 3))
         quat = np.stack([q[a + 3:a + 7] for a in idx]) if len(idx) else np.zeros((0, 4))
-        return pos, quaternions_to_matrices(quat)
+        return pos, np.asarray(quaternion_to_matrix(quat), dtype=np.float64).reshape(-1, 3, 3)
 
     def poses(self, bodies: list[int]) -> np.ndarray:
         pos, R = self._inertial_poses(bodies)

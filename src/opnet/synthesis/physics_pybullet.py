@@ -20,7 +20,7 @@ with quiet_c_output():  # pybullet prints its build time on import, once per pro
 from opnet.geometry.rotations import matrix_to_quaternion
 from opnet.synthesis.collision import CollisionModel
 from opnet.synthesis.config import SceneConfig
-from opnet.synthesis.layout import CycleLayout, Rig, homogeneous, inverse_pose
+from opnet.synthesis.layout import CycleLayout, Rig, homogeneous
 from opnet.synthesis.physics import GRAVITY, BinSimulator
 
 
@@ -34,10 +34,7 @@ class PybulletSimulator(BinSimulator):
 
     def __init__(self, rig: Rig, collision: CollisionModel, cfg: SceneConfig) -> None:
         super().__init__(rig, collision, cfg)
-        self._client = pb.connect(pb.DIRECT)
-        # link (model) frame -> inertial frame of a part; pybullet reports the inertial frame
-        self._T_model_inertial = homogeneous(collision.R_model_inertial, collision.com)
-        self._T_inertial_model = inverse_pose(self._T_model_inertial)
+        self._client = pb.connect(pb.DIRECT)  # pybullet reports the inertial frame of a body
         self._static: list[int] = []
 
     def close(self) -> None:
