@@ -125,14 +125,31 @@ def test_eve_position_is_relative_to_the_enlarged_image():
 
 def test_ap_reference_points_follow_the_symmetry_class():
     shaft, zbracket = builtin_object("shaft"), builtin_object("zbracket")
+    extent = {"placement": "extent"}  # the ends of the extent (opnet before issue 21)
     np.testing.assert_allclose(
-        APParameterization(shaft).points.numpy(), [[0, 0, 0.0425], [0, 0, -0.0425]], atol=1e-9
+        APParameterization(shaft, **extent).points.numpy(), [[0, 0, 0.0425], [0, 0, -0.0425]], atol=1e-9
     )
     np.testing.assert_allclose(
-        sorted(APParameterization(zbracket).points[:, 0].tolist()), [-0.025, 0.025], atol=1e-9
+        sorted(APParameterization(zbracket, **extent).points[:, 0].tolist()), [-0.025, 0.025], atol=1e-9
     )
-    pts = APParameterization(BRACKET).points.numpy()
+    pts = APParameterization(BRACKET, **extent).points.numpy()
     assert pts.shape == (2, 3) and abs(pts[0] @ pts[1]) < 1e-9  # on two orthogonal principal axes
+    # on the part (default): the revolution axis keeps its points, at 0.6 of the half extent
+    np.testing.assert_allclose(APParameterization(shaft).points.numpy(), [[0, 0, 0.0255], [0, 0, -0.0255]], atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["bracket", "zbracket", "shaft", "pin"])
+def test_ap_default_points_lie_on_the_part_and_permute_under_its_symmetry(name):
+    obj = builtin_object(name)
+    pts = APParameterization(obj).points.numpy()
+    outside = ~obj.mesh.contains(pts)
+    _, surface_distance, _ = obj.mesh.nearest.on_surface(pts)
+    assert (surface_distance[outside] < 1e-6).all()  # inside the part or on its surface
+    # the extent placement leaves the part for these meshes (why on_part is the default)
+    assert APParameterization(obj, placement="extent").points.numpy().tolist() != pts.tolist()
+    for R in obj.symmetry.group():  # a symmetry step maps the point set onto itself
+        moved = pts @ R.T
+        assert np.abs(moved[:, None] - pts[None]).sum(-1).min(1).max() < 1e-9
 
 
 def test_ap_assigns_objects_with_origin_outside_and_keeps_origin_cells():
@@ -248,6 +265,8 @@ def test_invalid_settings_are_rejected():
         EVEParameterization(BRACKET, border=0.7)
     with pytest.raises(ValueError, match="points"):
         APParameterization(BRACKET, points=[[1.0, 2.0]])
+    with pytest.raises(ValueError, match="ap placement must be one of"):
+        APParameterization(BRACKET, placement="surface")
     with pytest.raises(ValueError, match="cameras"):
         VanillaParameterization(BRACKET).encode(scene([(4.0, 4.0, 1.0)], [0.8]), [CAMERA, CAMERA])
 

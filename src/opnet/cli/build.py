@@ -12,7 +12,7 @@ from typing import Any
 import torch
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from opnet.cli.trusted import saved_config, short
 from opnet.losses import MultiTaskLoss
@@ -136,7 +136,12 @@ def checkpoint_config(ckpt: dict[str, Any], path: str | Path) -> DictConfig:
     config = hparams.get("config") if isinstance(hparams, dict) else None
     if not config:
         raise ValueError(f"{path}: checkpoint holds no opnet run config (was it written by train.py?)")
-    return saved_config(config, path)
+    cfg = saved_config(config, path)
+    param = cfg.get("parameterization")
+    if isinstance(param, DictConfig) and str(param.get("_target_", "")).endswith(".APParameterization"):
+        with open_dict(param):  # trained before AP had placements: its points were the extent's ends
+            param.setdefault("placement", "extent")
+    return cfg
 
 
 #: the largest network input side a checkpoint may ask for (the ONNX metadata's bound too)

@@ -285,6 +285,24 @@ class Parameterization(abc.ABC):
         mask[self._assign(gt, camera).index] = True
         return mask
 
+    def target_cells(
+        self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Which cell of the target holds which instance, and from which source (diagnostics).
+
+        Returns:
+            index (W,) long instance, cell (W,) long flat index into the (B, slots, S, S) grid, and
+            origin (W,) bool: the cell is the one of the instance's projected origin (vanilla's
+            cell); False for an EVE extension, an AP additional point's cell, an SI mask cell.
+        """
+        winners = self._assign(gt, camera)
+        cams = CameraBatch.of(camera, gt.batch_size, gt.t_cam_obj.device)
+        origin = project_origins(gt.t_cam_obj, gt.batch_index, cams).cells(self.grid_size)
+        S = self.grid_size
+        row, col = (winners.cell // S) % S, winners.cell % S
+        is_origin = (row == origin.row[winners.index]) & (col == origin.col[winners.index])
+        return winners.index, winners.cell, is_origin
+
     def _assign(self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]) -> Candidates:
         cams = CameraBatch.of(camera, gt.batch_size, gt.t_cam_obj.device)
         proj = project_origins(gt.t_cam_obj, gt.batch_index, cams)
