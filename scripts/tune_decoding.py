@@ -67,13 +67,18 @@ class RecordedSplit:
             gts.append(batch.gt_sets)
         return cls(system.parameterization, outputs, cameras, gts, system.hparams.max_occlusion)
 
-    def ap(self, settings: dict[str, Any]) -> float:
+    def scenes(self, settings: dict[str, Any]) -> dict[str, tuple[GroundTruthSet, Any]]:
+        """Scene name -> (ground truth, hypotheses) decoded with ``settings``."""
         param = decoder(self.parameterization, settings)
         scenes = {}
         for out, cams, gt in zip(self.outputs, self.cameras, self.gts, strict=True):
             for h, g in zip(param.decode(out, cams), gt, strict=True):
                 scenes[f"s{len(scenes):06d}"] = (g, h)
-        return evaluate_scenes(scenes, param.obj.pose_space, max_occlusion=self.max_occlusion).ap
+        return scenes
+
+    def ap(self, settings: dict[str, Any]) -> float:
+        space = self.parameterization.obj.pose_space
+        return evaluate_scenes(self.scenes(settings), space, max_occlusion=self.max_occlusion).ap
 
 
 def decoder(param: Parameterization, settings: dict[str, Any]) -> Parameterization:

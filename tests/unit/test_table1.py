@@ -67,4 +67,23 @@ def test_collect_writes_mean_sd_paper_and_the_checks(tmp_path: Path) -> None:
     rows = (out / "table1.csv").read_text().splitlines()
     assert table1.main([*argv[:-1], "--seeds", "0", "1", "2", "3", "--collect"]) == 0
     assert "**Arms finished: 12 of 16.**" in (out / "README.md").read_text()
-    assert rows[0].startswith("parameterization,object,runs,ap_mean,ap_sd,paper") and len(rows) == 5
+    assert rows[0].startswith("decoding,parameterization,object,runs,ap_mean,ap_sd,paper") and len(rows) == 5
+    assert "tuned per arm" not in text  # no arm has a checkpoint to tune: the block is left out
+
+
+def test_decoding_tuned_per_arm_is_a_second_table_with_its_own_checks(tmp_path: Path) -> None:
+    runs, out = tmp_path / "runs", tmp_path / "results"
+    for seed in range(2):
+        _arm(runs, "vanilla", "bunny", seed, 0.5)
+        _arm(runs, "ap", "bunny", seed, 0.4)
+        for param, tuned in (("vanilla", 0.55), ("ap", 0.6 + 0.1 * seed)):  # what tuning on val would cache
+            (runs / f"{param}_bunny_s{seed}" / "decoding_tuned.json").write_text(json.dumps(
+                {"settings": {"score": "p"}, "ap": tuned, "found": 0.5, "t_err_mm_p50": 3.0, "r_err_deg_p50": 5.0}))
+    argv = ["--objects", "bunny", "--parameterizations", "vanilla,ap", "--seeds", "0", "1", "--runs-dir", str(runs),
+            "--out", str(out), "--collect"]
+    assert table1.main(argv) == 0
+    configured, tuned = (out / "README.md").read_text().split("tuned per arm")
+    assert "| ap | 0.400 ± 0.000 (2) [0.92] |" in configured and "ap >= vanilla on 0 of 1" in configured
+    assert "| ap | 0.650 ± 0.071 (2) [0.92] |" in tuned and "ap >= vanilla on 1 of 1 objects (bunny)" in tuned
+    rows = (out / "table1.csv").read_text().splitlines()
+    assert sum(r.startswith("tuned on val,ap,bunny,2,0.6500") for r in rows) == 1
