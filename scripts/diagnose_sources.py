@@ -19,7 +19,10 @@ cell, an SI mask cell). Printed and written per checkpoint:
    ablations that use the ground truth to drop cells (never a deployable decoding, a measurement):
    only origin-source and untargeted cells, and only other-source and untargeted cells. The
    difference between "as configured" and "origin cells only" is what the additional cells add or
-   cost after averaging.
+   cost after averaging;
+4. with several checkpoints scored on the same scenes, each after the first gets a **cross table**
+   of the required instances: its outcome (matched or the miss reason) against the first's, e.g.
+   ``--ckpt vanilla... --ckpt ap...``: which parts AP misses that vanilla finds, and why.
 
 Writes ``sources_<run>.md`` per checkpoint and ``sources.csv`` (one row per checkpoint × table row)
 into ``--out`` (default ``results/table1/diagnostics``).
@@ -42,7 +45,7 @@ import torch  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
-from opnet.metrics.diagnostics import diagnose, rotation_errors_deg  # noqa: E402
+from opnet.metrics.diagnostics import MISS_REASONS, diagnose, rotation_errors_deg, scene_outcomes  # noqa: E402
 from opnet.parameterizations.positions import CameraBatch  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -66,7 +69,7 @@ def record(ckpt: Path, split: str) -> dict[str, Any]:
         out = system(batch.images).float()
         index, cell, origin = param.target_cells(batch.gt, batch.cameras)
         batches.append({"out": out, "cams": batch.cameras, "gt": batch.gt, "gt_sets": batch.gt_sets,
-                        "index": index, "cell": cell, "origin": origin})  # fmt: skip
+                        "index": index, "cell": cell, "origin": origin, "names": batch.names})  # fmt: skip
     return {"param": param, "batches": batches, "max_occlusion": system.hparams.max_occlusion}
 
 
@@ -143,7 +146,8 @@ def cell_table(rec: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def decode_variants(rec: dict[str, Any]) -> list[dict[str, Any]]:
-    """AP and miss diagnostics of the decoding variants of the module docstring."""
+    """AP and miss diagnostics of the decoding variants of the module docstring; keeps the
+    per-instance outcomes of the configured decoding in ``rec["outcomes"]`` (scene name -> (N,))."""
     param = rec["param"]
     variants = {
         "as configured": (param, None),
@@ -153,7 +157,7 @@ def decode_variants(rec: dict[str, Any]) -> list[dict[str, Any]]:
     }
     rows = []
     for name, (decoder, drop_origin) in variants.items():
-        scenes = {}
+        scenes: dict[str, Any] = {}
         for bt in rec["batches"]:
             out = bt["out"]
             if drop_origin is not None:  # silence the target cells of one source
@@ -162,8 +166,11 @@ def decode_variants(rec: dict[str, Any]) -> list[dict[str, Any]]:
                 presence[bt["cell"][bt["origin"] == drop_origin]] = 0.0
                 grid5[:, :, 0] = presence.reshape(grid5[:, :, 0].shape)
                 out = grid5.reshape(out.shape)
-            for h, g in zip(decoder.decode(out, bt["cams"]), bt["gt_sets"], strict=True):
-                scenes[f"s{len(scenes):06d}"] = (g, h)
+            for h, g, scene in zip(decoder.decode(out, bt["cams"]), bt["gt_sets"], bt["names"], strict=True):
+                scenes[scene] = (g, h)
+        if name == "as configured":
+            per_scene = scene_outcomes(scenes, param.obj.pose_space, param.obj.diameter, rec["max_occlusion"])
+            rec["outcomes"] = {n: o.outcome[o.find] for n, o in zip(scenes, per_scene, strict=True)}
         result = evaluate_scenes(scenes, param.obj.pose_space, max_occlusion=rec["max_occlusion"])
         diag = diagnose(scenes, param.obj.pose_space, param.obj.diameter, max_occlusion=rec["max_occlusion"])
         n = max(diag.to_find, 1)
@@ -174,6 +181,24 @@ def decode_variants(rec: dict[str, Any]) -> list[dict[str, Any]]:
                      "confident_fp": diag.confident_false_positives, "duplicates": diag.duplicates,
                      "t_mm_p50": diag.t_err_mm_p50, "r_deg_p50": diag.r_err_deg_p50})  # fmt: skip
     return rows
+
+
+def versus(ref: dict[str, Any], other: dict[str, Any], ref_name: str, other_name: str) -> str:
+    """Markdown cross table of the required instances: outcome under ``other`` (rows) against
+    outcome under ``ref`` (columns), same held-out scenes; e.g. why AP misses what vanilla finds."""
+    if set(ref["outcomes"]) != set(other["outcomes"]):
+        return f"({other_name} and {ref_name} were scored on different scenes: no cross table)\n"
+    kinds = ["matched", *MISS_REASONS]
+    counts = {(a, b): 0 for a in kinds for b in kinds}
+    for scene, theirs in other["outcomes"].items():
+        for a, b in zip(theirs, ref["outcomes"][scene], strict=True):
+            counts[(a, b)] += 1
+    lines = [f"Required instances: {other_name} (rows) against {ref_name} (columns), the same held-out scenes.", "",
+             f"| {other_name} \\ {ref_name} | " + " | ".join(kinds) + " | total |", "|" + "---|" * (len(kinds) + 2)]
+    for a in kinds:
+        row = [counts[(a, b)] for b in kinds]
+        lines.append(f"| {a} | " + " | ".join(map(str, row)) + f" | {sum(row)} |")
+    return "\n".join(lines) + "\n"
 
 
 def _mean(x: np.ndarray) -> float:
@@ -217,15 +242,21 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_grad_enabled(False)
     args.out.mkdir(parents=True, exist_ok=True)
     all_rows = []
+    first: tuple[str, dict[str, Any]] | None = None
     for ckpt in args.ckpt:
         run = run_name(ckpt)
         print(f"recording the {args.split} outputs of {ckpt}", flush=True)
         rec = record(ckpt, args.split)
         rows = cell_table(rec) + decode_variants(rec)
         text = markdown(run, rows)
+        if first is not None:
+            text += "\n" + versus(first[1], rec, first[0], run)
         print(text, flush=True)
         (args.out / f"sources_{run}.md").write_text(text)
         all_rows += [{"run": run, **r} for r in rows]
+        if first is None:
+            first = (run, {"outcomes": rec["outcomes"]})
+        del rec
     fields = list(dict.fromkeys(k for r in all_rows for k in r))
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=fields)

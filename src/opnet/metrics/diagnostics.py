@@ -99,6 +99,74 @@ def rotation_errors_deg(R_hat: np.ndarray, R: np.ndarray, space: PoseSpace) -> n
     return np.degrees(2 * np.arcsin(np.clip(chord / 2, 0, 1)))
 
 
+@dataclass(frozen=True)
+class SceneOutcome:
+    """What happened to every instance and hypothesis of one scene (module docstring).
+
+    Attributes:
+        hypotheses: the scene's hypotheses.
+        find: (N,) bool, the instance must be found.
+        outcome: (N,) str per instance: "matched" or one of :data:`MISS_REASONS` (decided for every
+            instance, also those that need not be found).
+        duplicate, false_positive: (M,) bool per hypothesis.
+        t_err_mm, r_err_deg: errors of the matched instances (in instance order).
+    """
+
+    hypotheses: HypothesisSet
+    find: np.ndarray
+    outcome: np.ndarray
+    duplicate: np.ndarray
+    false_positive: np.ndarray
+    t_err_mm: np.ndarray
+    r_err_deg: np.ndarray
+
+
+def scene_outcomes(
+    scenes: Mapping[str, tuple[GroundTruthSet, HypothesisSet]],
+    space: PoseSpace,
+    diameter: float,
+    max_occlusion: float = 0.5,
+    min_occlusion: float = -0.1,
+) -> list[SceneOutcome]:
+    """Per-instance outcomes of each scene, in the order of ``scenes`` (see :func:`diagnose`)."""
+    delta, near = space.delta, diameter / 2
+    out = []
+    pairs = [(h, gt) for gt, h in scenes.values()]
+    for (h, gt), D in zip(pairs, pose_distances_per_scene(pairs, space), strict=True):
+        find = instances_to_find(gt, max_occlusion, min_occlusion)
+        outcome = np.full(len(gt), "no_hypothesis", dtype=object)
+        duplicate = np.zeros(len(h), bool)
+        false_positive = np.ones(len(h), bool)  # every hypothesis of a scene without instances
+        none = np.zeros(0)
+        if len(h) == 0 or len(gt) == 0:
+            out.append(SceneOutcome(h, find, outcome, duplicate, false_positive, none, none))
+            continue
+        nearest_gt = D.argmin(1)  # (M,)
+        nearest_hyp = D.argmin(0)  # (N,)
+        d_min = D[nearest_hyp, np.arange(len(gt))]  # (N,)
+        matched = (nearest_gt[nearest_hyp] == np.arange(len(gt))) & (d_min <= delta)
+        # misses by reason, from the pose-nearest hypothesis of each missed instance
+        t_dist = np.linalg.norm(h.t[:, None] - gt.t[None], axis=-1)  # (M, N)
+        t_near = t_dist[nearest_hyp, np.arange(len(gt))]
+        rest = ~matched & (t_dist.min(0) <= near)
+        outcome[matched] = "matched"
+        outcome[rest & (d_min <= delta)] = "conflict"
+        outcome[rest & (d_min > delta) & (t_near > delta)] = "position"
+        outcome[rest & (d_min > delta) & (t_near <= delta)] = "orientation"
+        # hypotheses: true positives are the matched instances' nearest hypotheses
+        is_tp = np.zeros(len(h), bool)
+        is_tp[nearest_hyp[matched]] = True
+        close = D.min(1) <= delta
+        pairs_j = np.flatnonzero(matched)
+        pairs_i = nearest_hyp[pairs_j]
+        out.append(SceneOutcome(
+            h, find, outcome, close & ~is_tp, ~close,
+            1000 * np.linalg.norm(h.t[pairs_i] - gt.t[pairs_j], axis=-1),
+            rotation_errors_deg(h.R[pairs_i], gt.R[pairs_j], space),
+        ))  # fmt: skip
+    return out
+
+
 def diagnose(
     scenes: Mapping[str, tuple[GroundTruthSet, HypothesisSet]],
     space: PoseSpace,
@@ -116,52 +184,24 @@ def diagnose(
         max_occlusion, min_occlusion: which instances must be found (as the evaluation).
         confident_score: hypotheses with at least this score count as confident.
     """
-    delta, near = space.delta, diameter / 2
     counts = dict.fromkeys((*MISS_REASONS, "to_find", "matched", "hypotheses", "duplicates", "false_positives",
                             "confident_duplicates", "confident_false_positives"), 0)  # fmt: skip
     t_err: list[np.ndarray] = []
     r_err: list[np.ndarray] = []
-    pairs = [(h, gt) for gt, h in scenes.values()]
-    for (h, gt), D in zip(pairs, pose_distances_per_scene(pairs, space), strict=True):
-        find = instances_to_find(gt, max_occlusion, min_occlusion)
+    for scene in scene_outcomes(scenes, space, diameter, max_occlusion, min_occlusion):
+        h, find = scene.hypotheses, scene.find
         counts["to_find"] += int(find.sum())
+        counts["matched"] += int((find & (scene.outcome == "matched")).sum())
+        for reason in MISS_REASONS:
+            counts[reason] += int((find & (scene.outcome == reason)).sum())
         counts["hypotheses"] += len(h)
-        if len(h) == 0:
-            counts["no_hypothesis"] += int(find.sum())
-            continue
-        if len(gt) == 0:
-            counts["false_positives"] += len(h)
-            counts["confident_false_positives"] += int((h.score >= confident_score).sum())
-            continue
-        nearest_gt = D.argmin(1)  # (M,)
-        nearest_hyp = D.argmin(0)  # (N,)
-        d_min = D[nearest_hyp, np.arange(len(gt))]  # (N,)
-        matched = (nearest_gt[nearest_hyp] == np.arange(len(gt))) & (d_min <= delta)
-        counts["matched"] += int((matched & find).sum())
-        # misses by reason, from the pose-nearest hypothesis of each missed instance
-        t_dist = np.linalg.norm(h.t[:, None] - gt.t[None], axis=-1)  # (M, N)
-        t_near = t_dist[nearest_hyp, np.arange(len(gt))]
-        missed = find & ~matched
-        no_hyp = missed & (t_dist.min(0) > near)
-        counts["no_hypothesis"] += int(no_hyp.sum())
-        rest = missed & ~no_hyp
-        counts["conflict"] += int((rest & (d_min <= delta)).sum())
-        counts["position"] += int((rest & (d_min > delta) & (t_near > delta)).sum())
-        counts["orientation"] += int((rest & (d_min > delta) & (t_near <= delta)).sum())
-        # hypotheses: true positives are the matched instances' nearest hypotheses
-        is_tp = np.zeros(len(h), bool)
-        is_tp[nearest_hyp[matched]] = True
-        close = D.min(1) <= delta
-        dup, fp = close & ~is_tp, ~close
         confident = h.score >= confident_score
-        counts["duplicates"] += int(dup.sum())
-        counts["false_positives"] += int(fp.sum())
-        counts["confident_duplicates"] += int((dup & confident).sum())
-        counts["confident_false_positives"] += int((fp & confident).sum())
-        pairs_j = np.flatnonzero(matched)
-        pairs_i = nearest_hyp[pairs_j]
-        t_err.append(1000 * np.linalg.norm(h.t[pairs_i] - gt.t[pairs_j], axis=-1))
-        r_err.append(rotation_errors_deg(h.R[pairs_i], gt.R[pairs_j], space))
+        counts["duplicates"] += int(scene.duplicate.sum())
+        counts["false_positives"] += int(scene.false_positive.sum())
+        counts["confident_duplicates"] += int((scene.duplicate & confident).sum())
+        counts["confident_false_positives"] += int((scene.false_positive & confident).sum())
+        t_err.append(scene.t_err_mm)
+        r_err.append(scene.r_err_deg)
     t_all = np.concatenate(t_err) if t_err else np.zeros(0)
     r_all = np.concatenate(r_err) if r_err else np.zeros(0)
 
@@ -176,4 +216,4 @@ def diagnose(
     )  # fmt: skip
 
 
-__all__ = ["MISS_REASONS", "ErrorDiagnostics", "diagnose", "rotation_errors_deg"]
+__all__ = ["MISS_REASONS", "ErrorDiagnostics", "SceneOutcome", "diagnose", "rotation_errors_deg", "scene_outcomes"]
