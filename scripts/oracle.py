@@ -1,7 +1,11 @@
 """Ceiling study: the AP every parameterization reaches with a perfect network, per dataset.
 
     python scripts/oracle.py --data <dir> [--data <dir> ...] --out <dir>
-                             [--max-scenes N] [--object name]
+                             [--max-scenes N] [--object name] [--variant NAME[:key=value,...] ...]
+
+``--variant`` (repeatable) studies only the named parameterizations, each optionally with settings
+of its config, e.g. ``--variant ap --variant ap:placement=extent`` (the row is named
+``ap:placement=extent``); without it every ``conf/parameterization/`` config is studied.
 
 Each dataset's object comes from its ``object.json`` (an object config), else from ``--object`` (a
 built-in or a conf/object/<name>.yaml). Prints the table and writes ceiling.md and ceiling.csv to
@@ -15,8 +19,30 @@ from pathlib import Path
 
 import numpy as np
 
-from opnet.analysis.ceiling import dataset_object, run_ceiling_study
+import yaml
+from omegaconf import DictConfig
+
+from opnet.analysis.ceiling import dataset_object, parameterization_configs, run_ceiling_study
 from opnet.datasets import IPADataset, open_dataset
+
+
+def variant_configs(variants: list[str]) -> dict[str, DictConfig]:
+    """``NAME[:key=value,...]`` -> {the text: NAME's config with those settings}; ValueError for an
+    unknown name or a setting its config does not have."""
+    known = parameterization_configs()
+    out = {}
+    for text in variants:
+        name, _, settings = text.partition(":")
+        if name not in known:
+            raise ValueError(f"--variant {text}: unknown parameterization {name!r}; expected one of {sorted(known)}")
+        cfg = known[name].copy()
+        for item in filter(None, settings.split(",")):
+            key, eq, value = item.partition("=")
+            if not eq or key not in cfg:
+                raise ValueError(f"--variant {text}: {item!r} is not a setting of {name} (key=value)")
+            cfg[key] = yaml.safe_load(value)
+        out[text] = cfg
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -39,7 +65,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--min-objects", type=int, default=0, help="only scenes with at least this many objects (IPA layout)"
     )
+    parser.add_argument("--variant", action="append", default=None,
+                        help="NAME[:key=value,...]: a parameterization config with settings (repeatable)")
     args = parser.parse_args(argv)
+    try:
+        configs = variant_configs(args.variant) if args.variant else None
+    except ValueError as e:
+        parser.error(str(e))
     datasets = []
     for root in args.data:
         dataset = open_dataset(root)
@@ -49,7 +81,7 @@ def main(argv: list[str] | None = None) -> None:
         picks = np.unique(np.linspace(0, len(dataset) - 1, n).round().astype(int)) if n else []
         datasets.append((dataset_object(root, args.object), [dataset[int(i)] for i in picks]))
         print(f"{root}: {len(picks)} of {len(dataset)} scenes, object {datasets[-1][0].name}")
-    report = run_ceiling_study(datasets)
+    report = run_ceiling_study(datasets, configs)
     print(report.markdown())
     report.write(args.out)
     print(f"wrote {args.out / 'ceiling.md'} and {args.out / 'ceiling.csv'}")

@@ -161,6 +161,25 @@ def block_ab(results: Path, prefix: str = "") -> str:
     return _table(["object", "arm", "what changes", "test AP", "F1"], rows) + "\n"
 
 
+def block_table1(results: Path, prefix: str = "") -> str:
+    """Table I (scripts/table1.py): held-out test AP, mean ± sd over seeds, the paper's value in
+    brackets; the decoding tuned per arm on its validation split where the table has it."""
+    rows = _csv(results / "table1" / "table1.csv")
+    decoding = "tuned on val" if any(r["decoding"] == "tuned on val" for r in rows) else "configured"
+    rows = [r for r in rows if r["decoding"] == decoding]
+    objects = list(dict.fromkeys(r["object"] for r in rows))
+    params = list(dict.fromkeys(r["parameterization"] for r in rows))
+    cell = {(r["parameterization"], r["object"]): r for r in rows}
+
+    def text(r: dict[str, str] | None) -> str:
+        if r is None:
+            return "–"
+        paper = f" [{float(r['paper']):.2f}]" if r["paper"] else ""
+        return f"{float(r['ap_mean']):.3f} ± {float(r['ap_sd']):.3f} ({r['runs']}){paper}"
+
+    return _table(["parameterization", *objects], [[p, *(text(cell.get((p, o))) for o in objects)] for p in params]) + "\n"
+
+
 def block_speed(results: Path, prefix: str = "") -> str:
     names = {"fp32": "fp32 (before)", "cl": "fp32 + channels-last", "bf16": "bf16 autocast",
              "bf16+cl": "bf16 + channels-last (default here)"}
@@ -287,7 +306,7 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures,
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
           "real_frame": block_real_frame, "pictures_data": block_pictures_data,
-          "pictures_method": block_pictures_method}
+          "pictures_method": block_pictures_method, "table1": block_table1}
 
 
 def docs_pages(docs: Path = DOCS) -> dict[Path, str]:

@@ -109,3 +109,25 @@ def test_oracle_script_on_an_ipa_dataset(tmp_path: Path, monkeypatch: pytest.Mon
     )
     text = (out / "ceiling.md").read_text()
     assert "| parameterization | zbracket |" in text and "shared cell" in text
+
+
+def test_oracle_variants_set_config_keys_and_refuse_unknown_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                 capsys: pytest.CaptureFixture):
+    root = tmp_path / "zbracket_part_1"
+    write_parameters(root, IPAParameters.from_camera(CAMERA, number_cycles=1, shape_drop_limit=30))
+    for record in toy_records("zbracket", 3, seed=5):
+        write_ipa_scene(root, 0, record, (np.eye(3), np.array([0.0, 0.0, 1.45])))
+    (root / "object.json").write_text(json.dumps({"name": "zbracket", "builtin": "zbracket"}))
+    out = tmp_path / "ceiling"
+    script = str(REPO_ROOT / "scripts" / "oracle.py")
+    base = ["oracle.py", "--data", str(root), "--out", str(out)]
+    monkeypatch.setattr(sys, "argv", [*base, "--variant", "ap", "--variant", "ap:placement=extent"])
+    runpy.run_path(script, run_name="__main__")
+    with open(out / "ceiling.csv") as f:
+        assert [r["parameterization"] for r in csv.DictReader(f)] == ["ap", "ap:placement=extent"]
+    for bad, message in (("teapot", "unknown parameterization 'teapot'"),
+                         ("ap:colour=red", "'colour=red' is not a setting of ap")):
+        monkeypatch.setattr(sys, "argv", [*base, "--variant", bad])
+        with pytest.raises(SystemExit):
+            runpy.run_path(script, run_name="__main__")
+        assert message in capsys.readouterr().err
