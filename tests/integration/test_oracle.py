@@ -88,12 +88,18 @@ def test_perfect_outputs_reach_the_recall_of_the_represented_instances(name):
     assert drops.shared_cell > 0
 
 
-def test_oracle_script_on_an_ipa_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+def _ipa_dataset(tmp_path: Path, scenes: int) -> Path:
+    """A small IPA dataset of zbracket toy scenes with its object.json."""
     root = tmp_path / "zbracket_part_1"
     write_parameters(root, IPAParameters.from_camera(CAMERA, number_cycles=1, shape_drop_limit=30))
-    for record in toy_records("zbracket", 4, seed=5):
+    for record in toy_records("zbracket", scenes, seed=5):
         write_ipa_scene(root, 0, record, (np.eye(3), np.array([0.0, 0.0, 1.45])))
     (root / "object.json").write_text(json.dumps({"name": "zbracket", "builtin": "zbracket"}))
+    return root
+
+
+def test_oracle_script_on_an_ipa_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    root = _ipa_dataset(tmp_path, 4)
     out = tmp_path / "ceiling"
     argv = ["oracle.py", "--data", str(root), "--out", str(out), "--max-scenes", "3"]
     monkeypatch.setattr(sys, "argv", argv)
@@ -113,11 +119,7 @@ def test_oracle_script_on_an_ipa_dataset(tmp_path: Path, monkeypatch: pytest.Mon
 
 def test_oracle_variants_set_config_keys_and_refuse_unknown_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                  capsys: pytest.CaptureFixture):
-    root = tmp_path / "zbracket_part_1"
-    write_parameters(root, IPAParameters.from_camera(CAMERA, number_cycles=1, shape_drop_limit=30))
-    for record in toy_records("zbracket", 3, seed=5):
-        write_ipa_scene(root, 0, record, (np.eye(3), np.array([0.0, 0.0, 1.45])))
-    (root / "object.json").write_text(json.dumps({"name": "zbracket", "builtin": "zbracket"}))
+    root = _ipa_dataset(tmp_path, 3)
     out = tmp_path / "ceiling"
     script = str(REPO_ROOT / "scripts" / "oracle.py")
     base = ["oracle.py", "--data", str(root), "--out", str(out)]
