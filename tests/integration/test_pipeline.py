@@ -277,3 +277,15 @@ def test_console_ends_with_the_summary_and_paths_each_line_once(tmp_path: Path) 
     assert f"AP {summary['ap']:.4f}" in tail[1]
     log_text = (run_dir / "train.log").read_text()
     assert tail[1] in log_text and log_text.rstrip().endswith(tail[-1])
+
+
+def test_eval_with_icp_refines_against_each_scene_depth(checkpoint: Path, tmp_path: Path) -> None:
+    plain = eval_cli.run(_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'plain'}", "examples=0"]))
+    ev = eval_cli.run(_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'icp'}", "examples=0", "refine=icp",
+                                    "refine.icp.budget_ms=null"]))
+    icp = json.loads((tmp_path / "icp" / "summary.json").read_text())["icp"]
+    hypotheses = sum(len(json.loads(p.read_text())) for p in (tmp_path / "plain" / "results").glob("*.json"))
+    assert sum(icp["statuses"].values()) == hypotheses and icp["statuses"]["budget"] == 0
+    assert icp["ms_per_image"] >= 0 and ev["scenes"] == plain["scenes"]
+    with pytest.raises(ValueError, match=r"icp: unknown keys \['radiuss'\]"):
+        eval_cli.run(_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'bad'}", "refine=icp", "+refine.icp.radiuss=1"]))

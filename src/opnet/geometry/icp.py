@@ -306,5 +306,16 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     return R_out, t_out, status
 
 
-__all__ = ["STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "SceneCloud", "refine_hypotheses", "refine_pose",
-           "rotation_change_deg"]
+def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCloud, space: Any,
+                 settings: ICPSettings = ICPSettings()) -> tuple[Any, list[str]]:  # fmt: skip
+    """The hypotheses of one image (a :class:`opnet.metrics.records.HypothesisSet`) refined against
+    its depth image (metres, (H, W)) seen by ``camera`` (fx, fy, cx, cy): (a new set, statuses)."""
+    if depth.shape != (camera.height, camera.width):
+        raise ValueError(f"icp: depth of shape {depth.shape} does not match the camera ({camera.height}, {camera.width})")
+    scene = SceneCloud.from_depth(depth, camera.fx, camera.fy, camera.cx, camera.cy, settings.stride)
+    R, t, status = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space, settings)
+    return type(hypotheses)(R, t, hypotheses.score, hypotheses.visibility), status
+
+
+__all__ = ["ICPResult", "ICPSettings", "ModelCloud", "STATUSES", "SceneCloud", "refine_hypotheses",
+           "refine_image", "refine_pose", "rotation_change_deg"]

@@ -1,0 +1,138 @@
+"""ICP refinement A/B (issue 26): the same network outputs scored without and with ICP.
+
+    python scripts/icp_ab.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/<best>.ckpt \\
+        [--ckpt ...] [--split test] [--budget-ms 100 none] [--out results/icp]
+
+Per checkpoint the network runs once over the split (held-out scenes); the hypotheses are then
+scored as decoded and refined with ``conf/refine/icp.yaml``'s settings at each time budget per
+image (``none``: every hypothesis). Printed and written to ``--out``/``ab.md`` and ``ab.csv``: AP
+(Brégier, max occlusion 0.5), parts found, matched translation / rotation error p50 and p90, ICP
+milliseconds per image and how many hypotheses were refined, rejected by the guard, skipped for
+want of depth, or left by the budget.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import io
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from omegaconf import OmegaConf  # noqa: E402
+
+from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
+from opnet.cli.eval import refine_scenes  # noqa: E402
+from opnet.geometry.icp import ICPSettings  # noqa: E402
+from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
+from opnet.metrics.diagnostics import scene_outcomes  # noqa: E402
+from opnet.system import predict_split  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def budgets(values: list[str]) -> list[float | None]:
+    """``["100", "none"]`` -> [100.0, None]; ValueError naming a bad one."""
+    out: list[float | None] = []
+    for v in values:
+        if v.lower() in ("none", "null"):
+            out.append(None)
+            continue
+        try:
+            out.append(float(v))
+        except ValueError:
+            raise ValueError(f"--budget-ms {v!r}: expected milliseconds or none") from None
+    return out
+
+
+def score(scenes: dict[str, Any], obj: Any, max_occlusion: float) -> dict[str, float]:
+    """AP, found share and matched error percentiles of a set of scenes."""
+    result = evaluate_scenes(scenes, obj.pose_space, max_occlusion=max_occlusion)
+    outcomes = scene_outcomes(scenes, obj.pose_space, obj.diameter, max_occlusion)
+    t = np.concatenate([o.t_err_mm for o in outcomes]) if outcomes else np.zeros(0)
+    r = np.concatenate([o.r_err_deg for o in outcomes]) if outcomes else np.zeros(0)
+    find = sum(int(o.find.sum()) for o in outcomes)
+    found = sum(int((o.find & (o.outcome == "matched")).sum()) for o in outcomes)
+
+    def pct(x: np.ndarray, q: float) -> float:
+        return float(np.percentile(x, q)) if len(x) else float("nan")
+
+    return {"ap": result.ap, "found": found / max(find, 1), "t_mm_p50": pct(t, 50), "t_mm_p90": pct(t, 90),
+            "r_deg_p50": pct(r, 50), "r_deg_p90": pct(r, 90)}  # fmt: skip
+
+
+def run(ckpt: Path, split: str, budget_list: list[float | None]) -> list[dict[str, Any]]:
+    system, cfg = load_checkpoint(str(ckpt))
+    obj = system.parameterization.obj
+    dm = build_datamodule(cfg, obj, train=False)
+    dm.setup("test")
+    scenes = predict_split(system, getattr(dm, f"{split}_dataloader")())
+    max_occ = system.hparams.max_occlusion
+    name = ckpt.resolve().parent.parent.name
+    rows = [{"run": name, "object": obj.name, "refine": "none", "scenes": len(scenes),
+             **score(scenes, obj, max_occ)}]  # fmt: skip
+    base = dict(OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "refine" / "icp.yaml"))["icp"])
+    for budget in budget_list:
+        settings = ICPSettings.from_config({**base, "budget_ms": budget})
+        refined = copy.deepcopy(scenes)
+        start = time.perf_counter()
+        report = refine_scenes(refined, dm.splits[split], obj, settings)
+        wall = time.perf_counter() - start
+        label = "icp, no budget" if budget is None else f"icp, {budget:g} ms budget"
+        rows.append({"run": name, "object": obj.name, "refine": label, "scenes": len(scenes),
+                     **score(refined, obj, max_occ), "icp_ms_per_image": report["ms_per_image"],
+                     "wall_s": wall, **report["statuses"]})  # fmt: skip
+        print(f"{name}: {label}: AP {rows[-1]['ap']:.4f}", flush=True)
+    return rows
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    keys = ["run", "object", "refine", "scenes", "ap", "found", "t_mm_p50", "t_mm_p90", "r_deg_p50", "r_deg_p90",
+            "icp_ms_per_image", "refined", "rejected", "no_depth", "budget"]
+
+    def fmt(v: Any) -> str:
+        return "–" if v is None else f"{v:.3f}" if isinstance(v, float) else str(v)
+
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(fmt(r.get(k)) for k in keys) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--ckpt", action="append", required=True, type=Path)
+    parser.add_argument("--split", default="test", choices=("val", "test"))
+    parser.add_argument("--budget-ms", nargs="+", default=["100", "none"])
+    parser.add_argument("--out", type=Path, default=REPO / "results" / "icp")
+    args = parser.parse_args(argv)
+    try:
+        budget_list = budgets(args.budget_ms)
+    except ValueError as e:
+        parser.error(str(e))
+    for ckpt in args.ckpt:
+        if not ckpt.is_file():
+            parser.error(f"--ckpt {ckpt}: no such file")
+    torch.set_grad_enabled(False)
+    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list)]
+    text = markdown(rows)
+    print(text)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "ab.md").write_text(text)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
+    writer.writeheader()
+    writer.writerows(rows)
+    (args.out / "ab.csv").write_text(buf.getvalue())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
