@@ -279,7 +279,8 @@ def test_console_ends_with_the_summary_and_paths_each_line_once(tmp_path: Path) 
     assert tail[1] in log_text and log_text.rstrip().endswith(tail[-1])
 
 
-def test_eval_with_icp_refines_against_each_scene_depth(checkpoint: Path, tmp_path: Path) -> None:
+def test_eval_and_predict_with_icp_refine_against_each_scene_depth(checkpoint: Path, tiny_dataset: Path,
+                                                                    tmp_path: Path) -> None:
     plain = eval_cli.run(_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'plain'}", "examples=0"]))
     ev = eval_cli.run(_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'icp'}", "examples=0", "refine=icp",
                                     "refine.icp.budget_ms=null"]))
@@ -289,3 +290,9 @@ def test_eval_with_icp_refines_against_each_scene_depth(checkpoint: Path, tmp_pa
     assert icp["ms_per_image"] >= 0 and ev["scenes"] == plain["scenes"]
     with pytest.raises(ValueError, match=r"icp: unknown keys \['radiuss'\]"):
         eval_cli.run(_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'bad'}", "refine=icp", "+refine.icp.radiuss=1"]))
+    png = sorted((tiny_dataset / "p_depth").rglob("*.png"))[-1]
+    args = [f"ckpt={checkpoint}", f"input={png}", "refine=icp", "refine.icp.budget_ms=null"]
+    assert predict_cli.run(_cfg("predict", [*args, f"out={tmp_path / 'pred'}"])) == 0
+    refined = json.loads((tmp_path / "pred" / f"{png.stem}.json").read_text())["poses"]
+    assert predict_cli.run(_cfg("predict", [*args[:2], f"out={tmp_path / 'pred0'}"])) == 0  # without ICP
+    assert len(refined) == len(json.loads((tmp_path / "pred0" / f"{png.stem}.json").read_text())["poses"])

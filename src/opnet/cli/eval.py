@@ -17,8 +17,7 @@ from opnet.cli.console import report, result_summary
 from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
-from opnet.geometry.icp import STATUSES, ICPSettings, ModelCloud, refine_image
-from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.geometry.icp import STATUSES, ICPSettings, Refiner, settings_from_config
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import diagnose
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
@@ -66,10 +65,7 @@ def refine_scenes(scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], sampl
                   settings: ICPSettings) -> dict[str, Any]:  # fmt: skip
     """Refine the hypotheses of every scene in place against the scene's own depth image (full
     resolution, its camera); returns the milliseconds per image and the count of each status."""
-    if obj.mesh is None:
-        raise ValueError(f"icp: object {obj.name!r} has no mesh to refine against")
-    model = ModelCloud.from_mesh(obj.mesh, settings.model_points, obj.diameter)
-    space = PoseSpaceArrays.of(obj.pose_space)
+    refiner = Refiner.for_object(obj, settings)
     counts = dict.fromkeys(STATUSES, 0)
     seconds = 0.0
     for i in range(len(samples)):
@@ -78,7 +74,7 @@ def refine_scenes(scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], sampl
             continue
         gt, hyps = scenes[record.name]
         start = time.perf_counter()
-        refined, status = refine_image(hyps, record.depth, record.camera, model, space, settings)
+        refined, status = refiner(hyps, record.depth, record.camera)
         seconds += time.perf_counter() - start
         scenes[record.name] = (gt, refined)
         for s in status:
@@ -146,7 +142,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if overrides:  # overrides of the data section (e.g. another dataset root)
         run_cfg = OmegaConf.merge(run_cfg, {"data": overrides})
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
-    icp = ICPSettings.from_config(cfg.refine.icp) if cfg.get("refine") and cfg.refine.get("method") == "icp" else None
+    icp = settings_from_config(cfg.get("refine"))
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)), icp=icp)
     lines = result_summary(result, str(out_dir / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))
     report(["", *lines, f"results       : {out_dir}/summary.json, {out_dir}/ap_table.md (per scene), {out_dir}/results/"])

@@ -48,6 +48,7 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import write_bytes_atomic
+from opnet.geometry.icp import Refiner, settings_from_config
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -130,14 +131,21 @@ def run(cfg: DictConfig) -> int:
     run, e.g. a missing checkpoint or conflicting camera values, raises ValueError instead)."""
     camera_cfg = OmegaConf.to_container(cfg.camera, resolve=True) if cfg.get("camera") is not None else None
     given = given_camera(camera_cfg)
+    icp = settings_from_config(cfg.get("refine"))
     system, _ = load_checkpoint(cfg.ckpt)
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
+    refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
+
+    def estimate(image: DepthImage) -> HypothesisSet:
+        hyps = predict_image(system, image)
+        return hyps if refiner is None else refiner(hyps, image.depth, image.camera)[0]
+
     out = Path(cfg.out)
     inputs = list_inputs(Path(cfg.input))
     overwrite, min_score = bool(cfg.get("overwrite", False)), float(cfg.min_score)
     with claimed_outputs(out, inputs, overwrite, PREDICT_SUFFIXES, (Path(cfg.ckpt),)) as scenes:
         failed = predict_inputs(
-            inputs, given, out, scenes, lambda image: predict_image(system, image),
+            inputs, given, out, scenes, estimate,
             lambda name, image, hyps, scene: write_prediction(out, name, image, hyps, system, min_score, scene),
             min_score)  # fmt: skip
     written = len(inputs) - failed

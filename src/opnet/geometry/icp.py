@@ -317,5 +317,41 @@ def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCl
     return type(hypotheses)(R, t, hypotheses.score, hypotheses.visibility), status
 
 
-__all__ = ["ICPResult", "ICPSettings", "ModelCloud", "STATUSES", "SceneCloud", "refine_hypotheses",
-           "refine_image", "refine_pose", "rotation_change_deg"]
+@dataclass(frozen=True)
+class Refiner:
+    """ICP for one object: its model cloud, pose space and settings, ready for images."""
+
+    model: ModelCloud
+    space: Any
+    settings: ICPSettings
+
+    @classmethod
+    def for_object(cls, obj: Any, settings: ICPSettings) -> Refiner:
+        """From an :class:`opnet.objects.model.ObjectModel` (it needs its mesh)."""
+        from opnet.geometry.pose_numpy import PoseSpaceArrays
+
+        if obj.mesh is None:
+            raise ValueError(f"icp: object {obj.name!r} has no mesh to refine against")
+        return cls(ModelCloud.from_mesh(obj.mesh, settings.model_points, obj.diameter),
+                   PoseSpaceArrays.of(obj.pose_space), settings)  # fmt: skip
+
+    def __call__(self, hypotheses: Any, depth: np.ndarray, camera: Any) -> tuple[Any, list[str]]:
+        """:func:`refine_image` with this object's model."""
+        return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings)
+
+
+def settings_from_config(refine: Any) -> ICPSettings | None:
+    """The ``refine`` config group (conf/refine/): ICP settings for ``method: icp``, None for
+    ``method: none`` or no group; ValueError for another method."""
+    if not refine:
+        return None
+    method = refine.get("method", "none")
+    if method == "none":
+        return None
+    if method != "icp":
+        raise ValueError(f"refine.method={method!r}, expected none or icp")
+    return ICPSettings.from_config(refine.get("icp"))
+
+
+__all__ = ["STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "Refiner", "SceneCloud", "refine_hypotheses",
+           "refine_image", "refine_pose", "rotation_change_deg", "settings_from_config"]
