@@ -57,7 +57,7 @@ import quickstart_seeds  # noqa: E402
 RESULTS = REPO / "results"
 DOCS = REPO / "docs"
 DOCS_PREFIX = "../"  # docs/*.md sit one folder below the repository root, where results/ is
-BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
+BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z0-9_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
 MARKER = re.compile(r"<!-- /?figures:(?P<name>[^ ]*) -->")
 QUICKSTART_COMMAND = "python train.py experiment=quickstart"
 

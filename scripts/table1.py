@@ -216,7 +216,7 @@ def _table(rows: list[dict[str, object]], decoding: str, w: Any) -> list[str]:
             if vals:
                 mine = [r for r in rows if r["parameterization"] == p and r["object"] == o]
                 mean, sd = compare_runs.mean_sd(vals)
-                w.writerow([decoding, p, o, len(vals), f"{mean:.4f}", f"{sd:.4f}", "" if paper is None else paper,
+                w.writerow([decoding, p, o, len(vals), f"{mean:.6f}", f"{sd:.6f}", "" if paper is None else paper,
                             *(("" if m is None else f"{m:.4f}") for m in
                               (_mean([r["found"] for r in mine]), _mean([r["t_err_mm_p50"] for r in mine]),
                                _mean([r["r_err_deg_p50"] for r in mine])))])  # type: ignore[misc]
