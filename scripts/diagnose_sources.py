@@ -52,8 +52,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def run_name(ckpt: Path) -> str:
-    """``outputs/table1/ap_bunny_s0/checkpoints/last.ckpt`` -> ``ap_bunny_s0``."""
-    return ckpt.resolve().parent.parent.name
+    """``outputs/table1/ap_bunny_s0/checkpoints/last.ckpt`` -> ``table1/ap_bunny_s0`` (the runs
+    folder too: arms of two tables may share a name)."""
+    run = ckpt.resolve().parent.parent
+    return f"{run.parent.name}/{run.name}"
 
 
 @torch.no_grad()
@@ -252,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         if first is not None:
             text += "\n" + versus(first[1], rec, first[0], run)
         print(text, flush=True)
-        (args.out / f"sources_{run}.md").write_text(text)
+        (args.out / f"sources_{run.replace('/', '_')}.md").write_text(text)
         all_rows += [{"run": run, **r} for r in rows]
         if first is None:
             first = (run, {"outcomes": rec["outcomes"]})
