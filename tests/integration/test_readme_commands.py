@@ -116,6 +116,9 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
     run("evaluate a checkpoint", [("<run dir>", str(qs_dir)), ("<other data>", str(data)),
                                   ("<score all of other data>", str(data))], ["examples=0"])
 
+    run("refine the poses with ICP against the depth (eval, predict)", [("<ckpt>", str(ckpt))],
+        ["examples=0", f"out={ws / 'eval_icp'}"])
+    assert "icp" in json.loads((ws / "eval_icp" / "summary.json").read_text())
     run("estimate poses", [("<ckpt>", str(ckpt)), ("<depth png, .npy, or folder>", str(data / "p_depth")),
                            ("<dir>", str(ws / "pred"))])
     assert len(list((ws / "pred" / "results").glob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
