@@ -20,6 +20,7 @@ from opnet.cli.build import build_components, load_checkpoint
 from opnet.data.preprocess import to_network_input
 from opnet.datasets.ipa import IPADataset
 from opnet.deploy.export import export_onnx, max_abs_difference, reference_outputs
+from opnet.geometry.icp import ICPSettings
 from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
 from opnet.objects import builtin_object
 from opnet.paths import REPO_ROOT
@@ -151,6 +152,17 @@ def test_runtime_refuses_foreign_and_mismatched_models(checkpoint: Path, tmp_pat
     onnx.save(proto, str(tmp_path / "nan.onnx"))
     with pytest.raises(ValueError, match=r"nan\.onnx: opnet metadata decoding\.threshold = nan, expected a number"):
         OnnxPoseEstimator(tmp_path / "nan.onnx")
+    # ICP model points: one normal per point; a model exported without them cannot refine
+    icp = meta["icp_model"]
+    proto.metadata_props[0].value = json.dumps({**meta, "icp_model": {**icp, "normals": icp["normals"][:-1]}})
+    onnx.save(proto, str(tmp_path / "icp.onnx"))
+    with pytest.raises(ValueError, match=r"icp\.onnx: opnet metadata icp_model\.normals = .*, expected one per point"):
+        OnnxPoseEstimator(tmp_path / "icp.onnx")
+    proto.metadata_props[0].value = json.dumps({**meta, "icp_model": None})
+    onnx.save(proto, str(tmp_path / "no_icp.onnx"))
+    OnnxPoseEstimator(tmp_path / "no_icp.onnx")  # fine without ICP
+    with pytest.raises(ValueError, match=r"no_icp\.onnx: no ICP model points in its metadata"):
+        OnnxPoseEstimator(tmp_path / "no_icp.onnx", icp=ICPSettings())
     with pytest.raises(ValueError, match=r"threads=20000: expected a whole number in 1\.\."):
         OnnxPoseEstimator(out, threads=20000)
     del proto.metadata_props[0]
@@ -178,3 +190,29 @@ def test_deploy_command_line_without_torch(checkpoint: Path, tiny_dataset: Path,
     bad = subprocess.run([sys.executable, "-c", code, str(tmp_path / "none.onnx"), str(folder), "--out", str(tmp_path / "o2")],
                          capture_output=True, text=True, cwd=REPO_ROOT)
     assert bad.returncode == 2 and bad.stderr.strip() == f"error: {tmp_path / 'none.onnx'}: ONNX model not found"
+
+
+def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpoint: Path, tiny_dataset: Path,
+                                                                         tmp_path: Path) -> None:
+    from opnet.geometry.icp import Refiner
+
+    system, onnx_path = _export_with_hypotheses(checkpoint, tmp_path / "model.onnx")
+    settings = ICPSettings(budget_ms=None)
+    plain, refined = OnnxPoseEstimator(onnx_path), OnnxPoseEstimator(onnx_path, icp=settings)
+    refiner = Refiner.for_object(system.parameterization.obj, settings)  # the mesh's points, as eval.py uses
+    record = IPADataset(tiny_dataset)[7]
+    h0 = plain.predict(record.depth, record.camera)
+    expected, status = refiner(h0, record.depth, record.camera)
+    got = refined.predict(record.depth, record.camera)
+    assert "refined" in status and not np.allclose(expected.t, h0.t)
+    assert np.abs(got.t - expected.t).max() < 1e-5 and np.abs(got.R - expected.R).max() < 1e-4
+    code = ("import sys; sys.modules['torch'] = None\n"
+            "from opnet.deploy.__main__ import main\n"
+            "sys.exit(main(sys.argv[1:]))")
+    folder = tiny_dataset / "p_depth" / "cycle_0001"
+    proc = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "out"),
+                           "--icp"], capture_output=True, text=True, cwd=REPO_ROOT)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    bad = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o2"),
+                          "--icp-budget-ms", "5"], capture_output=True, text=True, cwd=REPO_ROOT)
+    assert bad.returncode == 2 and bad.stderr.strip() == "error: --icp-budget-ms is a setting of --icp, which is not given"

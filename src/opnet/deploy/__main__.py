@@ -28,6 +28,7 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import DiskFullError
+from opnet.geometry.icp import ICPSettings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,13 +41,20 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument(f"--{key}", dest=key.replace("-", "_"), type=float)
     ap.add_argument("--threads", type=int, default=None, help="ONNX Runtime threads (default: one per core)")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
+    ap.add_argument("--icp-budget-ms", type=float, default=None, help="with --icp: milliseconds per image (default 100; 0 = none refined)")
     args = ap.parse_args(argv)
     try:
         from opnet.deploy.runtime import OnnxPoseEstimator
 
         camera_cfg = {k: getattr(args, k) for k in ("file", "fx", "fy", "cx", "cy", "clip_start", "clip_end", "depth_scale")}
         given = given_camera(camera_cfg)
-        estimator = OnnxPoseEstimator(args.model, threads=args.threads)
+        if args.icp_budget_ms is not None and not args.icp:
+            raise ValueError("--icp-budget-ms is a setting of --icp, which is not given")
+        icp = None
+        if args.icp:
+            icp = ICPSettings() if args.icp_budget_ms is None else ICPSettings(budget_ms=args.icp_budget_ms)
+        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp)
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))

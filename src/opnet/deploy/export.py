@@ -97,7 +97,20 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
                                                             "cluster_score": avg.cluster_score,
                                                             "keep_noise": avg.keep_noise}},
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
+        "icp_model": icp_model_metadata(param.obj),
     }
+
+
+def icp_model_metadata(obj: Any) -> dict[str, Any] | None:
+    """The points ICP fits (:class:`opnet.geometry.icp.ModelCloud`, default count), so that the
+    runtime refines without the mesh; None for an object without a mesh."""
+    from opnet.geometry.icp import ICPSettings, ModelCloud
+
+    if obj.mesh is None:
+        return None
+    cloud = ModelCloud.from_mesh(obj.mesh, ICPSettings().model_points, obj.diameter)
+    return {"points": cloud.points.tolist(), "normals": cloud.normals.tolist(),
+            "diameter": cloud.diameter}
 
 
 def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET) -> dict[str, Any]:

@@ -19,6 +19,7 @@ from opnet.data.preprocess import CANVAS_FITS
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
 from opnet.parameterizations.averaging import CLUSTER_SCORES
 
+MAX_ICP_POINTS = 20_000  # points of the ICP model cloud in the metadata
 REQUIRED = ("parameterization", "grid_size", "slots", "channels_per_slot", "input", "decoding", "pose_space", "outputs")
 SCORES = ("p", "p*v", "v")
 INTERPOLATIONS = ("area",)
@@ -99,7 +100,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
     Returns:
         ``{"grid_size", "slots", "channels_per_slot", "input_size", "fit", "interpolation",
         "threshold", "score", "min_visibility", "averaging" (None or eps, min_samples,
-        cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam)}``.
+        cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam),
+        "icp_model" (None or points, normals, diameter)}``.
     Raises:
         ValueError: ``<path>: opnet metadata <key> = <value>, expected <what>`` for the first bad field.
     """
@@ -145,6 +147,17 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         symmetry_from_rotations(group)  # proper rotations, a group, within the size cap
     except ValueError as e:
         raise ValueError(f"{f.path}: opnet metadata pose_space.group: {e}") from None
+    icp = meta.get("icp_model")
+    if icp is not None:
+        if not isinstance(icp, dict):
+            raise f.fail("icp_model", icp, "null or a mapping")
+        points = f.array(icp, "points", (-1, 3), "icp_model.", max_size=MAX_ICP_POINTS)
+        normals = f.array(icp, "normals", (-1, 3), "icp_model.", max_size=MAX_ICP_POINTS)
+        if len(points) != len(normals) or not len(points):
+            raise f.fail("icp_model.normals", f"{len(normals)} normals", f"one per point ({len(points)})")
+        icp = {"points": points, "normals": normals,
+               "diameter": f.number(icp, "diameter", 0.0, 1000.0, "icp_model.", low_open=True)}
+    out["icp_model"] = icp
     out["pose_space"] = {
         "Lambda": f.array(ps, "Lambda", (3, 3), "pose_space."),
         "group": group,

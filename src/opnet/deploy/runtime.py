@@ -30,6 +30,7 @@ from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
+from opnet.geometry.icp import ICPSettings, ModelCloud, refine_image
 from opnet.parameterizations.averaging import PoseAveraging
 
 METADATA_KEY = "opnet"
@@ -51,7 +52,7 @@ class OnnxPoseEstimator:
     """
 
     def __init__(self, path: str | Path, providers: Sequence[str] = ("CPUExecutionProvider",),
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, icp: ICPSettings | None = None) -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
@@ -83,6 +84,12 @@ class OnnxPoseEstimator:
                                                                 avg["cluster_score"], avg["keep_noise"])
         self.input_size = s["input_size"]
         self.fit = s["fit"]
+        self.icp: tuple[ModelCloud, PoseSpaceArrays, ICPSettings] | None = None
+        if icp is not None:
+            cloud = s["icp_model"]
+            if cloud is None:
+                raise ValueError(f"{self.path}: no ICP model points in its metadata; export it again with python export.py")
+            self.icp = (ModelCloud(cloud["points"], cloud["normals"], cloud["diameter"]), space, icp)
 
     def _check_graph(self) -> None:
         """The graph's inputs and outputs are those the (validated) metadata describes."""
@@ -127,7 +134,14 @@ class OnnxPoseEstimator:
         """Pose hypotheses of one depth image ((H, W) metres, NaN = missing) in its camera frame."""
         image, cam = self.preprocess(depth, camera)
         presence, visibility, t, R = self.run(image, cam)
-        return self.decode(presence[0], visibility[0], t[0], R[0])
+        return self.refine(self.decode(presence[0], visibility[0], t[0], R[0]), depth, camera)
+
+    def refine(self, hyps: HypothesisSet, depth: np.ndarray, camera: Camera) -> HypothesisSet:
+        """The hypotheses refined by ICP against the depth when the estimator has ``icp`` settings."""
+        if self.icp is None:
+            return hyps
+        model, space, settings = self.icp
+        return refine_image(hyps, np.asarray(depth, np.float64), camera, model, space, settings)[0]
 
     def predict_batch(self, depths: Sequence[np.ndarray], cameras: Sequence[Camera]) -> list[HypothesisSet]:
         """Several images in one graph run (faster per image on a CPU)."""
@@ -135,5 +149,5 @@ class OnnxPoseEstimator:
         if not pairs:
             return []
         outs = self.run(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]))
-        return [self.decode(*(o[i] for o in outs)) for i in range(len(pairs))]
+        return [self.refine(self.decode(*(o[i] for o in outs)), depths[i], cameras[i]) for i in range(len(pairs))]
 
