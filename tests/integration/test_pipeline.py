@@ -296,3 +296,26 @@ def test_eval_and_predict_with_icp_refine_against_each_scene_depth(checkpoint: P
     refined = json.loads((tmp_path / "pred" / f"{png.stem}.json").read_text())["poses"]
     assert predict_cli.run(_cfg("predict", [*args[:2], f"out={tmp_path / 'pred0'}"])) == 0  # without ICP
     assert len(refined) == len(json.loads((tmp_path / "pred0" / f"{png.stem}.json").read_text())["poses"])
+
+
+def test_a_region_of_interest_is_trained_kept_and_applied_by_eval_predict_and_export(
+        tiny_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from opnet.cli import export as export_cli
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    out = tmp_path / "run"
+    train_cli.run(_train_cfg(tiny_dataset, out, ["data.roi=[8,4,120,116]", "test=false"]))
+    assert list(tiny_dataset.glob("cache_*_roi8-4-120-116"))  # the cropped scenes' own cache
+    ckpt = out / "checkpoints" / "last.ckpt"
+    system = eval_cli.load_checkpoint(ckpt)[0]
+    assert list(system.hparams["config"]["data"]["roi"]) == [8, 4, 120, 116]
+    ev = eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"out={tmp_path / 'eval'}", "examples=0"]))
+    assert ev["scenes"] > 0
+    png = sorted((tiny_dataset / "p_depth").rglob("*.png"))[-1]
+    assert predict_cli.run(_cfg("predict", [f"ckpt={ckpt}", f"input={png}", f"out={tmp_path / 'pred'}"])) == 0
+    failed = predict_cli.run(_cfg("predict", [f"ckpt={ckpt}", f"input={png}", f"out={tmp_path / 'pred2'}",
+                                              "roi=[0,0,500,50]"]))
+    assert failed == 1 and "roi=[0, 0, 500, 50]: outside the 128 x 128 image" in capsys.readouterr().out
+    model = tmp_path / "m.onnx"
+    export_cli.run(_cfg("export", [f"ckpt={ckpt}", f"out={model}", "check=false"]))
+    assert OnnxPoseEstimator(model).roi == (8, 4, 120, 116)

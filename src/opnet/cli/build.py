@@ -156,12 +156,17 @@ def check_framing(cfg: DictConfig, path: str | Path) -> None:
         ValueError: naming ``path`` and the key.
     """
     from opnet.data.preprocess import CANVAS_FITS
+    from opnet.data.roi import parse_roi
 
     data = cfg.get("data") or {}
     size, fit = data.get("input_size", 128), data.get("fit", "pad")
     if isinstance(size, bool) or not isinstance(size, int) or not 8 <= size <= MAX_INPUT_SIZE:
         raise ValueError(f"{path}: the checkpoint's config data.input_size={short(repr(size))}, expected a whole "
                          f"number of pixels in 8..{MAX_INPUT_SIZE}")
+    try:
+        parse_roi(data.get("roi"), "data.roi")
+    except ValueError as e:
+        raise ValueError(f"{path}: the checkpoint's config {e}") from None
     if fit not in CANVAS_FITS:
         raise ValueError(f"{path}: the checkpoint's config data.fit={short(repr(fit))}, expected one of "
                          f"{', '.join(CANVAS_FITS)}")

@@ -48,6 +48,7 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import write_bytes_atomic
+from opnet.data.roi import crop_image, parse_roi
 from opnet.geometry.icp import Refiner, settings_from_config
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
@@ -57,11 +58,18 @@ log = logging.getLogger(__name__)
 
 
 @torch.no_grad()
-def predict_image(system: OPNetSystem, image: DepthImage) -> HypothesisSet:
-    """Pose hypotheses for one depth image (camera frame, metres)."""
+def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint") -> HypothesisSet:
+    """Pose hypotheses for one depth image (camera frame, metres).
+
+    Args:
+        roi: the region of interest (:mod:`opnet.data.roi`, parsed); ``"checkpoint"``: the
+            training's ``data.roi``.
+    """
     data = system.hparams.get("config", {}).get("data", {})
     size, fit = int(data.get("input_size", 128)), str(data.get("fit", "pad"))  # the training's framing
-    net_in, net_cam = to_network_input(image.depth, image.camera, size=size, interpolation=cv2.INTER_AREA, fit=fit)
+    roi = parse_roi(data.get("roi")) if roi == "checkpoint" else roi
+    depth, camera = crop_image(image.depth, image.camera, roi, f"{image.path}: roi")
+    net_in, net_cam = to_network_input(depth, camera, size=size, interpolation=cv2.INTER_AREA, fit=fit)
     x = torch.from_numpy(net_in)[None, None].to(system.device)
     output = system.infer(x)
     if not bool(torch.isfinite(output).all()):  # would decode to "0 objects" without a word
@@ -136,8 +144,10 @@ def run(cfg: DictConfig) -> int:
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
 
+    roi = "checkpoint" if cfg.get("roi") is None else parse_roi(cfg.roi, "roi")
+
     def estimate(image: DepthImage) -> HypothesisSet:
-        hyps = predict_image(system, image)
+        hyps = predict_image(system, image, roi)
         return hyps if refiner is None else refiner(hyps, image.depth, image.camera)[0]
 
     out = Path(cfg.out)

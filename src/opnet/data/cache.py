@@ -167,11 +167,12 @@ class CacheInfo:
             return None
 
 
-def default_cache_dir(root: str | Path, size: int, fit: str = "pad") -> Path:
-    """``<root>/cache_s<size>`` (``_<fit>`` appended for another framing than ``pad``; also for a
-    dataset still to be generated); for a dataset on read-only storage without a complete cache
-    there, a folder of the user cache ($OPNET_CACHE or ~/.cache/opnet) named by the dataset."""
-    tag = f"s{size}" if fit == "pad" else f"s{size}_{fit}"
+def default_cache_dir(root: str | Path, size: int, fit: str = "pad", roi: str = "") -> Path:
+    """``<root>/cache_s<size>`` (``_<fit>`` appended for another framing than ``pad``, ``roi`` (a
+    :func:`opnet.data.roi.roi_tag`) for cropped scenes; also for a dataset still to be generated);
+    for a dataset on read-only storage without a complete cache there, a folder of the user cache
+    ($OPNET_CACHE or ~/.cache/opnet) named by the dataset."""
+    tag = (f"s{size}" if fit == "pad" else f"s{size}_{fit}") + roi
     local = Path(root) / f"cache_{tag}"
     if not Path(root).exists() or os.access(root, os.W_OK) or (local / "cache.json").is_file() and not _incomplete(local):
         return local

@@ -23,6 +23,7 @@ from torch.utils.data import DataLoader, Dataset
 from opnet.data.augment import DepthAugmenter
 from opnet.data.cache import build_scene_cache, default_cache_dir
 from opnet.data.preprocess import CANVAS_FITS, square_canvas
+from opnet.data.roi import ROIScenes, parse_roi, roi_tag
 from opnet.data.rotate import exact_without_segmentation
 from opnet.data.sample import Batch, Sample, collate, make_sample, random_interpolation
 from opnet.datasets import open_dataset
@@ -201,6 +202,8 @@ class OPNetDataModule(L.LightningDataModule):
             (centred on the principal point: this argument's default, the framing of checkpoints
             without the key), ``crop``, ``image_crop``. The checkpoint keeps it: eval.py,
             predict.py and the ONNX export frame images the same way.
+        roi: region of interest cropped before the framing (:mod:`opnet.data.roi`): None, an
+            ``[x0, y0, x1, y1]`` pixel box or ``"auto"``; the checkpoint keeps it like ``fit``.
         test_min_objects: score only the scenes of ``test_root`` with at least this many parts
             (e.g. 70 for the Siléane-like bulk piles of 70-80 parts); 0 = every scene.
     """
@@ -231,8 +234,10 @@ class OPNetDataModule(L.LightningDataModule):
         fit: str = "pad",
         test_min_objects: int = 0,
         train_groups: int | None = None,
+        roi: Any = None,
     ) -> None:
         super().__init__()
+        self.roi = parse_roi(roi)
         if fit not in CANVAS_FITS:
             raise ValueError(f"data.fit={fit!r}, expected one of {CANVAS_FITS}")
         self.fit = fit
@@ -310,10 +315,13 @@ class OPNetDataModule(L.LightningDataModule):
         sources = []
         for root in roots:
             source = open_dataset(root, object_id=self.object_id, clip=self.clip)
+            if self.roi is not None:
+                source = ROIScenes(source, self.roi)
             if self.cache:
                 single = root == self.root and len(self.roots) == 1
                 fit = cache_fit(source, self.fit)
-                cache_dir = self.cache_dir if single and self.cache_dir is not None else default_cache_dir(root, self.cache_size, fit)
+                cache_dir = self.cache_dir if single and self.cache_dir is not None else \
+                    default_cache_dir(root, self.cache_size, fit, roi_tag(self.roi))
                 source = build_scene_cache(source, cache_dir, self.cache_size, workers=self.cache_workers, fit=fit)
             sources.append(source)
         return sources[0] if len(sources) == 1 else ConcatScenes(sources)

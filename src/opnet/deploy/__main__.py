@@ -41,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument(f"--{key}", dest=key.replace("-", "_"), type=float)
     ap.add_argument("--threads", type=int, default=None, help="ONNX Runtime threads (default: one per core)")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--roi", default="model", help="region of interest: x0,y0,x1,y1 pixels, auto, or null (default: the model's)")
     ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
     ap.add_argument("--icp-budget-ms", type=float, default=None, help="with --icp: milliseconds per image (default 100; 0 = none refined)")
     args = ap.parse_args(argv)
@@ -54,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
         icp = None
         if args.icp:
             icp = ICPSettings() if args.icp_budget_ms is None else ICPSettings(budget_ms=args.icp_budget_ms)
-        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp)
+        roi = None if args.roi in ("null", "none") else args.roi
+        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi)
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))

@@ -89,6 +89,7 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "channels_per_slot": param.channels_per_slot,
         "out_channels": param.out_channels,
         "input": {"size": int(data.get("input_size", 128)), "fit": str(data.get("fit", "pad")), "interpolation": "area",
+                  "roi": _roi_json(data.get("roi")),
                   "layout": "NCHW float32, (z - clip_start) / (clip_end - clip_start), missing depth filled"},
         "camera_input": ["fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"],
         "outputs": list(OUTPUTS),
@@ -99,6 +100,14 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
         "icp_model": icp_model_metadata(param.obj),
     }
+
+
+def _roi_json(value: Any) -> Any:
+    """The checkpoint's region of interest as JSON: null, "auto" or [x0, y0, x1, y1]."""
+    from opnet.data.roi import parse_roi
+
+    roi = parse_roi(value)
+    return list(roi) if isinstance(roi, tuple) else roi
 
 
 def icp_model_metadata(obj: Any) -> dict[str, Any] | None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from opnet._repr import short_repr
 from opnet.data.preprocess import CANVAS_FITS
+from opnet.data.roi import parse_roi
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
 from opnet.parameterizations.averaging import CLUSTER_SCORES
 
@@ -128,6 +129,10 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
     out["input_size"] = f.integer(inp, "size", 8, MAX_INPUT_SIZE, "input.")
     out["fit"] = f.choice(inp, "fit", CANVAS_FITS, "input.", default="pad")
     out["interpolation"] = f.choice(inp, "interpolation", INTERPOLATIONS, "input.", default="area")
+    try:
+        out["roi"] = parse_roi(inp.get("roi"), "input.roi")
+    except ValueError as e:
+        raise ValueError(f"{f.path}: opnet metadata {e}") from None
     dec = f.mapping(meta, "decoding")
     out["threshold"] = f.number(dec, "threshold", 0.0, 1.0, "decoding.", high_open=True)
     out["score"] = f.choice(dec, "score", SCORES, "decoding.")

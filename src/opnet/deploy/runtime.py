@@ -30,6 +30,7 @@ from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
+from opnet.data.roi import crop_image, parse_roi
 from opnet.geometry.icp import ICPSettings, ModelCloud, refine_image
 from opnet.parameterizations.averaging import PoseAveraging
 
@@ -52,7 +53,7 @@ class OnnxPoseEstimator:
     """
 
     def __init__(self, path: str | Path, providers: Sequence[str] = ("CPUExecutionProvider",),
-                 threads: int | None = None, icp: ICPSettings | None = None) -> None:
+                 threads: int | None = None, icp: ICPSettings | None = None, roi: Any = "model") -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
@@ -84,6 +85,7 @@ class OnnxPoseEstimator:
                                                                 avg["cluster_score"], avg["keep_noise"])
         self.input_size = s["input_size"]
         self.fit = s["fit"]
+        self.roi = s["roi"] if roi == "model" else parse_roi(roi, "roi")
         self.icp: tuple[ModelCloud, PoseSpaceArrays, ICPSettings] | None = None
         if icp is not None:
             cloud = s["icp_model"]
@@ -110,7 +112,8 @@ class OnnxPoseEstimator:
     # ---- the pipeline ------------------------------------------------------------------------
     def preprocess(self, depth: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """(1, 1, S, S) float32 network input and (1, 8) float64 input camera of one image."""
-        image, cam = to_network_input(np.asarray(depth, dtype=np.float32), camera, size=self.input_size,
+        depth, camera = crop_image(np.asarray(depth, dtype=np.float32), camera, self.roi, "roi")
+        image, cam = to_network_input(depth, camera, size=self.input_size,
                                       interpolation=_INTERPOLATION[self.settings["interpolation"]],
                                       fit=self.fit)
         row = [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
