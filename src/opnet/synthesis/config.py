@@ -18,7 +18,8 @@ COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 #: physics engines of the generator (opnet.synthesis.physics)
 PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
-_LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold")
+_LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
+                 "camera_azimuth_deg")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
 #: to_dict for that engine, so their generation.json still matches ``physics=pybullet``
 _LEGACY_PHYSICS = "pybullet"
@@ -49,6 +50,11 @@ class SceneConfig:
             negative values cut the rim off (parts at the walls partly out of view).
         clip_start, clip_end: clip planes in metres (the depth code spans them); None = derived from
             the camera height, the bin and the object diameter.
+        camera_tilt_deg: the camera's optical axis this many degrees off vertical (0 = straight
+            down, the default; real cells often look 15-30 degrees off), turned about the bin
+            floor's centre so that the camera keeps looking at it from ``camera_height``.
+        camera_azimuth_deg: the direction (about the vertical, from the world x axis) the camera
+            is tilted towards.
         camera_jitter_m, camera_jitter_deg: per-cycle uniform jitter of the camera position (each
             axis, metres) and orientation (random axis, angle up to this many degrees).
         bin_jitter_m, bin_jitter_deg: per-cycle uniform jitter of the bin position on the ground
@@ -114,6 +120,8 @@ class SceneConfig:
     view_margin: float = 0.08
     clip_start: float | None = None
     clip_end: float | None = None
+    camera_tilt_deg: float = 0.0
+    camera_azimuth_deg: float = 0.0
     camera_jitter_m: float = 0.005
     camera_jitter_deg: float = 1.0
     bin_jitter_m: float = 0.01
@@ -184,6 +192,11 @@ class SceneConfig:
         need(isinstance(self.views, int) and not isinstance(self.views, bool) and 1 <= self.views <= 1000, "views",
              "an integer in 1..1000 (views per settled pile)")
         need(self.camera_jitter_deg < 45.0, "camera_jitter_deg", "degrees in [0, 45) (the camera must still see the bin)")
+        need(isinstance(self.camera_tilt_deg, (int, float)) and math.isfinite(self.camera_tilt_deg)
+             and 0 <= self.camera_tilt_deg < 90, "camera_tilt_deg",
+             "degrees in [0, 90) off vertical (90 looks along the floor)")
+        need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
+             "camera_azimuth_deg", "a finite number of degrees")
 
     @property
     def image_size(self) -> tuple[int, int]:

@@ -23,6 +23,7 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -200,7 +201,47 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
                                               rotation=(0.0, 1.0, 0.0, 0.0))
     location = np.array(params.location)
     radius = float(np.linalg.norm(obj.mesh.vertices, axis=1).max())
-    return Rig(bin_geom, params, params.camera(), homogeneous(R_WORLD_CAM_DOWN, location), radius)
+    T_world_cam = homogeneous(R_WORLD_CAM_DOWN, location)
+    camera = params.camera()
+    if cfg.camera_tilt_deg > 0:
+        T_world_cam = tilted(T_world_cam, cfg.camera_tilt_deg, cfg.camera_azimuth_deg)
+        if not (cfg.clip_start and cfg.clip_end) and not (given is not None and cfg.camera_file_clip):
+            near, far = tilted_clip(camera, T_world_cam, bin_geom, D, cfg)
+            camera = dataclasses.replace(camera, clip_start=cfg.clip_start or near, clip_end=cfg.clip_end or far)
+            params = dataclasses.replace(params, clip_start=float(camera.clip_start), clip_end=float(camera.clip_end))
+            camera = params.camera()
+    return Rig(bin_geom, params, camera, T_world_cam, radius)
+
+
+def tilted(T_world_cam: np.ndarray, tilt_deg: float, azimuth_deg: float) -> np.ndarray:
+    """A downward camera pose turned about the bin floor's centre (the world origin) by ``tilt_deg``
+    towards the horizontal direction ``azimuth_deg``: it keeps looking at the same point of the
+    floor from the same distance."""
+    phi = math.radians(azimuth_deg)
+    axis = np.array([-math.sin(phi), math.cos(phi), 0.0])  # z x (cos phi, sin phi, 0)
+    return homogeneous(rotation_about(axis, math.radians(tilt_deg)), np.zeros(3)) @ T_world_cam
+
+
+def tilted_clip(camera: Camera, T_world_cam: np.ndarray, bin_geom: BinGeometry, diameter: float,
+                cfg: SceneConfig) -> tuple[float, float]:  # fmt: skip
+    """Clip planes of a tilted camera: from the nearest bin corner a part's diameter above the rim
+    to the farthest point of the ground the image corners see (2 % and the jitters to spare)."""
+    R, C = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    half = bin_geom.outer / 2.0
+    top = bin_geom.wall_height + diameter
+    corners = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-bin_geom.thickness, top)])
+    depth = (corners - C) @ R[:, 2]
+    rays = np.array([[(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0]
+                     for u in (-0.5, camera.width - 0.5) for v in (-0.5, camera.height - 0.5)])  # fmt: skip
+    down = (rays @ R.T)[:, 2]  # world z of each corner ray (camera z = 1)
+    if (down >= -1e-6).any():
+        raise ValueError(f"scene config: camera_tilt_deg={cfg.camera_tilt_deg}: the image reaches above the horizon "
+                         "(tilt + half the field of view >= 90 degrees); tilt less or narrow the field of view")
+    ground = (C[2] + bin_geom.thickness) / -down  # camera z where each corner ray meets the ground
+    tilt = math.tan(math.radians(cfg.camera_jitter_deg))
+    near = max(float(depth.min()) - cfg.camera_jitter_m, 0.1 * float(np.linalg.norm(C)))
+    far = float(max(ground.max(), depth.max())) * (1.0 + tilt) * 1.02 + cfg.camera_jitter_m
+    return near, far
 
 
 def _check_jitter(cfg: SceneConfig, height: float, wall: float, half_fov_deg: float) -> None:
