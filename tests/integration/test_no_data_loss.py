@@ -39,7 +39,7 @@ class _FakeEstimator:
     meta = {"object": "box"}
     on_predict = None  # a hook run inside the first prediction
 
-    def __init__(self, path: Path, threads: int | None = None) -> None:
+    def __init__(self, path: Path, threads: int | None = None, **settings: object) -> None:  # icp=, roi=
         self.path = Path(path)
 
     def predict(self, depth: np.ndarray, camera: object) -> HypothesisSet:
