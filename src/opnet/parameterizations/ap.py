@@ -7,8 +7,8 @@ k = 2), so the points permute under the symmetry steps; no symmetry: ``a e`` on 
 principal axes of largest spread, pointing to the side where the mesh reaches farther. ``a`` is
 ``scale`` times half the mesh's extent along that axis.
 
-``placement`` decides where on those lines the points lie (the paper fixes only the symmetry rules;
-its figure shows the points on the part):
+``placement`` decides where on those lines the points lie (the paper asks for "additional
+reference points on the object", fixes the symmetry rules, and leaves the rest open):
 
 - ``on_part`` (default): ``scale`` 0.6, and a point that falls outside the part (a watertight
   mesh's inside test) moves to the nearest surface point (for cyclic objects the orbit of the
@@ -20,9 +20,9 @@ its figure shows the points on the part):
   part, the cell sees another part or the bin, and the network learns a presence it cannot see
   (results/table1/diagnostics).
 
-Points never overwrite an origin cell; conflicts go to the highest visibility. An object is representable as soon as one of its cells is, even with its
-origin outside the image; the position is relative to the enlarged image and the hypotheses are
-averaged (method.md §6).
+Points never overwrite an origin cell; conflicts go to the highest visibility. An object is
+representable as soon as one of its cells is, even with its origin outside the image; the position
+is relative to the enlarged image and the hypotheses are averaged (method.md §6).
 """
 
 from __future__ import annotations
