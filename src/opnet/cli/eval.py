@@ -63,8 +63,10 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
 
 def refine_scenes(scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], samples: Any, obj: Any,
                   settings: ICPSettings) -> dict[str, Any]:  # fmt: skip
-    """Refine the hypotheses of every scene in place against the scene's own depth image (full
-    resolution, its camera); returns the milliseconds per image and the count of each status."""
+    """Refine the hypotheses of every scene in place against the scene's own depth image as the
+    data module reads it (with the scene cache: the cached canvas, twice the network input by
+    default; without: the dataset's image), with its camera; returns the milliseconds per image and
+    the count of each status."""
     refiner = Refiner.for_object(obj, settings)
     counts = dict.fromkeys(STATUSES, 0)
     seconds = 0.0
