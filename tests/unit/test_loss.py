@@ -151,9 +151,11 @@ def test_paper_loss_reproduces_the_previous_values_exactly(case):
     import opnet.parameterizations as P
 
     obj = builtin_object(case[0])
-    param = getattr(P, case[1])(obj)  # rotation None: the Euler Z-Y-Z codec of the paper
+    # AP's reference points of that commit: the ends of the extent (placement=extent since issue 21)
+    extra = {"placement": "extent"} if case[1] == "APParameterization" else {}
+    param = getattr(P, case[1])(obj, **extra)  # rotation None: the Euler Z-Y-Z codec of the paper
     euler = hydra.utils.instantiate(OmegaConf.load(config_dir() / "rotation" / "euler_zyz.yaml"), _partial_=True)
-    with_codec = getattr(P, case[1])(obj, rotation=euler(symmetry=obj.symmetry))
+    with_codec = getattr(P, case[1])(obj, rotation=euler(symmetry=obj.symmetry), **extra)
     gt = random_scene_batch(obj, CAMERA, 3, 15, torch.Generator().manual_seed(7))
     paper = hydra.utils.instantiate(OmegaConf.load(config_dir() / "loss" / "paper.yaml"))
     for p in (param, with_codec):
