@@ -31,7 +31,7 @@ from opnet.geometry.camera import Camera
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.data.roi import crop_image, parse_roi
-from opnet.geometry.icp import ICPSettings, ModelCloud, refine_image
+from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner
 from opnet.parameterizations.averaging import PoseAveraging
 
 METADATA_KEY = "opnet"
@@ -86,12 +86,12 @@ class OnnxPoseEstimator:
         self.input_size = s["input_size"]
         self.fit = s["fit"]
         self.roi = s["roi"] if roi == "model" else parse_roi(roi, "roi")
-        self.icp: tuple[ModelCloud, PoseSpaceArrays, ICPSettings] | None = None
+        self.refiner: Refiner | None = None
         if icp is not None:
             cloud = s["icp_model"]
             if cloud is None:
                 raise ValueError(f"{self.path}: no ICP model points in its metadata; export it again with python export.py")
-            self.icp = (ModelCloud(cloud["points"], cloud["normals"], cloud["diameter"]), space, icp)
+            self.refiner = Refiner(ModelCloud(cloud["points"], cloud["normals"], cloud["diameter"]), space, icp)
 
     def _check_graph(self) -> None:
         """The graph's inputs and outputs are those the (validated) metadata describes."""
@@ -141,10 +141,7 @@ class OnnxPoseEstimator:
 
     def refine(self, hyps: HypothesisSet, depth: np.ndarray, camera: Camera) -> HypothesisSet:
         """The hypotheses refined by ICP against the depth when the estimator has ``icp`` settings."""
-        if self.icp is None:
-            return hyps
-        model, space, settings = self.icp
-        return refine_image(hyps, np.asarray(depth, np.float64), camera, model, space, settings)[0]
+        return hyps if self.refiner is None else self.refiner(hyps, np.asarray(depth, np.float64), camera)[0]
 
     def predict_batch(self, depths: Sequence[np.ndarray], cameras: Sequence[Camera]) -> list[HypothesisSet]:
         """Several images in one graph run (faster per image on a CPU)."""

@@ -63,8 +63,7 @@ def estimate_pose(R_cam_obj: np.ndarray, t_cam_obj: np.ndarray, axis: np.ndarray
     (model frame) is ``axis``."""
     if len(R_cam_obj) == 0:
         raise ValueError("camera pose: no parts to measure the floor from")
-    normals = np.einsum("nij,j->ni", R_cam_obj, axis)
-    normals *= -np.sign(np.einsum("ni,ni->n", normals, t_cam_obj))[:, None]  # facing the camera
+    normals = _normals(R_cam_obj, t_cam_obj, axis)
     n = normals.mean(0)
     n /= np.linalg.norm(n)
     spread = np.degrees(np.arccos(np.clip(normals @ n, -1, 1)))
@@ -114,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _normals(R: np.ndarray, t: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The parts' thin axes (N, 3) in the camera frame, each turned to face the camera."""
     normals = np.einsum("nij,j->ni", R, axis)
     return normals * -np.sign(np.einsum("ni,ni->n", normals, t))[:, None]
 

@@ -207,8 +207,7 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
         T_world_cam = tilted(T_world_cam, cfg.camera_tilt_deg, cfg.camera_azimuth_deg)
         if not (cfg.clip_start and cfg.clip_end) and not (given is not None and cfg.camera_file_clip):
             near, far = tilted_clip(camera, T_world_cam, bin_geom, D, cfg)
-            camera = dataclasses.replace(camera, clip_start=cfg.clip_start or near, clip_end=cfg.clip_end or far)
-            params = dataclasses.replace(params, clip_start=float(camera.clip_start), clip_end=float(camera.clip_end))
+            params = dataclasses.replace(params, clip_start=float(cfg.clip_start or near), clip_end=float(cfg.clip_end or far))
             camera = params.camera()
     return Rig(bin_geom, params, camera, T_world_cam, radius)
 
