@@ -1,4 +1,5 @@
-"""Lightning callbacks of opnet: the learning curve (AP against minutes of training)."""
+"""Lightning callbacks of opnet: the learning curve (AP against minutes of training) and the
+exponential moving average of the weights."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import csv
 import io
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -81,7 +84,9 @@ class LearningCurve(L.Callback):
 
         dm = trainer.datamodule
         was_training = pl_module.training
-        scenes = predict_split(pl_module, dm.test_dataloader())
+        ema = next((c for c in trainer.callbacks if isinstance(c, WeightEMA)), None)  # type: ignore[attr-defined]
+        with ema.applied(pl_module) if ema is not None else nullcontext():  # the weights validation scored
+            scenes = predict_split(pl_module, dm.test_dataloader())
         pl_module.train(was_training)
         space = pl_module.parameterization.obj.pose_space
         return float(evaluate_scenes(scenes, space, max_occlusion=pl_module.hparams.max_occlusion).ap)
@@ -102,4 +107,120 @@ class LearningCurve(L.Callback):
         self.images = int(state_dict.get("images", 0))
 
 
-__all__ = ["CURVE_FIELDS", "LearningCurve"]
+class WeightEMA(L.Callback):
+    """An exponential moving average of the weights (parameters and floating-point buffers, the
+    BatchNorm statistics included), updated after every optimizer step:
+    ``avg <- d avg + (1 - d) w`` with ``d = min(decay, (1 + n) / (10 + n))`` after ``n`` updates (the
+    short memory of the first steps keeps the random initialization out of the average).
+
+    Validation, the learning curve's test scores and the checkpoints use the averaged weights: a
+    checkpoint's ``state_dict`` holds them, so eval.py, predict.py and export.py read the averaged
+    model like any other; the training weights travel under ``opnet_weight_ema`` for a resume.
+    Why (results/dense/ab.md): on dense piles the validation AP of the raw weights swings between
+    epochs while the learning rate is high, so the model chosen by it is partly chance.
+
+    Args:
+        decay: the average's decay per step, in [0, 1); 0 turns the callback off (the paper).
+    """
+
+    KEY = "opnet_weight_ema"
+
+    def __init__(self, decay: float = 0.0) -> None:
+        if isinstance(decay, bool) or not isinstance(decay, (int, float)) or not 0.0 <= float(decay) < 1.0:
+            raise ValueError(f"callbacks.weight_ema.decay={decay!r}, expected a number in [0, 1) (0: off)")
+        self.decay = float(decay)
+        self.updates = 0
+        self.average: dict[str, torch.Tensor] | None = None
+        self._swapped = False
+
+    @property
+    def active(self) -> bool:
+        return self.decay > 0.0
+
+    def _tracked(self, pl_module: L.LightningModule) -> dict[str, torch.Tensor]:
+        """The module's floating-point state by name (tensors shared with the module)."""
+        return {k: v for k, v in pl_module.state_dict(keep_vars=True).items() if v.is_floating_point()}
+
+    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self.active and self.average is None:
+            self.average = {k: v.detach().float().clone() for k, v in self._tracked(pl_module).items()}
+
+    @torch.no_grad()
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any, batch: Any,
+                           batch_idx: int) -> None:  # fmt: skip
+        if self.average is None or self._swapped:
+            return
+        d = min(self.decay, (1.0 + self.updates) / (10.0 + self.updates))
+        for name, value in self._tracked(pl_module).items():
+            self.average[name].lerp_(value.detach().float(), 1.0 - d)
+        self.updates += 1
+
+    @torch.no_grad()
+    def _swap(self, pl_module: L.LightningModule) -> None:
+        assert self.average is not None
+        for name, value in self._tracked(pl_module).items():
+            held = value.detach().float().clone()
+            value.data.copy_(self.average[name].to(value.dtype))
+            self.average[name] = held
+        self._swapped = not self._swapped
+
+    @contextmanager
+    def applied(self, pl_module: L.LightningModule) -> Iterator[None]:
+        """Within the block the module holds the averaged weights (nothing changes where it
+        already does, or before the first update)."""
+        swap = self.average is not None and not self._swapped
+        if swap:
+            self._swap(pl_module)
+        try:
+            yield
+        finally:
+            if swap:
+                self._swap(pl_module)
+
+    def on_validation_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self.average is not None and not self._swapped:
+            self._swap(pl_module)
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self._swapped:
+            self._swap(pl_module)
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """The module keeps the averaged weights after fitting (what the checkpoints hold)."""
+        if self.average is not None and not self._swapped:
+            self._swap(pl_module)
+
+    def on_save_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                           checkpoint: dict[str, Any]) -> None:  # fmt: skip
+        if self.average is None:
+            return
+        module = {k: v.detach().float().clone() for k, v in self._tracked(pl_module).items()}
+        averaged, raw = (module, self.average) if self._swapped else (self.average, module)
+        state = checkpoint["state_dict"]
+        for name, value in averaged.items():
+            state[name] = value.to(state[name].dtype).clone()
+        checkpoint[self.KEY] = {"raw": {k: v.clone() for k, v in raw.items()}, "updates": self.updates}
+
+    def on_load_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                           checkpoint: dict[str, Any]) -> None:  # fmt: skip
+        """Resume: the module gets the training weights back, the average those of ``state_dict``."""
+        saved = checkpoint.get(self.KEY)
+        if not self.active or not isinstance(saved, dict):
+            return
+        self.average = {k: v.detach().float().clone() for k, v in checkpoint["state_dict"].items()
+                        if torch.is_tensor(v) and v.is_floating_point()}
+        self.updates = int(saved.get("updates", 0))
+        self._swapped = False
+        with torch.no_grad():
+            for name, value in self._tracked(pl_module).items():
+                if name in saved["raw"]:
+                    value.data.copy_(saved["raw"][name].to(value.dtype))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"updates": self.updates}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.updates = int(state_dict.get("updates", self.updates))
+
+
+__all__ = ["CURVE_FIELDS", "LearningCurve", "WeightEMA"]
