@@ -65,6 +65,39 @@ def test_bin_boxes_bound_the_inner_volume() -> None:
     assert not b.inside(np.array([[0.151, 0.0, 0.01], [0.0, 0.0, -0.01]])).any()
 
 
+def test_a_rectangular_bin_bounds_its_own_sides() -> None:
+    b = BinGeometry(0.3, 0.1, 0.02, inner_y=0.5)
+    np.testing.assert_allclose(b.mesh().bounds, [[-0.17, -0.27, -0.02], [0.17, 0.27, 0.1]])
+    assert b.outer == pytest.approx(0.54)
+    assert b.inside(np.array([[0.149, 0.249, 0.05]])).all()
+    assert not b.inside(np.array([[0.151, 0.0, 0.05], [0.0, 0.251, 0.05]])).any()
+    rig = make_rig(builtin_object("pin"), 3, 1, SceneConfig(bin_inner=0.2, bin_inner_y=0.35, bin_wall_height=0.05))
+    assert rig.bin.sides == (0.2, 0.35)
+
+
+def test_a_perforated_bin_keeps_its_outline_and_opens_the_share_of_its_holes() -> None:
+    hole, pitch = 0.012, 0.02
+    solid, sheet = BinGeometry(0.3, 0.1, 0.002), BinGeometry(0.3, 0.1, 0.002, hole_size=hole, hole_pitch=pitch)
+    np.testing.assert_allclose(sheet.mesh().bounds, solid.mesh().bounds, atol=1e-9)
+    # looking down through the floor: rays at random points of the floor pass where the holes are
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-0.14, 0.14, (4000, 2))
+    origins = np.column_stack([xy, np.full(len(xy), 0.05)])
+    hits = sheet.mesh().ray.intersects_any(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)))
+    assert abs((1.0 - hits.mean()) - (hole / pitch) ** 2) < 0.04  # open share 0.36
+    assert solid.mesh().ray.intersects_any(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1))).all()
+
+
+@pytest.mark.parametrize("values, match", [
+    ({"bin_hole_size": 0.02, "bin_hole_pitch": 0.015}, "bin_hole_pitch"),
+    ({"bin_inner_y": -0.1}, "bin_inner_y"),
+    ({"bin_clearance": -1.0}, "bin_clearance"),
+])  # fmt: skip
+def test_bad_bin_settings_name_the_key(values: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        SceneConfig(**values)
+
+
 def test_layout_jitter_is_bounded_and_seeded() -> None:
     cfg = SceneConfig(camera_jitter_m=0.004, camera_jitter_deg=2.0, bin_jitter_m=0.01, bin_jitter_deg=5.0)
     rig = make_rig(builtin_object("pin"), 5, 1, cfg)

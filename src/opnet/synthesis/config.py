@@ -19,7 +19,7 @@ COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
-                 "camera_azimuth_deg")
+                 "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
 #: to_dict for that engine, so their generation.json still matches ``physics=pybullet``
 _LEGACY_PHYSICS = "pybullet"
@@ -61,11 +61,18 @@ class SceneConfig:
             (x and y, metres) and of its yaw (degrees).
 
     Bin (a tote of five boxes standing on a ground plane; floor top = bin frame origin, z up):
-        bin_inner: inner side of the square floor, metres; None = from the object and ``drops``.
+        bin_inner: inner side of the floor (along the bin's x), metres; None = from the object and
+            ``drops``.
+        bin_inner_y: inner side along the bin's y, metres; None = ``bin_inner`` (a square floor).
         bin_layers: the automatic floor holds ``drops`` parts lying flat in about this many layers.
         bin_wall_height: inner wall height, metres; None = ``bin_wall_factor`` x object diameter.
         bin_wall_factor: see ``bin_wall_height``.
         bin_wall_thickness: metres, walls and floor.
+        bin_hole_size, bin_hole_pitch: a perforated sheet or wire basket: square holes of
+            ``bin_hole_size`` metres every ``bin_hole_pitch`` metres through the floor and the
+            walls, as the camera sees them (the physics keeps the solid bin); 0 = solid.
+        bin_clearance: the bin stands on legs this many metres above the ground (what its holes
+            show); 0 = on the ground.
 
     Physics:
         physics: the engine, "mujoco" (default) or "pybullet" (the datasets made before MuJoCo;
@@ -157,6 +164,10 @@ class SceneConfig:
     views: int = 1
     physics: str = "mujoco"
     coacd_threshold: float = 0.1
+    bin_inner_y: float | None = None
+    bin_hole_size: float = 0.0
+    bin_hole_pitch: float = 0.0
+    bin_clearance: float = 0.0
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -169,7 +180,7 @@ class SceneConfig:
             need(value is None or (0 < value <= self.resolution and (self.resolution - value) % 2 == 0), key,
                  "None or a size <= resolution with (resolution - size) even (a centred crop)")
         need(0.0 < self.fov_deg < 170.0, "fov_deg", "degrees in (0, 170)")
-        for key in ("camera_height", "clip_start", "clip_end", "bin_inner", "bin_wall_height"):
+        for key in ("camera_height", "clip_start", "clip_end", "bin_inner", "bin_wall_height", "bin_inner_y"):
             value = getattr(self, key)
             need(value is None or (math.isfinite(value) and value > 0), key, "None or a positive number of metres")
         if self.clip_start is not None and self.clip_end is not None:
@@ -180,7 +191,8 @@ class SceneConfig:
         # as on real cells where the camera sees only the middle of the bin
         need(math.isfinite(self.view_margin) and self.view_margin > -0.9, "view_margin", "a number > -0.9")
         for key in ("camera_jitter_m", "camera_jitter_deg", "bin_jitter_m", "bin_jitter_deg",
-                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg"):
+                    "friction", "rolling_friction", "restitution", "linear_damping", "angular_damping", "drop_gap", "solo_cache_mm", "solo_cache_deg",
+                    "bin_hole_size", "bin_clearance"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) >= 0, key, "a number >= 0")
         for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
                     "settle_angular", "settle_time_cap", "convexity_threshold", "coacd_threshold"):
@@ -195,6 +207,8 @@ class SceneConfig:
         need(isinstance(self.camera_tilt_deg, (int, float)) and math.isfinite(self.camera_tilt_deg)
              and 0 <= self.camera_tilt_deg < 90, "camera_tilt_deg",
              "degrees in [0, 90) off vertical (90 looks along the floor)")
+        need(self.bin_hole_size == 0 or (math.isfinite(self.bin_hole_pitch) and self.bin_hole_pitch > self.bin_hole_size),
+             "bin_hole_pitch", f"metres > bin_hole_size={self.bin_hole_size} (holes with bars between them)")
         need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
              "camera_azimuth_deg", "a finite number of degrees")
 

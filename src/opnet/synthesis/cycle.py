@@ -101,7 +101,7 @@ class CycleGenerator:
             self.rig.camera,
             self.rig.bin.mesh(),
             ground_size=GROUND_SCALE * self.rig.bin.outer,
-            ground_depth=self.rig.bin.thickness,
+            ground_depth=self.rig.bin.thickness + self.scene.bin_clearance,
             solo_cache_mm=self.scene.solo_cache_mm,
             solo_cache_deg=self.scene.solo_cache_deg,
         )

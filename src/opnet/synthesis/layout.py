@@ -75,43 +75,83 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 
 @dataclass(frozen=True)
 class BinGeometry:
-    """A tote: a square floor and four walls, in the bin frame (floor top centre = origin, z up).
+    """A tote: a rectangular floor and four walls, in the bin frame (floor top centre = origin, z up).
 
     Attributes:
-        inner: inner side of the floor, metres.
+        inner: inner side of the floor along the bin's x axis, metres.
         wall_height: height of the walls above the floor top, metres.
         thickness: thickness of the floor and the walls, metres.
+        inner_y: inner side along y, metres; None = ``inner`` (a square floor).
+        hole_size, hole_pitch: a perforated sheet (a wire basket): square holes of ``hole_size``
+            metres every ``hole_pitch`` metres through the floor and the walls, in what is
+            rendered only (the physics keeps solid boxes: parts are larger than the holes);
+            0 = solid.
     """
 
     inner: float
     wall_height: float
     thickness: float
+    inner_y: float | None = None
+    hole_size: float = 0.0
+    hole_pitch: float = 0.0
+
+    @property
+    def sides(self) -> tuple[float, float]:
+        """Inner sides (x, y) of the floor, metres."""
+        return self.inner, self.inner if self.inner_y is None else self.inner_y
 
     @property
     def outer(self) -> float:
-        """Outer side of the bin, metres."""
-        return self.inner + 2.0 * self.thickness
+        """Outer side of the bin along its longer axis, metres."""
+        return max(self.sides) + 2.0 * self.thickness
 
     def boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """The five boxes as (half extents (3,), centre (3,)) in the bin frame, metres."""
-        a, h, t = self.inner / 2.0, self.wall_height, self.thickness
-        floor = (np.array([a + t, a + t, t / 2]), np.array([0.0, 0.0, -t / 2]))
+        (a, b), h, t = (s / 2.0 for s in self.sides), self.wall_height, self.thickness
+        floor = (np.array([a + t, b + t, t / 2]), np.array([0.0, 0.0, -t / 2]))
         walls = []
         for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-            half = np.array([t / 2 if sx else a + t, t / 2 if sy else a + t, h / 2])
-            walls.append((half, np.array([sx * (a + t / 2), sy * (a + t / 2), h / 2])))
+            half = np.array([t / 2 if sx else a + t, t / 2 if sy else b + t, h / 2])
+            walls.append((half, np.array([sx * (a + t / 2), sy * (b + t / 2), h / 2])))
         return [floor, *walls]
 
     def mesh(self) -> trimesh.Trimesh:
-        """The bin as one triangle mesh in the bin frame, metres (for rendering)."""
-        parts = [trimesh.creation.box(extents=2 * half, transform=homogeneous(np.eye(3), c)) for half, c in self.boxes()]
+        """The bin as one triangle mesh in the bin frame, metres (for rendering); perforated when
+        ``hole_size`` > 0."""
+        parts = []
+        for half, centre in self.boxes():
+            if self.hole_size > 0:
+                parts += perforated_box(half, centre, self.hole_size, self.hole_pitch)
+            else:
+                parts.append(trimesh.creation.box(extents=2 * half, transform=homogeneous(np.eye(3), centre)))
         return trimesh.util.concatenate(parts)
 
     def inside(self, points_bin: np.ndarray) -> np.ndarray:
         """(N, 3) points in the bin frame -> (N,) bool: above the floor and within the walls."""
         p = np.asarray(points_bin, dtype=np.float64).reshape(-1, 3)
-        a = self.inner / 2.0
-        return (np.abs(p[:, 0]) <= a) & (np.abs(p[:, 1]) <= a) & (p[:, 2] >= -1e-3)
+        a, b = (s / 2.0 for s in self.sides)
+        return (np.abs(p[:, 0]) <= a) & (np.abs(p[:, 1]) <= b) & (p[:, 2] >= -1e-3)
+
+
+def perforated_box(half: np.ndarray, centre: np.ndarray, hole: float, pitch: float) -> list[trimesh.Trimesh]:
+    """A box (half extents, centre; metres) pierced through its thinnest axis by square holes of side
+    ``hole`` every ``pitch`` metres: the bars between the holes, as boxes (a wire basket's sheet).
+    The holes' grid is centred on the box; bars at the box's edges keep its outline."""
+    thin = int(np.argmin(half))
+    u, v = [k for k in range(3) if k != thin]
+    bar = pitch - hole
+    out = []
+    for axis, other in ((u, v), (v, u)):  # bars running along `other`, spaced along `axis`
+        n = int(math.floor(2 * half[axis] / pitch))
+        offsets = (np.arange(n + 1) - n / 2.0) * pitch
+        offsets = np.unique(np.clip(offsets, -half[axis] + bar / 2, half[axis] - bar / 2))
+        for off in offsets:
+            extents = 2 * np.asarray(half, dtype=np.float64)
+            extents[axis] = bar
+            c = np.asarray(centre, dtype=np.float64).copy()
+            c[axis] += off
+            out.append(trimesh.creation.box(extents=extents, transform=homogeneous(np.eye(3), c)))
+    return out
 
 
 @dataclass(frozen=True)
@@ -153,7 +193,7 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     D = obj.diameter
     inner = cfg.bin_inner or max(2.0 * D, math.sqrt(drops * extent[1] * extent[2] / cfg.bin_layers))
     wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
-    bin_geom = BinGeometry(inner, wall, cfg.bin_wall_thickness)
+    bin_geom = BinGeometry(inner, wall, cfg.bin_wall_thickness, cfg.bin_inner_y, cfg.bin_hole_size, cfg.bin_hole_pitch)
 
     given = read_camera_file(cfg.camera_file) if cfg.camera_file else None
     if given is None:
@@ -226,9 +266,9 @@ def tilted_clip(camera: Camera, T_world_cam: np.ndarray, bin_geom: BinGeometry, 
     """Clip planes of a tilted camera: from the nearest bin corner a part's diameter above the rim
     to the farthest point of the ground the image corners see (2 % and the jitters to spare)."""
     R, C = T_world_cam[:3, :3], T_world_cam[:3, 3]
-    half = bin_geom.outer / 2.0
+    hx, hy = (side / 2.0 + bin_geom.thickness for side in bin_geom.sides)
     top = bin_geom.wall_height + diameter
-    corners = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-bin_geom.thickness, top)])
+    corners = np.array([[x, y, z] for x in (-hx, hx) for y in (-hy, hy) for z in (-bin_geom.thickness, top)])
     depth = (corners - C) @ R[:, 2]
     rays = np.array([[(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0]
                      for u in (-0.5, camera.width - 0.5) for v in (-0.5, camera.height - 0.5)])  # fmt: skip

@@ -215,10 +215,10 @@ class BinSimulator(ABC):
     def _spawn(self, bodies: list[int], rng: np.random.Generator) -> int:
         r = self.rig.object_radius
         boxes = self._aabbs(bodies)
-        reach = max(self.rig.bin.inner / 2.0 - r, 0.0)
+        reach = np.maximum(np.array(self.rig.bin.sides) / 2.0 - r, 0.0)
         body = self._new_body()
         for attempt in range(_SPAWN_TRIES):
-            x, y = rng.uniform(-reach, reach, 2)
+            x, y = rng.uniform(-reach, reach)
             R = random_rotation(rng)
             xw, yw = (self._T_world_bin @ np.array([x, y, 0.0, 1.0]))[:2]
             # the pile top under the spawn column (parts elsewhere cannot be hit on the way down)
