@@ -25,6 +25,7 @@ import csv
 import json
 import os
 import re
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -35,6 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_learning import calibrate_steps, fmt, merge_csv, summarize, train  # noqa: E402
 
+from opnet.paths import best_checkpoint  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 CAMERA = REPO / "conf" / "cameras" / "sileane_bunny.yaml"
 TARGET = 0.5
@@ -42,7 +45,7 @@ ROW_FIELDS = (
     "object", "config", "gen_minutes", "train_minutes", "total_minutes", "train_scenes", "piles", "views",
     "test_scenes", "steps", "ap", "map", "f1", "target", "found", "no_hypothesis", "position", "orientation",
     "conflict", "confident_fp_per_scene", "duplicates_per_scene", "t_err_mm_p50", "r_err_deg_p50", "run",
-    "budget_minutes", "test_curve", "command",
+    "budget_minutes", "test_curve", "command", "extra_tests",
 )  # fmt: skip
 
 
@@ -85,6 +88,37 @@ def dense_scene(camera: Path, height: float, views: int) -> Any:
     return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
 
 
+def tests_of(obj: str, specs: list[str]) -> list[str]:
+    """The ``NAME=DIR`` of the ``[OBJECT:]NAME=DIR`` specs that apply to ``obj`` (all without OBJECT)."""
+    out = []
+    for spec in specs:
+        target, sep, rest = spec.partition(":")
+        if "=" not in (rest if sep else spec):
+            raise SystemExit(f"error: --extra-test {spec!r}, expected [OBJECT:]NAME=DIR")
+        if not sep or target == obj:
+            out.append(rest if sep else spec)
+    return out
+
+
+def extra_tests(run_dir: Path, tests: list[str]) -> str:
+    """Score the run's model on each ``NAME=DIR`` dataset (all its scenes, e.g. piles another generator
+    made, ``scripts/sileane_rerender.py``) with eval.py; ``NAME AP (found %)`` per dataset."""
+    out = []
+    for spec in tests:
+        name, _, folder = spec.partition("=")
+        dest = run_dir / f"eval_{name}"
+        cmd = [sys.executable, str(REPO / "eval.py"), f"ckpt={best_checkpoint(run_dir)}",
+               f"data.test_root={Path(folder).resolve()}", f"out={dest}", "examples=2"]
+        with open(run_dir / f"eval_{name}.log", "w") as log:
+            subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+        s = json.loads((dest / "summary.json").read_text())
+        d = s["diagnostics"]
+        out.append(f"{name} {s['ap']:.3f} (found {100 * d['matched'] / max(d['to_find'], 1):.0f} %, "
+                   f"{s['num_scenes']} scenes)")
+        print(f"  {name}: AP {s['ap']:.4f} on {s['num_scenes']} scenes of {folder}", flush=True)
+    return "; ".join(out)
+
+
 def split_sizes(run_dir: Path) -> dict[str, int]:
     """Scenes per split of a run, as its train.log reports them (training piles held out for
     validation or left out by ``data.train_groups`` are not training scenes)."""
@@ -116,8 +150,9 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "reached within a shorter budget can be read off.", "",
         "| object | config | gen min | budget min | train min | total min | train scenes (of piles x views made) | "
         "test scenes | **test AP** | target | MAP | F1 | found % | no hyp % | position % | orientation % | "
-        "conflict % | conf. FP/scene | dup/scene | t p50 mm | r p50 ° | test AP during training |",
-        "|" + "---|" * 22,
+        "conflict % | conf. FP/scene | dup/scene | t p50 mm | r p50 ° | test AP during training | "
+        "piles of other generators |",
+        "|" + "---|" * 23,
     ]  # fmt: skip
     for r in rows:
         lines.append(
@@ -127,7 +162,7 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
             f"{fmt(r['f1'])} | {fmt(r['found'], 'pct')} | {fmt(r['no_hypothesis'], 'pct')} | {fmt(r['position'], 'pct')} | "
             f"{fmt(r['orientation'], 'pct')} | {fmt(r['conflict'], 'pct')} | {fmt(r['confident_fp_per_scene'], 'f1')} | "
             f"{fmt(r['duplicates_per_scene'], 'f1')} | {fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} | "
-            f"{r.get('test_curve') or ''} |"
+            f"{r.get('test_curve') or ''} | {r.get('extra_tests') or ''} |"
         )
     lines += ["", "Commands (one per row):", ""]
     lines += [f"- {r['object']} {r['config']}: `{r.get('command') or '?'}`" for r in rows]
@@ -151,6 +186,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "dense")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "dense")
     ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
+    ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
+                    help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
+                         "bunny:sileane=outputs/data/sileane_rerender (scripts/sileane_rerender.py)")
     ap.add_argument("--generate-only", action="store_true", help="make (or complete) the datasets, then stop")
     ap.add_argument("--readme-only", action="store_true", help="re-render README.md from dense.csv, then stop")
     args = ap.parse_args(argv)
@@ -184,7 +222,8 @@ def main(argv: list[str] | None = None) -> int:
                    train_scenes=split_sizes(run_dir).get("train", args.gen_cycles * args.drops),
                    piles=-(-args.gen_cycles // args.views),
                    views=args.views, test_scenes=summary["num_scenes"], target=TARGET,
-                   budget_minutes="" if args.steps else args.minutes, test_curve=test_curve(run_dir), command=command)
+                   budget_minutes="" if args.steps else args.minutes, test_curve=test_curve(run_dir), command=command,
+                   extra_tests=extra_tests(run_dir, tests_of(obj, args.extra_test)))
         print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
               f"training minutes)", flush=True)
         rows.append(row)

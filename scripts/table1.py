@@ -42,6 +42,8 @@ sys.path.insert(0, str(REPO / "scripts"))
 
 import compare_runs  # noqa: E402
 
+from opnet.paths import best_checkpoint  # noqa: E402
+
 #: Table I of the paper (OP-Net with L_ori1 is "vanilla"), on the objects opnet ships configs for
 PAPER = {
     "vanilla": {"bunny": 0.92, "ring_screw": 0.88, "gear_shaft": 0.99},
@@ -128,13 +130,6 @@ def run_arms(todo: list[tuple[Path, list[str]]]) -> list[str]:
 def _mean(values: list[float | None]) -> float | None:
     known = [v for v in values if v is not None]
     return statistics.fmean(known) if known else None
-
-
-def best_checkpoint(run: Path) -> Path | None:
-    """The checkpoint the arm's test scored (the best validation AP), else ``last.ckpt``, else None."""
-    best = sorted((run / "checkpoints").glob("epoch*-ap*.ckpt"))
-    last = run / "checkpoints" / "last.ckpt"
-    return best[-1] if best else last if last.is_file() else None
 
 
 def tuned_decoding(run: Path) -> dict[str, object] | None:

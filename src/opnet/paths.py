@@ -24,3 +24,12 @@ def user_cache_dir() -> Path:
     """$OPNET_CACHE, else ``~/.cache/opnet`` (collision hulls, caches of read-only datasets)."""
     env = os.environ.get("OPNET_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "opnet"
+
+
+def best_checkpoint(run_dir: str | Path) -> Path | None:
+    """The checkpoint a train.py run's test scored: the best validation AP
+    (``checkpoints/epoch*-ap*.ckpt``), else ``checkpoints/last.ckpt``, else None."""
+    folder = Path(run_dir) / "checkpoints"
+    best = sorted(folder.glob("epoch*-ap*.ckpt"))
+    last = folder / "last.ckpt"
+    return best[-1] if best else last if last.is_file() else None
