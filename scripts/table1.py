@@ -242,6 +242,37 @@ def checks(cells: dict[tuple[str, str], list[float]], objects: list[str]) -> lis
     return out
 
 
+def machine() -> str:
+    """The CPU the arms ran on, and whether it computes bf16 natively (the training's precision path)."""
+    import platform
+
+    from opnet.hardware import cpu_has_native_bf16
+
+    name = platform.processor() or platform.machine()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        name = next((line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines()
+                     if line.startswith("model name")), name)
+    return f"{name}, {'bf16' if cpu_has_native_bf16() else 'fp32'}"
+
+
+def arms_csv(rows: list[dict[str, object]], tuned: list[dict[str, object]] | None) -> str:
+    """One line per arm (seed), configured and tuned decoding side by side, with the machine: the
+    per-seed values behind every mean ± sd, kept when a later table is made elsewhere."""
+    by_run = {str(r["run"]): r for r in tuned or []}
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["parameterization", "object", "seed", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ap_tuned",
+                "found_tuned", "run", "machine"])
+    where = machine()
+    fmt = lambda v: "" if v is None else f"{float(v):.6f}"  # noqa: E731
+    for r in sorted(rows, key=lambda r: (str(r["object"]), str(r["parameterization"]), str(r["seed"]))):
+        t = by_run.get(str(r["run"]), {})
+        w.writerow([r["parameterization"], r["object"], r["seed"], fmt(r["ap"]), fmt(r["found"]), fmt(r["t_err_mm_p50"]),
+                    fmt(r["r_err_deg_p50"]), fmt(t.get("ap")), fmt(t.get("found")), r["run"], where])
+    return buf.getvalue()
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = parse(argv)
@@ -261,8 +292,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     tuned = with_tuned(rows, args.runs_dir) if args.tune else None
     text, table_csv = report(rows, args.steps, len(todo), tuned)
+    text += f"Machine: {machine()} (the arms' training path); every arm's seed in `arms.csv`.\n"
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, body in (("README.md", text), ("table1.csv", table_csv)):
+    for name, body in (("README.md", text), ("table1.csv", table_csv), ("arms.csv", arms_csv(rows, tuned))):
         tmp = args.out / f".{name}.tmp"
         tmp.write_text(body)
         os.replace(tmp, args.out / name)

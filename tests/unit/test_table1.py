@@ -87,3 +87,13 @@ def test_decoding_tuned_per_arm_is_a_second_table_with_its_own_checks(tmp_path: 
     assert "| ap | 0.650 ± 0.071 (2) [0.92] |" in tuned and "ap >= vanilla on 1 of 1 objects (bunny)" in tuned
     rows = (out / "table1.csv").read_text().splitlines()
     assert sum(r.startswith("tuned on val,ap,bunny,2,0.6500") for r in rows) == 1
+
+
+def test_arms_csv_keeps_every_seed_with_its_tuned_score_and_the_machine() -> None:
+    rows = [{"parameterization": "z", "object": "bunny", "seed": s, "ap": 0.5 + s / 10, "found": 0.4, "t_err_mm_p50": 3.0,
+             "r_err_deg_p50": 2.0, "run": f"z_bunny_s{s}"} for s in (1, 0)]
+    lines = table1.arms_csv(rows, [{"run": "z_bunny_s1", "ap": 0.65, "found": 0.5}]).splitlines()
+    assert lines[0].startswith("parameterization,object,seed,ap,") and len(lines) == 3
+    assert lines[1].startswith("z,bunny,0,0.500000,") and ",,," in lines[1]  # seed 0: not tuned
+    assert lines[2].startswith("z,bunny,1,0.600000,") and ",0.650000,0.500000,z_bunny_s1," in lines[2]
+    assert lines[2].endswith(table1.machine()) or table1.machine() in lines[2]
