@@ -45,7 +45,7 @@ ROW_FIELDS = (
     "object", "config", "gen_minutes", "train_minutes", "total_minutes", "train_scenes", "piles", "views",
     "test_scenes", "steps", "ap", "map", "f1", "target", "found", "no_hypothesis", "position", "orientation",
     "conflict", "confident_fp_per_scene", "duplicates_per_scene", "t_err_mm_p50", "r_err_deg_p50", "run",
-    "budget_minutes", "test_curve", "command", "extra_tests",
+    "budget_minutes", "test_curve", "command", "extra_tests", "tuned",
 )  # fmt: skip
 
 
@@ -100,23 +100,48 @@ def tests_of(obj: str, specs: list[str]) -> list[str]:
     return out
 
 
-def extra_tests(run_dir: Path, tests: list[str]) -> str:
-    """Score the run's model on each ``NAME=DIR`` dataset (all its scenes, e.g. piles another generator
-    made, ``scripts/sileane_rerender.py``) with eval.py; ``NAME AP (found %)`` per dataset."""
+def evaluate(ckpt: Path, dest: Path, test_root: str | None = None) -> dict[str, Any]:
+    """eval.py's summary of ``ckpt`` on its own test split, or on all scenes of ``test_root``."""
+    cmd = [sys.executable, str(REPO / "eval.py"), f"ckpt={ckpt}", f"out={dest}", "examples=2",
+           *([f"data.test_root={Path(test_root).resolve()}"] if test_root else [])]
+    with open(dest.with_suffix(".log"), "w") as log:
+        subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+    return json.loads((dest / "summary.json").read_text())
+
+
+def extra_tests(ckpt: Path, run_dir: Path, tests: list[str], tag: str = "") -> str:
+    """Score ``ckpt`` on each ``NAME=DIR`` dataset (all its scenes, e.g. piles another generator made,
+    ``scripts/sileane_rerender.py``) with eval.py; ``NAME AP (found %)`` per dataset."""
     out = []
     for spec in tests:
         name, _, folder = spec.partition("=")
-        dest = run_dir / f"eval_{name}"
-        cmd = [sys.executable, str(REPO / "eval.py"), f"ckpt={best_checkpoint(run_dir)}",
-               f"data.test_root={Path(folder).resolve()}", f"out={dest}", "examples=2"]
-        with open(run_dir / f"eval_{name}.log", "w") as log:
-            subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
-        s = json.loads((dest / "summary.json").read_text())
+        s = evaluate(ckpt, run_dir / f"eval_{name}{tag}", folder)
         d = s["diagnostics"]
         out.append(f"{name} {s['ap']:.3f} (found {100 * d['matched'] / max(d['to_find'], 1):.0f} %, "
                    f"{s['num_scenes']} scenes)")
-        print(f"  {name}: AP {s['ap']:.4f} on {s['num_scenes']} scenes of {folder}", flush=True)
+        print(f"  {name}{tag}: AP {s['ap']:.4f} on {s['num_scenes']} scenes of {folder}", flush=True)
     return "; ".join(out)
+
+
+def tuned_decoding(run_dir: Path, tests: list[str], stride: int = 8) -> str:
+    """The decoding tuned on the run's validation split (every ``stride``-th scene;
+    ``scripts/tune_decoding.py``); where it differs from the configured one, ``checkpoints/tuned.ckpt``
+    decodes with it and is scored on the test split and ``tests``. A line for the table."""
+    import tune_decoding as td
+
+    ckpt = best_checkpoint(run_dir)
+    assert ckpt is not None
+    split = td.RecordedSplit.record(str(ckpt), "val", stride)
+    best, rows = td.search([split])
+    td.write_table(rows, run_dir / "tune_val")
+    if best == td.current_settings(split.parameterization):
+        return "configured decoding is the best on validation"
+    dest = run_dir / "checkpoints" / "tuned.ckpt"
+    td.write_tuned_checkpoint(ckpt, dest, best)
+    s = evaluate(dest, run_dir / "test_tuned")
+    changed = {k: v for k, v in best.items() if td.current_settings(split.parameterization)[k] != v}
+    others = extra_tests(dest, run_dir, tests, "_tuned")
+    return f"{changed}: test AP {s['ap']:.3f}" + (f"; {others}" if others else "")
 
 
 def split_sizes(run_dir: Path) -> dict[str, int]:
@@ -151,8 +176,8 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "| object | config | gen min | budget min | train min | total min | train scenes (of piles x views made) | "
         "test scenes | **test AP** | target | MAP | F1 | found % | no hyp % | position % | orientation % | "
         "conflict % | conf. FP/scene | dup/scene | t p50 mm | r p50 ° | test AP during training | "
-        "piles of other generators |",
-        "|" + "---|" * 23,
+        "piles of other generators | decoding tuned on validation |",
+        "|" + "---|" * 24,
     ]  # fmt: skip
     for r in rows:
         lines.append(
@@ -162,7 +187,7 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
             f"{fmt(r['f1'])} | {fmt(r['found'], 'pct')} | {fmt(r['no_hypothesis'], 'pct')} | {fmt(r['position'], 'pct')} | "
             f"{fmt(r['orientation'], 'pct')} | {fmt(r['conflict'], 'pct')} | {fmt(r['confident_fp_per_scene'], 'f1')} | "
             f"{fmt(r['duplicates_per_scene'], 'f1')} | {fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} | "
-            f"{r.get('test_curve') or ''} | {r.get('extra_tests') or ''} |"
+            f"{r.get('test_curve') or ''} | {r.get('extra_tests') or ''} | {r.get('tuned') or ''} |"
         )
     lines += ["", "Commands (one per row):", ""]
     lines += [f"- {r['object']} {r['config']}: `{r.get('command') or '?'}`" for r in rows]
@@ -189,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
                     help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
                          "bunny:sileane=outputs/data/sileane_rerender (scripts/sileane_rerender.py)")
+    ap.add_argument("--tune", action="store_true",
+                    help="tune the decoding on validation; a better one goes into checkpoints/tuned.ckpt, scored too")
     ap.add_argument("--generate-only", action="store_true", help="make (or complete) the datasets, then stop")
     ap.add_argument("--readme-only", action="store_true", help="re-render README.md from dense.csv, then stop")
     args = ap.parse_args(argv)
@@ -223,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
                    piles=-(-args.gen_cycles // args.views),
                    views=args.views, test_scenes=summary["num_scenes"], target=TARGET,
                    budget_minutes="" if args.steps else args.minutes, test_curve=test_curve(run_dir), command=command,
-                   extra_tests=extra_tests(run_dir, tests_of(obj, args.extra_test)))
+                   extra_tests=extra_tests(best_checkpoint(run_dir), run_dir, tests_of(obj, args.extra_test)),
+                   tuned=tuned_decoding(run_dir, tests_of(obj, args.extra_test)) if args.tune else "")
         print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
               f"training minutes)", flush=True)
         rows.append(row)

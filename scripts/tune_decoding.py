@@ -9,6 +9,10 @@ candidates, the others at their current best; two rounds). Prints a table and wr
 ``decoding_sweep.csv`` and ``decoding_sweep.md`` to ``--out`` (default: the run's
 ``tune_<split>/``). Several checkpoints (``--ckpt a --ckpt b``) are tuned jointly: the mean AP over
 them decides, so that the chosen defaults hold for more than one model.
+
+``--write <file.ckpt>`` saves a copy of the (first) checkpoint whose config decodes with the tuned
+settings, so that eval.py, predict.py and export.py use them. ``--stride K`` tunes on every K-th
+scene of the split (the scenes of one pile are much alike; dense piles decode slowly).
 """
 
 from __future__ import annotations
@@ -56,15 +60,19 @@ class RecordedSplit:
 
     @classmethod
     @torch.no_grad()
-    def record(cls, ckpt: str, split: str) -> RecordedSplit:
+    def record(cls, ckpt: str, split: str, stride: int = 1) -> RecordedSplit:
         system, cfg = load_checkpoint(ckpt)
         dm = build_datamodule(cfg, system.parameterization.obj, train=False)
         dm.setup("test")
         outputs, cameras, gts = [], [], []
+        seen = 0
         for batch in getattr(dm, f"{split}_dataloader")():
-            outputs.append(system(batch.images))
-            cameras.append(batch.cameras)
-            gts.append(batch.gt_sets)
+            keep = [j for j in range(len(batch)) if (seen + j) % stride == 0]
+            seen += len(batch)
+            if keep:
+                outputs.append(system(batch.images[keep]))
+                cameras.append([batch.cameras[j] for j in keep])
+                gts.append([batch.gt_sets[j] for j in keep])
         return cls(system.parameterization, outputs, cameras, gts, system.hparams.max_occlusion)
 
     def scenes(self, settings: dict[str, Any]) -> dict[str, tuple[GroundTruthSet, Any]]:
@@ -120,6 +128,38 @@ def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any]
     return best, rows
 
 
+#: the saved config's keys (conf/decoding/tuned.yaml) of each setting of :data:`SEARCH`
+CONFIG_KEYS = {"averaging": "averaging", "score": "score", "min_visibility": "min_visibility", "eps": "averaging_eps",
+               "min_samples": "averaging_min_samples", "cluster_score": "averaging_score"}
+
+
+def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]) -> None:
+    """A copy of checkpoint ``src`` whose saved config decodes with ``settings``, written atomically
+    to ``dest`` and read back: its parameterization must decode as tuned.
+
+    Raises:
+        ValueError: ``dest`` is ``src``, or the copy does not load with the tuned decoding.
+    """
+    from opnet.cli.build import read_checkpoint
+
+    if Path(src).resolve() == dest.resolve():
+        raise ValueError(f"--write {dest}: is the checkpoint being tuned; write a new file")
+    ckpt = read_checkpoint(src)
+    param = ckpt["hyper_parameters"]["config"]["parameterization"]
+    for key, value in settings.items():
+        param[CONFIG_KEYS[key]] = value
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.tmp")
+    torch.save(ckpt, tmp)
+    os.replace(tmp, dest)
+    system, _ = load_checkpoint(dest)
+    loaded = current_settings(system.parameterization)
+    compared = [k for k in settings if settings["averaging"] or k not in AVERAGING_KEYS]  # unused without averaging
+    if any(loaded[k] != settings[k] for k in compared):
+        dest.unlink()
+        raise ValueError(f"{dest}: the written checkpoint does not decode with the tuned settings {settings}")
+
+
 def write_table(rows: list[dict[str, Any]], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     fields = sorted({k for r in rows for k in r}, key=lambda k: (k.startswith("ap"), k))
@@ -141,16 +181,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split", default="val", choices=("val", "test", "train"))
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--stride", type=int, default=1, help="tune on every K-th scene of the split")
+    parser.add_argument("--write", type=Path, default=None,
+                        help="save a copy of the (first) checkpoint that decodes with the tuned settings")
     args = parser.parse_args(argv)
+    if args.stride < 1:
+        print(f"error: --stride {args.stride}: expected an integer >= 1", file=sys.stderr)
+        return 2
     torch.set_grad_enabled(False)
     splits = []
     for ckpt in args.ckpt:
         print(f"recording {args.split} outputs of {ckpt}", flush=True)
-        splits.append(RecordedSplit.record(ckpt, args.split))
+        splits.append(RecordedSplit.record(ckpt, args.split, args.stride))
     best, rows = search(splits, args.rounds)
     out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
     write_table(rows, out)
     print(f"written {out}/decoding_sweep.csv, {out}/decoding_sweep.md")
+    if args.write is not None:
+        write_tuned_checkpoint(args.ckpt[0], args.write, best)
+        print(f"written {args.write}: {args.ckpt[0]} decoding with {best}")
     return 0
 
 
