@@ -214,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
                     help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
                          "bunny:sileane=outputs/data/sileane_rerender (scripts/sileane_rerender.py)")
+    ap.add_argument("--validations", type=int, default=None,
+                    help="validate this many times, evenly spaced, the last at the final step (default: every epoch)")
     ap.add_argument("--tune", action="store_true",
                     help="tune the decoding on validation; a better one goes into checkpoints/tuned.ckpt, scored too")
     ap.add_argument("--generate-only", action="store_true", help="make (or complete) the datasets, then stop")
@@ -242,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
         steps = args.steps or calibrate_steps(overrides, args.minutes)
         run_dir = args.runs_dir / f"{obj}_{args.config}"
         print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
-        train(overrides, run_dir, steps, test_every=4)
+        train(overrides, run_dir, steps, test_every=4, validations=args.validations)
         row, _ = summarize(obj, args.config, run_dir, steps)
         summary = json.loads((run_dir / "test" / "summary.json").read_text())
         row.update(gen_minutes=gen_minutes, total_minutes=gen_minutes + float(row["train_minutes"]),

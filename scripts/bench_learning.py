@@ -79,9 +79,22 @@ def calibrate_steps(overrides: list[str], minutes: float) -> int:
     return steps
 
 
-def train(overrides: list[str], run_dir: Path, steps: int, test_every: int = 1) -> None:
+def validation_schedule(steps: int, validations: int) -> list[str]:
+    """train.py overrides that validate ``validations`` times, evenly spaced in optimizer steps, the
+    last at the final step (at epoch ends, a step budget that ends mid-epoch leaves its last steps,
+    those at the lowest learning rate, out of the model selection)."""
+    every = max(1, steps // max(1, validations))
+    return ["trainer.check_val_every_n_epoch=null", f"+trainer.val_check_interval={every}"]
+
+
+def train(overrides: list[str], run_dir: Path, steps: int, test_every: int = 1, validations: int | None = None) -> None:
+    """train.py for ``steps`` optimizer steps (the last rounded down to a validation with ``validations``)."""
+    schedule = []
+    if validations:
+        schedule = validation_schedule(steps, validations)
+        steps = steps - steps % max(1, steps // validations)
     cmd = [sys.executable, str(REPO / "train.py"), *overrides, f"trainer.max_steps={steps}",
-           "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
+           "trainer.max_epochs=100000", "trainer.enable_progress_bar=false", *schedule,
            f"callbacks.learning_curve.test_every={test_every}", f"hydra.run.dir={run_dir}"]  # fmt: skip
     run_dir.mkdir(parents=True, exist_ok=True)
     with open(run_dir / "bench_stdout.log", "w") as log:
