@@ -17,7 +17,8 @@ the bin floor tell it: their thin axis is the floor's normal. From the ground tr
 
     python -m opnet.synthesis.camera_pose ../shared/data/ipd_real_obj18/test --object-id 18
 
-prints the scene overrides (``scene.camera_tilt_deg=... scene.camera_azimuth_deg=...
+(where the split's ``scene_camera.json`` gives ``cam_R_w2c`` / ``cam_t_w2c`` of a world frame with z up
+and the floor at z = 0, the settings they imply are printed too: :func:`pose_from_w2c`) prints the scene overrides (``scene.camera_tilt_deg=... scene.camera_azimuth_deg=...
 scene.camera_height=...``) and the spread over the parts (a part that does not lie flat shows up as
 a large deviation).
 """
@@ -76,6 +77,43 @@ def estimate_pose(R_cam_obj: np.ndarray, t_cam_obj: np.ndarray, axis: np.ndarray
     return CameraPose(height, tilt, azimuth, len(R_cam_obj), float(spread.max()))
 
 
+def pose_from_w2c(R_w2c: np.ndarray, t_w2c: np.ndarray) -> CameraPose:
+    """The generator's camera settings from a camera pose in a world frame whose z axis is up and
+    whose plane z = 0 is the bin floor (a BOP ``scene_camera.json`` entry's ``cam_R_w2c``, and
+    ``cam_t_w2c`` in metres): the floor normal seen from the camera gives tilt and azimuth as
+    :func:`estimate_pose` does, the camera centre's height over the floor the distance along the
+    optical axis.
+
+    Raises:
+        ValueError: the camera is not above the floor looking down at it.
+    """
+    R = np.asarray(R_w2c, dtype=np.float64).reshape(3, 3)
+    n = R[:, 2]  # world up, camera frame: it points at the camera (from the floor)
+    centre = -R.T @ np.asarray(t_w2c, dtype=np.float64).reshape(3)
+    if centre[2] <= 0 or n[2] >= 0:
+        raise ValueError(f"camera pose: the camera at world height {centre[2]:.3f} m does not look down at the "
+                         "floor z = 0 (cam_R_w2c / cam_t_w2c of a world frame with z up and the floor at z = 0)")
+    tilt = math.degrees(math.acos(float(np.clip(-n[2], -1, 1))))
+    azimuth = math.degrees(math.atan2(n[1], -n[0])) if tilt > 1e-9 else 0.0
+    return CameraPose(float(centre[2] / -n[2]), tilt, azimuth, 0, 0.0)
+
+
+def bop_camera_poses(split: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (R_w2c, t_w2c metres) of every image of a BOP split whose ``scene_camera.json`` gives a
+    world frame other than the camera's own (``cam_R_w2c`` not the identity)."""
+    import json
+
+    poses = []
+    for path in sorted(Path(split).glob("*/scene_camera.json")):
+        for entry in json.loads(path.read_text()).values():
+            if "cam_R_w2c" not in entry or "cam_t_w2c" not in entry:
+                continue
+            R = np.asarray(entry["cam_R_w2c"], dtype=np.float64).reshape(3, 3)
+            if not np.allclose(R, np.eye(3)):
+                poses.append((R, np.asarray(entry["cam_t_w2c"], dtype=np.float64).reshape(3) / 1000.0))
+    return poses
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("split", type=Path, help="a BOP split folder (or any dataset opnet reads) with ground truth")
@@ -109,6 +147,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"{pose.parts} parts (of {len(R)}), thin-axis spread {pose.normal_spread_deg:.1f} deg, thickness "
           f"{1000 * thickness:.1f} mm\n{pose.overrides()}")
+    written = bop_camera_poses(args.split) if args.split.is_dir() else []
+    if written:  # the camera's own record of its pose over the floor, where the split has one
+        try:
+            print(f"from scene_camera.json (cam_R_w2c, cam_t_w2c of image 0; {len(written)} images): "
+                  f"{pose_from_w2c(*written[0]).overrides()}")
+        except ValueError as e:
+            print(f"scene_camera.json: {e}")
     return 0
 
 
