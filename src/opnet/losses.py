@@ -57,6 +57,11 @@ class MultiTaskLoss(nn.Module):
         lambda_pose: factor on λ3 (the weight of position and orientation together); 1 in the paper.
         lambda_pos: weight of the position term (1 in the paper); with ``position=metric`` 0.1
             makes a δ-sized origin error cost what it costs in vanilla's channel units.
+        lambda_z: with ``position=channels``, the weight of the depth channel against the two
+            image-plane channels (1 in the paper). The depth channel spans the clip range (0.83 m for
+            the Siléane camera) while x and y span a cell (about 3.5 cm there), so at weight 1 a depth
+            error costs about 500 times less than the same error across the image, and dense piles
+            are missed on depth (results/dense/ab.md).
         robust: "none" (squared errors, the paper) or "charbonnier": each pose term ``e`` (a
             squared error) becomes ``2 (sqrt(1 + e) - 1)``: the same near zero, but growing only
             linearly with the error, so that the large errors of early training do not swamp the
@@ -74,6 +79,7 @@ class MultiTaskLoss(nn.Module):
         lambda_pose: float = 1.0,
         robust: str = "none",
         lambda_pos: float = 1.0,
+        lambda_z: float = 1.0,
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
@@ -86,7 +92,7 @@ class MultiTaskLoss(nn.Module):
             raise ValueError(f"loss.position must be one of {POSITION_LOSSES}, got {position!r}")
         for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
                            ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose),
-                           ("lambda_pos", lambda_pos)):  # fmt: skip
+                           ("lambda_pos", lambda_pos), ("lambda_z", lambda_z)):  # fmt: skip
             if not float(value) >= 0:
                 raise ValueError(f"loss.{key} must be >= 0, got {value}")
         self.lambda_p, self.lambda_v, self.lambda_ori = (
@@ -96,6 +102,7 @@ class MultiTaskLoss(nn.Module):
         )
         self.lambda_pose = float(lambda_pose)
         self.lambda_pos = float(lambda_pos)
+        self.lambda_z = float(lambda_z)
         self.orientation = orientation
         self.position = position
         self.robust = robust
@@ -108,6 +115,7 @@ class MultiTaskLoss(nn.Module):
             and self.orientation in ("euler_l2", "channel_l2")
             and self.lambda_pose == 1.0
             and self.lambda_pos == 1.0
+            and self.lambda_z == 1.0
             and self.robust == "none"
         )
 
@@ -176,7 +184,8 @@ class MultiTaskLoss(nn.Module):
             t_gt = parameterization.decode_translations(t[:, 2:5], cells, cams)
             position = (((t_hat - t_gt) / delta) ** 2).sum(-1).to(o.dtype)
         else:
-            position = ((o[:, 2:5] - t[:, 2:5]) ** 2).sum(-1)
+            axes = o.new_tensor([1.0, 1.0, self.lambda_z])
+            position = (((o[:, 2:5] - t[:, 2:5]) ** 2) * axes).sum(-1)
         rotation = parameterization.rotation
         if self.orientation == "sym_rotation":
             orientation = symmetric_rotation_error(

@@ -88,6 +88,25 @@ def test_paper_weighting_on_a_single_cell():
     assert lam["orientation"].item() == pytest.approx(2 * 8 * vis**3 * 0.09, rel=1e-4)
 
 
+def test_lambda_z_weighs_the_depth_channel_against_the_image_plane():
+    param = VanillaParameterization(ZBRACKET)
+    vis = 0.7
+    gt = GroundTruthBatch.from_arrays([(torch.eye(3)[None], torch.tensor([[0.0, 0.0, 1.0]]), [vis], [1], None)] * 2)
+    target = param.encode(gt, CAMERA)
+    output = target.clone()
+    grid = param.split_slots(output)
+    grid[:, 0, 2, 8, 8] += 0.2  # x error
+    grid[:, 0, 4, 8, 8] += 0.05  # depth error
+    base = dict(orientation="sym_channel_l2")
+    plain = MultiTaskLoss(**base)(output, target, param)["position"].item()
+    weighted = MultiTaskLoss(**base, lambda_z=100.0)(output, target, param)["position"].item()
+    assert plain == pytest.approx(8 * vis**3 * (0.04 + 0.0025), rel=1e-4)
+    assert weighted == pytest.approx(8 * vis**3 * (0.04 + 100 * 0.0025), rel=1e-4)
+    assert not MultiTaskLoss(lambda_z=2.0).is_paper and MultiTaskLoss().is_paper
+    with pytest.raises(ValueError, match="lambda_z"):
+        MultiTaskLoss(lambda_z=-1.0)
+
+
 def test_si_uses_linear_pose_weight():
     param = SIParameterization(ZBRACKET)
     v = torch.tensor([0.0, 0.5, 1.0])
