@@ -96,6 +96,15 @@ def test_experiments_compose(experiment: str) -> None:
     assert cfg.data.generate is not None
 
 
+def test_dense_recipe_is_the_measured_best_and_builds() -> None:
+    """experiment=dense trains what results/dense/ab_learning.md measured best on dense piles: EVE with
+    the depth channel weighted 10x; the loss built from it carries that weight."""
+    cfg = _compose("train", ["experiment=dense", "object=shaft", "paths.root_dir=/tmp/opnet"])
+    assert cfg.parameterization._target_.endswith("EVEParameterization")
+    assert cfg.loss.lambda_z == 10.0
+    assert build_components(cfg).system.loss.lambda_z == 10.0
+
+
 @pytest.mark.parametrize("trainer", ["cpu", "gpu", "ddp"])
 def test_trainer_configs_compose(trainer: str) -> None:
     cfg = _compose("train", [f"trainer={trainer}", "paths.root_dir=/tmp/opnet"])
