@@ -1,0 +1,66 @@
+"""The dense-pile reports: scripts/dense_ab.py reads each arm's runs back (seeds as mean ± sd, missing runs
+as dashes, never a number made up) and scripts/bench_dense.py heads its README with the recipe's rows."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from opnet.paths import REPO_ROOT
+
+
+def _script(name: str):
+    sys.path.insert(0, str(REPO_ROOT / "scripts"))
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+dense_ab = _script("dense_ab")
+
+
+def _run(root: Path, name: str, ap: float, others: dict[str, float]) -> None:
+    diag = {"to_find": 100, "matched": 60, "position": 25, "orientation": 15, "t_err_mm_p50": 7.0,
+            "r_err_deg_p50": 9.0, "confident_false_positives": 144}
+    (root / name / "test").mkdir(parents=True)
+    (root / name / "test" / "summary.json").write_text(json.dumps({"ap": ap, "num_scenes": 72, "diagnostics": diag}))
+    for other, value in others.items():
+        (root / name / f"eval_{other}").mkdir()
+        (root / name / f"eval_{other}" / "summary.json").write_text(json.dumps({"ap": value}))
+
+
+def test_seeds_are_mean_and_sd_and_missing_runs_are_dashes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _run(tmp_path, "bunny_a_s0", 0.4, {"sileane": 0.6})
+    _run(tmp_path, "bunny_a_s1", 0.5, {"sileane": 0.7, "pybullet": 0.3})
+    monkeypatch.setattr(dense_ab, "TABLES", (("T", "bunny", "note", [("A", "change a", ["a_s0", "a_s1"]),
+                                                                       ("B", "change b", ["b_s0"])]),))
+    text = dense_ab.render(tmp_path)
+    row_a = next(line for line in text.splitlines() if line.startswith("| A |"))
+    assert "**0.400 / 0.500 (0.450 ± 0.071)**" in row_a
+    assert "0.600 / 0.700 (0.650 ± 0.071)" in row_a and "| 0.300 |" in row_a  # one seed scored on pybullet
+    assert "| 60.0 | 25.0 | 15.0 | 7.0 | 9.0 | 2.0 |" in row_a  # found / position / orientation %, FP per scene
+    row_b = next(line for line in text.splitlines() if line.startswith("| B |"))
+    assert row_b.count("—") == 9 and "| 0 |" in row_b
+
+
+def test_no_runs_folder_is_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert dense_ab.main(["--runs-dir", str(tmp_path / "none"), "--out", str(tmp_path / "ab.md")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no such folder" in err and not (tmp_path / "ab.md").exists()
+
+
+def test_the_benchmark_readme_heads_with_the_recipe_rows() -> None:
+    bench_dense = _script("bench_dense")
+    row = {"object": "bunny", "config": bench_dense.HEADLINE, "gen_minutes": 14.1, "train_minutes": 40.8,
+           "total_minutes": 54.9, "train_scenes": 13200, "ap": 0.83, "target": 0.5, "found": 0.864,
+           "t_err_mm_p50": 7.3, "r_err_deg_p50": 7.9, "extra_tests": "sileane 0.947", "tuned": "", "command": "cmd"}
+    other = {**row, "config": "ab3k_base", "object": "ring_screw"}
+    lines = bench_dense.headline([other, row])
+    table = [line for line in lines if line.startswith("| ")]
+    assert len(table) == 2 and table[1].startswith("| bunny | 14.1 | 40.8 | **54.9** | 13200 | **0.830** |")
+    assert bench_dense.headline([other]) == []
