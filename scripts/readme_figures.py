@@ -259,6 +259,21 @@ def block_real_frame(results: Path, prefix: str = "") -> str:
             f"depths {', '.join(f'{x:.2f}' for x in s['depths_above_m'])} m).\n")
 
 
+def block_dense(results: Path, prefix: str = "") -> str:
+    """The dense-pile recipe within 60 minutes per object (``bench_dense.py --config recipe60`` rows)."""
+    rows = []
+    for r in _csv(results / "dense" / "dense.csv"):
+        if r["config"] != "recipe60":
+            continue
+        tuned = re.search(r"test AP (\d\.\d+)", r.get("tuned") or "")
+        rows.append([r["object"].replace("_", " "),
+                     f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f} = {float(r['total_minutes']):.1f}",
+                     f"**{float(r['ap']):.3f}**" + (f" ({float(tuned.group(1)):.3f})" if tuned else ""),
+                     f"{100 * float(r['found']):.1f}", r.get("extra_tests") or "–"])
+    return _table(["object", "generation + training min", "**held-out AP** (decoding tuned on validation)",
+                   "found %", "other generators' piles (AP)"], rows) + "\n"
+
+
 def block_framing(results: Path, prefix: str = "") -> str:
     rows = [[f"`{r['fit']}`", f"{100 * float(r['input_share']):.0f} %", f"{100 * float(r['image_share']):.0f} %",
              f"{float(r['image_px_per_input_px']):.2f}", f"**{float(r['ap']):.4f}**"]
@@ -306,7 +321,7 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures,
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
           "real_frame": block_real_frame, "pictures_data": block_pictures_data,
-          "pictures_method": block_pictures_method, "table1": block_table1}
+          "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense}
 
 
 def docs_pages(docs: Path = DOCS) -> dict[Path, str]:
