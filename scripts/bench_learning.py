@@ -105,6 +105,20 @@ def choice(cfg: dict[str, Any], group: str) -> str:
     return str(cfg.get(group, ""))
 
 
+def diagnostic_shares(summary: dict[str, Any]) -> dict[str, float]:
+    """An eval summary's diagnostics as the tables give them: shares of the parts to find (found, no
+    hypothesis, position, orientation, conflict), per-scene counts and the median errors."""
+    d = summary["diagnostics"]
+    n, scenes = max(d["to_find"], 1), max(summary["num_scenes"], 1)
+    return {
+        "found": d["matched"] / n, "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n,
+        "orientation": d["orientation"] / n, "conflict": d["conflict"] / n,
+        "confident_fp_per_scene": d["confident_false_positives"] / scenes,
+        "duplicates_per_scene": d["duplicates"] / scenes,
+        "t_err_mm_p50": d["t_err_mm_p50"], "r_err_deg_p50": d["r_err_deg_p50"],
+    }  # fmt: skip
+
+
 def summarize(obj: str, config: str, run_dir: Path, steps: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The result row and curve rows of a finished run."""
     import yaml
@@ -112,20 +126,13 @@ def summarize(obj: str, config: str, run_dir: Path, steps: int) -> tuple[dict[st
     summary = json.loads((run_dir / "test" / "summary.json").read_text())
     choices = yaml.safe_load((run_dir / ".hydra" / "hydra.yaml").read_text())["hydra"]["runtime"]["choices"]
     curve = list(csv.DictReader((run_dir / "learning_curve.csv").open()))
-    d = summary["diagnostics"]
-    n, scenes = max(d["to_find"], 1), max(summary["num_scenes"], 1)
     row = {
         "object": obj, "config": config, "parameterization": choices.get("parameterization"),
         "rotation": choices.get("rotation"), "loss": choices.get("loss"), "model": choices.get("model"),
         "steps": steps, "train_minutes": float(curve[-1]["train_minutes"]) if curve else float("nan"),
         "images": int(curve[-1]["images"]) if curve else 0,
         "ap": summary["ap"], "map": summary["map"], "f1": summary["f1"], "target": TARGETS.get(obj, ""),
-        "found": d["matched"] / n, "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n,
-        "orientation": d["orientation"] / n, "conflict": d["conflict"] / n,
-        "confident_fp_per_scene": d["confident_false_positives"] / scenes,
-        "duplicates_per_scene": d["duplicates"] / scenes,
-        "t_err_mm_p50": d["t_err_mm_p50"], "r_err_deg_p50": d["r_err_deg_p50"],
-        "run": os.path.relpath(run_dir, REPO),
+        **diagnostic_shares(summary), "run": os.path.relpath(run_dir, REPO),
     }  # fmt: skip
     curves = [{"object": obj, "config": config, **{k: r[k] for k in CURVE_FIELDS[2:]}} for r in curve]
     return row, curves

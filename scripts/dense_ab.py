@@ -21,6 +21,10 @@ from pathlib import Path
 from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+
+from bench_learning import diagnostic_shares  # noqa: E402
+
 #: the other generators' piles, in the order of the columns
 OTHERS = ("sileane", "pybullet")
 
@@ -63,11 +67,7 @@ def read_run(run: Path) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     s = json.loads(path.read_text())
-    d = s["diagnostics"]
-    n = max(d["to_find"], 1)
-    row = {"ap": s["ap"], "found": 100 * d["matched"] / n, "position": 100 * d["position"] / n,
-           "orientation": 100 * d["orientation"] / n, "t50": d["t_err_mm_p50"], "r50": d["r_err_deg_p50"],
-           "cfp": d["confident_false_positives"] / max(s["num_scenes"], 1)}
+    row = {"ap": s["ap"], **diagnostic_shares(s)}
     for name in OTHERS:
         other = run / f"eval_{name}" / "summary.json"
         row[name] = json.loads(other.read_text())["ap"] if other.is_file() else None
@@ -111,10 +111,11 @@ def render(runs_dir: Path) -> str:
                 lines.append(f"| {arm} | {change} | 0 | — | — | — | — | — | — | — | — | — |")
                 continue
             col = lambda k: [r[k] for r in rows]  # noqa: E731
+            pct = lambda k: [100 * r[k] for r in rows]  # noqa: E731
             lines.append(f"| {arm} | {change} | {len(rows)} | **{cell(col('ap'))}** | {cell(col('sileane'))} | "
-                         f"{cell(col('pybullet'))} | {mean_cell(col('found'))} | {mean_cell(col('position'))} | "
-                         f"{mean_cell(col('orientation'))} | {mean_cell(col('t50'))} | {mean_cell(col('r50'))} | "
-                         f"{mean_cell(col('cfp'))} |")
+                         f"{cell(col('pybullet'))} | {mean_cell(pct('found'))} | {mean_cell(pct('position'))} | "
+                         f"{mean_cell(pct('orientation'))} | {mean_cell(col('t_err_mm_p50'))} | "
+                         f"{mean_cell(col('r_err_deg_p50'))} | {mean_cell(col('confident_fp_per_scene'))} |")
         lines.append("")
     return "\n".join(lines)
 

@@ -260,10 +260,12 @@ def block_real_frame(results: Path, prefix: str = "") -> str:
 
 
 def block_dense(results: Path, prefix: str = "") -> str:
-    """The dense-pile recipe within 60 minutes per object (``bench_dense.py --config recipe60`` rows)."""
+    """The dense-pile recipe within 60 minutes per object (the ``bench_dense.HEADLINE`` rows)."""
+    from bench_dense import HEADLINE
+
     rows = []
     for r in _csv(results / "dense" / "dense.csv"):
-        if r["config"] != "recipe60":
+        if r["config"] != HEADLINE:
             continue
         tuned = re.search(r"test AP (\d\.\d+)", r.get("tuned") or "")
         rows.append([r["object"].replace("_", " "),

@@ -25,8 +25,8 @@ dense_ab = _script("dense_ab")
 
 
 def _run(root: Path, name: str, ap: float, others: dict[str, float]) -> None:
-    diag = {"to_find": 100, "matched": 60, "position": 25, "orientation": 15, "t_err_mm_p50": 7.0,
-            "r_err_deg_p50": 9.0, "confident_false_positives": 144}
+    diag = {"to_find": 100, "matched": 60, "no_hypothesis": 0, "position": 25, "orientation": 15, "conflict": 0,
+            "duplicates": 0, "t_err_mm_p50": 7.0, "r_err_deg_p50": 9.0, "confident_false_positives": 144}
     (root / name / "test").mkdir(parents=True)
     (root / name / "test" / "summary.json").write_text(json.dumps({"ap": ap, "num_scenes": 72, "diagnostics": diag}))
     for other, value in others.items():
