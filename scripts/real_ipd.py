@@ -54,7 +54,10 @@ CAMERA_POSE = {"camera_height": 1.7748, "camera_tilt_deg": 19.86, "camera_azimut
 #: perforated sheet walls; the plates lie in it in any yaw
 BASKET = {"bin_inner": 0.3, "bin_inner_y": 0.65, "bin_wall_height": 0.1, "bin_wall_thickness": 0.002,
           "bin_hole_size": 0.012, "bin_hole_pitch": 0.018, "bin_clearance": 0.6, "bin_jitter_deg": 180.0,
-          "bin_jitter_m": 0.04, "camera_jitter_deg": 3.0, "camera_jitter_m": 0.03}  # fmt: skip
+          "bin_jitter_m": 0.04, "camera_jitter_deg": 3.0, "camera_jitter_m": 0.03,
+          # the ground 0.6 m under the basket lies beyond the far plane: a real frame measures it
+          # (the input clamps it to 1), so the generated depth holds it at the plane, not as missing
+          "outside_clip": "clamp"}  # fmt: skip
 ROW_FIELDS = ("visibility", "refine", "frames", "required", "ap", "map", "found", "no_hypothesis", "position",
               "orientation", "confident_fp_per_frame", "t_err_mm_p50", "t_err_mm_p90", "r_err_deg_p50",
               "r_err_deg_p90", "ms_per_frame")  # fmt: skip
@@ -184,8 +187,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     logs = args.run_dir.parent / "logs"
     camera = roi_camera(args.roi, args.clip, args.data_dir / "camera_roi.yaml")
-    train_root = args.data_dir / f"train_c{args.cycles}_v{args.views}_d{args.drops}_s0"
-    test_root = args.data_dir / f"test_c{args.test_cycles}_d{args.drops}_s1"
+    tag = "_clamp" if BASKET.get("outside_clip") == "clamp" else ""
+    train_root = args.data_dir / f"train_c{args.cycles}_v{args.views}_d{args.drops}_s0{tag}"
+    test_root = args.data_dir / f"test_c{args.test_cycles}_d{args.drops}_s1{tag}"
     started = time.perf_counter()
     if args.stage in ("all", "generate"):
         generate(camera, train_root, args.cycles, args.drops, args.views, 0, logs)

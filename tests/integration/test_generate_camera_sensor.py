@@ -57,3 +57,33 @@ def test_bad_camera_file_stops_generation_before_anything_is_written(tmp_path: P
     with pytest.raises(ValueError, match=r"camera\.yaml: missing camera key\(s\) \['height'\]"):
         run(compose_cfg("generate", ["object=pin", f"scene.camera_file={cam}", f"out={tmp_path / 'ds'}", "progress=false"]))
     assert not (tmp_path / "ds").exists()
+
+
+def test_outside_clip_clamp_writes_what_a_real_frame_shows_beyond_the_working_volume(tmp_path: Path) -> None:
+    # the file's clip planes end above the bin floor: the floor and the ground lie beyond the far plane
+    near_far = ("scene.camera_file_clip=true", "scene.camera_height=0.5")
+    cam = tmp_path / "camera.yaml"
+    cam.write_text(CAMERA_YAML.replace("clip_start: 0.3", "clip_start: 0.35").replace("clip_end: 2.0", "clip_end: 0.49"))
+    runs = {}
+    for mode in ("missing", "clamp"):
+        out = tmp_path / mode
+        run(compose_cfg("generate", ["object=pin", "scene.collision=convex_hull", "cycles=1", "drops=6", f"out={out}",
+                                     "progress=false", "previews=0", f"scene.camera_file={cam}", *near_far,
+                                     f"scene.outside_clip={mode}"]))
+        runs[mode] = IPADataset(out)[len(IPADataset(out)) - 1]
+    missing, clamp = runs["missing"].depth, runs["clamp"].depth
+    assert np.array_equal(runs["missing"].t_cam_obj, runs["clamp"].t_cam_obj)  # same scene, only the depth differs
+    beyond = np.isnan(missing)
+    assert beyond.mean() > 0.3  # the floor is past the far plane: missing by default (as datasets always were)
+    assert np.isfinite(clamp).all()  # ideal sensor: every pixel has a surface, held at the plane it crosses
+    assert np.allclose(clamp[beyond], 0.49, atol=1e-4)
+    assert np.allclose(clamp[~beyond], missing[~beyond])
+    # the network input sees the same far plane as it sees a real frame's depth beyond it
+    from opnet.data.preprocess import to_network_input
+
+    real_like = np.where(beyond, 0.9, missing).astype(np.float32)  # a measured ground 0.4 m past the plane
+    a, _ = to_network_input(clamp, runs["clamp"].camera, 32)
+    b, _ = to_network_input(real_like, runs["clamp"].camera, 32)
+    assert np.allclose(a, b, atol=1e-3)
+    with pytest.raises(ValueError, match="outside_clip"):
+        run(compose_cfg("generate", ["object=pin", f"scene.outside_clip=zero", f"out={tmp_path / 'bad'}", "progress=false"]))

@@ -293,7 +293,8 @@ def to_network_input(
     Returns:
         ``(image, camera_in)``: image (size, size) float32 normalized depth in [0, 1], no NaN (an
         image without valid depth is all 1, the far plane); ``camera_in`` the camera of that image.
-        Missing pixels inside the image are filled with :func:`fill_missing_depth`; the padding
+        Depth outside the clip planes counts as the plane it crosses (before the resize's
+        average). Missing pixels inside the image are filled with :func:`fill_missing_depth`; the padding
         (input pixels whose centre lies outside the image) holds no depth at all, and is filled
         by replicating the filled image's border, which is what the fill's constant
         extrapolation gives, at a fraction of the cost.
@@ -308,6 +309,10 @@ def to_network_input(
     _check_matches_camera(depth, camera, "depth")
     x0, y0, side = canvas if canvas is not None else square_canvas(camera, fit)
     values, weight = _depth_canvas(depth, x0, y0, side)
+    # depth outside the working volume counts as the plane it crosses *before* the area average:
+    # a real frame's ground 0.5 m past the far plane would otherwise outweigh the bin floor it is
+    # averaged with (generated depth holds it at the plane: scene.outside_clip=clamp)
+    np.clip(values, camera.clip_start, camera.clip_end, out=values, where=weight > 0)
     normalized = camera.normalize_depth(_resize_weighted(values, weight, size, interpolation))
     rows, cols = _image_window(camera, x0, y0, side, size)
     if rows.start >= rows.stop or cols.start >= cols.stop:

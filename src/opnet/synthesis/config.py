@@ -19,7 +19,10 @@ COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
-                 "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance")
+                 "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
+                 "outside_clip")
+#: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
+OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
 #: to_dict for that engine, so their generation.json still matches ``physics=pybullet``
 _LEGACY_PHYSICS = "pybullet"
@@ -73,6 +76,15 @@ class SceneConfig:
             walls, as the camera sees them (the physics keeps the solid bin); 0 = solid.
         bin_clearance: the bin stands on legs this many metres above the ground (what its holes
             show); 0 = on the ground.
+
+    Depth outside the clip planes:
+        outside_clip: "missing" (the default; as the datasets were always written) writes a
+            surface nearer than ``clip_start`` or beyond ``clip_end`` as missing depth, which the
+            network input then fills from its neighbours; "clamp" writes it at the plane it
+            crosses, which is what the network sees of a real sensor's frame (its far ground and
+            near clutter are measured, and the input clamps them to 0 or 1). Use "clamp" whenever
+            the clip planes cut through the scene: a real rig's working volume
+            (``camera_file_clip``) above a floor or a raised basket's ground.
 
     Physics:
         physics: the engine, "mujoco" (default) or "pybullet" (the datasets made before MuJoCo;
@@ -168,6 +180,7 @@ class SceneConfig:
     bin_hole_size: float = 0.0
     bin_hole_pitch: float = 0.0
     bin_clearance: float = 0.0
+    outside_clip: str = "missing"
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -209,6 +222,7 @@ class SceneConfig:
              "degrees in [0, 90) off vertical (90 looks along the floor)")
         need(self.bin_hole_size == 0 or (math.isfinite(self.bin_hole_pitch) and self.bin_hole_pitch > self.bin_hole_size),
              "bin_hole_pitch", f"metres > bin_hole_size={self.bin_hole_size} (holes with bars between them)")
+        need(self.outside_clip in OUTSIDE_CLIP, "outside_clip", f"one of {OUTSIDE_CLIP}")
         need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
              "camera_azimuth_deg", "a finite number of degrees")
 

@@ -142,6 +142,18 @@ class CycleGenerator:
             view = layout if k == 0 else view_layout(self.rig, self.scene, layout, view_rng(seed, pile, k))
             yield self._render_view(seed, pile * K + k, view, states)
 
+    def _outside_clip(self, depth: np.ndarray) -> np.ndarray:
+        """``scene.outside_clip``: surfaces outside the clip planes at the plane they cross ("clamp")
+        or left for the depth code to write as missing ("missing")."""
+        if self.scene.outside_clip != "clamp":
+            return depth
+        # the planes as the depth's own floats, rounded inwards (the depth code keeps what lies on them)
+        start, end = self.rig.camera.clip_start, self.rig.camera.clip_end
+        lo, hi = (np.asarray(v, dtype=depth.dtype) for v in (start, end))
+        lo = lo if float(lo) >= start else np.nextafter(lo, hi)  # float(): compared in float64, not float32
+        hi = hi if float(hi) <= end else np.nextafter(hi, lo)
+        return np.clip(depth, lo, hi)  # NaN (no depth) stays NaN
+
     def _render_view(self, seed: int, cycle: int, layout: CycleLayout, states: CycleStates) -> CycleResult:
         T_cam_world = layout.T_cam_world
         T_cam_bin = T_cam_world @ layout.T_world_bin
@@ -154,7 +166,7 @@ class CycleGenerator:
             records.append(
                 SceneRecord(
                     name=scene_name(cycle, n),
-                    depth=self.sensor.apply(out.depth, self.rig.camera, sensor_rng(seed, cycle, n)),
+                    depth=self._outside_clip(self.sensor.apply(out.depth, self.rig.camera, sensor_rng(seed, cycle, n))),
                     camera=self.rig.camera,
                     segmentation=out.segmentation,
                     R_cam_obj=T_cam_obj[:, :3, :3].copy(),
