@@ -20,7 +20,7 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
-                 "outside_clip")
+                 "outside_clip", "clutter")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -76,6 +76,11 @@ class SceneConfig:
             walls, as the camera sees them (the physics keeps the solid bin); 0 = solid.
         bin_clearance: the bin stands on legs this many metres above the ground (what its holes
             show); 0 = on the ground.
+
+    Foreign parts (:mod:`opnet.synthesis.clutter`):
+        clutter: this many foreign pieces (discs and flat boxes sized after the part) lie on the
+            floor of every pile before the parts fall: static, drawn like the bin (not parts),
+            as the other kinds of parts in a real cell's bin; 0 = none. MuJoCo only.
 
     Depth outside the clip planes:
         outside_clip: "missing" (the default; as the datasets were always written) writes a
@@ -181,6 +186,7 @@ class SceneConfig:
     bin_hole_pitch: float = 0.0
     bin_clearance: float = 0.0
     outside_clip: str = "missing"
+    clutter: int = 0
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -222,6 +228,10 @@ class SceneConfig:
              "degrees in [0, 90) off vertical (90 looks along the floor)")
         need(self.bin_hole_size == 0 or (math.isfinite(self.bin_hole_pitch) and self.bin_hole_pitch > self.bin_hole_size),
              "bin_hole_pitch", f"metres > bin_hole_size={self.bin_hole_size} (holes with bars between them)")
+        need(isinstance(self.clutter, int) and not isinstance(self.clutter, bool) and 0 <= self.clutter <= 200,
+             "clutter", "an integer in 0..200 (foreign pieces per pile)")
+        need(self.clutter == 0 or self.physics == "mujoco", "clutter",
+             "0 with scene.physics=pybullet (foreign pieces are MuJoCo bodies)")
         need(self.outside_clip in OUTSIDE_CLIP, "outside_clip", f"one of {OUTSIDE_CLIP}")
         need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
              "camera_azimuth_deg", "a finite number of degrees")

@@ -8,6 +8,7 @@ a cycle is the same whichever worker makes it and whatever was made before. With
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Self
@@ -16,6 +17,7 @@ import numpy as np
 
 from opnet.datasets.record import SceneRecord
 from opnet.objects.model import ObjectModel
+from opnet.synthesis.clutter import clutter_mesh, sample_clutter
 from opnet.synthesis.collision import CollisionModel, build_collision_model
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, view_layout
@@ -31,6 +33,12 @@ def cycle_rngs(seed: int, cycle: int) -> tuple[np.random.Generator, np.random.Ge
     """(layout generator, drop generator) of a cycle, from ``SeedSequence([seed, cycle])``."""
     layout_seq, drop_seq = np.random.SeedSequence([int(seed), int(cycle)]).spawn(2)
     return np.random.default_rng(layout_seq), np.random.default_rng(drop_seq)
+
+
+def clutter_rng(seed: int, cycle: int) -> np.random.Generator:
+    """The foreign pieces' generator of a cycle: the third child of ``SeedSequence([seed, cycle])``
+    (the first two, :func:`cycle_rngs`, are unchanged by it)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(cycle)]).spawn(3)[2])
 
 
 def view_rng(seed: int, pile: int, view: int) -> np.random.Generator:
@@ -137,6 +145,9 @@ class CycleGenerator:
             raise ValueError(f"views {wanted} outside 0..{K - 1} (scene.views={K})")
         layout_rng, drop_rng = cycle_rngs(seed, pile)
         layout = sample_layout(self.rig, self.scene, layout_rng)
+        if self.scene.clutter:
+            pieces = sample_clutter(self.scene.clutter, self.rig.bin.sides, self.rig.object_radius, clutter_rng(seed, pile))
+            layout = dataclasses.replace(layout, clutter=pieces)
         states = self.simulator.simulate(layout, self.drops, drop_rng)
         for k in wanted:
             view = layout if k == 0 else view_layout(self.rig, self.scene, layout, view_rng(seed, pile, k))
@@ -157,7 +168,7 @@ class CycleGenerator:
     def _render_view(self, seed: int, cycle: int, layout: CycleLayout, states: CycleStates) -> CycleResult:
         T_cam_world = layout.T_cam_world
         T_cam_bin = T_cam_world @ layout.T_world_bin
-        self.renderer.begin_cycle(T_cam_bin)
+        self.renderer.begin_cycle(T_cam_bin, clutter_mesh(layout.clutter))
         records, solo_renders = [], 0
         for n, T_world_obj in enumerate(states.T_world_obj):
             T_cam_obj = T_cam_world @ T_world_obj  # (n, 4, 4)

@@ -175,10 +175,12 @@ class Rig:
 
 @dataclass(frozen=True)
 class CycleLayout:
-    """Per-cycle poses (jittered): (4, 4) bin-to-world and OpenCV-camera-to-world transforms."""
+    """Per-cycle poses (jittered): (4, 4) bin-to-world and OpenCV-camera-to-world transforms, and
+    the foreign pieces lying on the pile's floor (:mod:`opnet.synthesis.clutter`; bin frame)."""
 
     T_world_bin: np.ndarray
     T_world_cam: np.ndarray
+    clutter: tuple = ()
 
     @property
     def T_cam_world(self) -> np.ndarray:
@@ -313,5 +315,5 @@ def view_layout(rig: Rig, cfg: SceneConfig, pile: CycleLayout, rng: np.random.Ge
     distribution of a cycle's; only the pile is shared (``scene.views``)."""
     fresh = sample_layout(rig, cfg, rng)
     T_bin_cam = inverse_pose(fresh.T_world_bin) @ fresh.T_world_cam
-    return CycleLayout(pile.T_world_bin, pile.T_world_bin @ T_bin_cam)
+    return CycleLayout(pile.T_world_bin, pile.T_world_bin @ T_bin_cam, pile.clutter)
 

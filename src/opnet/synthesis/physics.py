@@ -209,6 +209,8 @@ class BinSimulator(ABC):
 
     def _build_world(self, layout: CycleLayout, drops: int) -> None:
         self._T_world_bin = layout.T_world_bin
+        # parts spawn above the foreign pieces on the floor as above the pile (opnet.synthesis.clutter)
+        self._floor_top = max([0.0, *(2.0 * p.half[2] for p in layout.clutter)])
         self._make_world(layout, drops)
 
     # ---- one drop ----------------------------------------------------------------------------
@@ -222,7 +224,7 @@ class BinSimulator(ABC):
             R = random_rotation(rng)
             xw, yw = (self._T_world_bin @ np.array([x, y, 0.0, 1.0]))[:2]
             # the pile top under the spawn column (parts elsewhere cannot be hit on the way down)
-            top = max([0.0, *(hi[2] for lo, hi in boxes if lo[0] < xw + r and hi[0] > xw - r and lo[1] < yw + r and hi[1] > yw - r)])
+            top = max([self._floor_top, *(hi[2] for lo, hi in boxes if lo[0] < xw + r and hi[0] > xw - r and lo[1] < yw + r and hi[1] > yw - r)])
             z = top + r + self.cfg.drop_gap + r * (attempt // 5)
             self.set_pose(body, self._T_world_bin @ homogeneous(R, np.array([x, y, z])))
             if not self._touches(body, bodies):

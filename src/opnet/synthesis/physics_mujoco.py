@@ -49,6 +49,18 @@ def _wxyz(R: np.ndarray) -> np.ndarray:
     return np.asarray(matrix_to_quaternion(np.asarray(R, dtype=np.float64)), dtype=np.float64)
 
 
+def _clutter_geoms(pieces: tuple) -> str:
+    """MuJoCo geoms of the foreign pieces on the floor (:mod:`opnet.synthesis.clutter`), in the bin
+    body (its frame is the bin frame)."""
+    out = []
+    for p in pieces:
+        disc = p.shape == "disc"
+        size = _floats([p.half[0], p.half[2]] if disc else p.half)
+        out.append(f'<geom type="{"cylinder" if disc else "box"}" size="{size}" pos="{_floats(p.T_bin_piece[:3, 3])}" '
+                   f'quat="{_floats(_wxyz(p.T_bin_piece[:3, :3]))}"/>')
+    return "".join(out)
+
+
 def damping_rate(fraction_per_second: float) -> float:
     """Bullet's damping c (velocity times (1 - c) per second) as a continuous rate, 1/s."""
     return -math.log(max(1.0 - float(fraction_per_second), 1e-9))
@@ -77,7 +89,7 @@ class MujocoSimulator(BinSimulator):
         self.model = self.data = None
 
     # ---- the model -----------------------------------------------------------------------------
-    def _xml(self, drops: int) -> str:
+    def _xml(self, drops: int, clutter: tuple = ()) -> str:
         cfg, col, b = self.cfg, self.collision, self.rig.bin
         meshes = "".join(f'<mesh name="part{k}" vertex="{_floats(p)}"/>' for k, p in enumerate(self._parts))
         boxes = "".join(f'<geom type="box" size="{_floats(half)}" pos="{_floats(centre)}"/>' for half, centre in b.boxes())
@@ -96,20 +108,23 @@ class MujocoSimulator(BinSimulator):
             f'condim="3" solref="{2.0 * dt:.10g} 1"/></default>'
             f"<asset>{meshes}</asset>"
             f'<worldbody><geom name="ground" type="plane" size="0 0 1" pos="0 0 {-b.thickness:.10g}"/>'
-            f'<body name="bin">{boxes}</body>{bodies}</worldbody></mujoco>'
+            f'<body name="bin">{boxes}{_clutter_geoms(clutter)}</body>{bodies}</worldbody></mujoco>'
         )
 
     def _parked(self, i: int) -> np.ndarray:
         return np.array([float(i), 0.0, -_PARK_DEPTH, 1.0, 0.0, 0.0, 0.0])
 
-    def _compile(self, drops: int) -> mujoco.MjModel:
-        if drops not in self._models:
-            model = mujoco.MjModel.from_xml_string(self._xml(drops))
+    def _compile(self, drops: int, clutter: tuple = ()) -> mujoco.MjModel:
+        """The model of ``drops`` parts (cached) or, with foreign pieces on the floor, of this pile."""
+        if clutter or drops not in self._models:
+            model = mujoco.MjModel.from_xml_string(self._xml(drops, clutter))
             cfg, col = self.cfg, self.collision
             lin, ang = damping_rate(cfg.linear_damping), damping_rate(cfg.angular_damping)
             for dof in self._addresses(model, drops)[1]:
                 model.dof_damping[dof:dof + 3] = lin * col.mass
                 model.dof_damping[dof + 3:dof + 6] = ang * np.asarray(col.inertia)
+            if clutter:
+                return model
             self._models[drops] = model
         return self._models[drops]
 
@@ -124,7 +139,7 @@ class MujocoSimulator(BinSimulator):
         return model.jnt_qposadr[joints].astype(int), model.jnt_dofadr[joints].astype(int)
 
     def _make_world(self, layout: CycleLayout, drops: int) -> None:
-        model = self._compile(drops)
+        model = self._compile(drops, layout.clutter)
         T = layout.T_world_bin
         model.body_pos[1] = T[:3, 3]
         model.body_quat[1] = _wxyz(T[:3, :3])

@@ -105,6 +105,7 @@ class SceneRenderer:
         self._box_corners = trimesh.bounds.corners(mesh.bounds)  # (8, 3) model frame
         self._objects: list[pyrender.Node] = []
         self._statics: list[pyrender.Node] = []
+        self._clutter: pyrender.Node | None = None
         if bin_mesh is not None:
             self._statics.append(self._scene.add(pyrender.Mesh.from_trimesh(bin_mesh, smooth=False)))
         if ground_size > 0:
@@ -124,11 +125,20 @@ class SceneRenderer:
         """Drop the scene's objects (the shared GL context stays for the next renderer)."""
         for node in [*self._objects, *self._statics]:
             self._scene.remove_node(node)
-        self._objects, self._statics = [], []
+        self._objects, self._statics, self._clutter = [], [], None
         self._cache.clear()
 
-    def begin_cycle(self, T_cam_bin: np.ndarray) -> None:
-        """New cycle: place the bin and the ground (both in the bin frame) and forget cached counts."""
+    def begin_cycle(self, T_cam_bin: np.ndarray, clutter: trimesh.Trimesh | None = None) -> None:
+        """New cycle: place the bin and the ground (both in the bin frame), replace the foreign
+        pieces on the floor (``clutter``, bin frame, drawn like the bin; None = none) and forget
+        cached counts."""
+        if self._clutter is not None:
+            self._scene.remove_node(self._clutter)
+            self._statics.remove(self._clutter)
+            self._clutter = None
+        if clutter is not None:
+            self._clutter = self._scene.add(pyrender.Mesh.from_trimesh(clutter, smooth=False))
+            self._statics.append(self._clutter)
         for node in self._statics:
             self._scene.set_pose(node, T_cam_bin)
         self._cache.clear()
