@@ -89,8 +89,10 @@ def roi_camera(roi: list[int], clip: list[float], out: Path) -> Path:
     return out
 
 
-def generate(camera: Path, out: Path, cycles: int, drops: int, views: int, seed: int, logs: Path) -> None:
-    scene = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET}
+def generate(camera: Path, out: Path, cycles: int, drops: int, views: int, seed: int, logs: Path,
+             clutter: int = 0) -> None:  # fmt: skip
+    scene = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
+             **({"clutter": clutter} if clutter else {})}
     run([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", f"cycles={cycles}", f"drops={drops}",
          "workers=2", f"seed={seed}", f"out={out}", "progress=false", "previews=4",
          *(f"scene.{k}={v}" for k, v in scene.items())], logs / f"generate_{out.name}.log")  # fmt: skip
@@ -175,6 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--test-cycles", type=int, default=24)
     ap.add_argument("--views", type=int, default=2)
     ap.add_argument("--drops", type=int, default=10)
+    ap.add_argument("--clutter", type=int, default=0, help="foreign pieces on the basket floor per pile (scene.clutter)")
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--extra", nargs="*", default=[], help="further train.py overrides")
     ap.add_argument("--stage", choices=("all", "generate", "train", "eval"), default="all")
@@ -187,13 +190,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     logs = args.run_dir.parent / "logs"
     camera = roi_camera(args.roi, args.clip, args.data_dir / "camera_roi.yaml")
-    tag = "_clamp" if BASKET.get("outside_clip") == "clamp" else ""
+    tag = ("_clamp" if BASKET.get("outside_clip") == "clamp" else "") + (f"_k{args.clutter}" if args.clutter else "")
     train_root = args.data_dir / f"train_c{args.cycles}_v{args.views}_d{args.drops}_s0{tag}"
     test_root = args.data_dir / f"test_c{args.test_cycles}_d{args.drops}_s1{tag}"
     started = time.perf_counter()
     if args.stage in ("all", "generate"):
-        generate(camera, train_root, args.cycles, args.drops, args.views, 0, logs)
-        generate(camera, test_root, args.test_cycles, args.drops, 1, 1, logs)
+        generate(camera, train_root, args.cycles, args.drops, args.views, 0, logs, args.clutter)
+        generate(camera, test_root, args.test_cycles, args.drops, 1, 1, logs, args.clutter)
     gen_minutes = (time.perf_counter() - started) / 60
     if args.stage in ("all", "train"):
         train(train_root, test_root, args.run_dir, args.steps, args.extra)

@@ -34,16 +34,36 @@ def test_ideal_sensor_returns_the_depth_and_draws_nothing() -> None:
 
 
 def test_projector_shadow_lies_on_the_far_side_with_the_analytic_width() -> None:
-    # projector b = 0.1 m to +x: the box edge at u = 40 (z 0.8) hides plane pixels whose projector
-    # column u - fx b / 1.0 exceeds the box's 40 - fx b / 0.8 = 27.5: u = 38, 39 (width 2.5 px)
-    shadow = projector_shadow(_step_scene(), CAM.fx, 0.1)
-    cols = np.flatnonzero(shadow.any(axis=0))
-    assert cols.tolist() == [38, 39]
-    assert shadow[:, 38:40].all()
-    width = CAM.fx * 0.1 * (1 / 0.8 - 1 / 1.0)
-    assert len(cols) == math.ceil(width) - 1  # the pixels strictly inside (40 - width, 40)
-    # a wider baseline widens it in proportion
-    assert np.flatnonzero(projector_shadow(_step_scene(), CAM.fx, 0.4).any(axis=0)).tolist() == list(range(31, 40))
+    # projector b to +x: the box's edge (the left side of pixel 40, u = 39.5, z 0.8) lies at projector
+    # column 39.5 - fx b / 0.8; plane pixels (z 1.0) whose column u - fx b / 1.0 falls beyond it are in
+    # shadow: the pixel centres in [39.5 - w, 39.5), w = fx b (1 / 0.8 - 1 / 1.0)
+    for baseline in (0.1, 0.2, 0.3, 0.4):
+        shadow = projector_shadow(_step_scene(), CAM.fx, baseline)
+        width = CAM.fx * baseline * (1 / 0.8 - 1 / 1.0)
+        expected = [u for u in range(40) if 39.5 - width <= u]
+        assert np.flatnonzero(shadow.any(axis=0)).tolist() == expected, baseline
+        assert shadow[:, expected].all() and not shadow[:, 40:].any()  # whole columns; the box is lit
+
+
+def test_projector_lights_the_ground_through_a_perforated_sheet() -> None:
+    # a sheet at 0.8 m with 6-pixel holes every 12 pixels over a ground at 1.2 m: the camera sees the
+    # ground through the holes; the projector (b = 0.1 m) lights it where its own ray passes a hole
+    z = np.full((10, 400), 0.8)
+    holes = (np.arange(400) % 12) < 6
+    z[:, holes] = 1.2
+    shadow = projector_shadow(z, CAM.fx, 0.1)
+    assert not shadow[:, ~holes].any()  # the sheet is lit
+    # ground pixel u is lit iff no sheet pixel's footprint covers its projector column u - fx b / 1.2;
+    # sheet pixel u' covers u' - fx b / 0.8 +- 0.5, so the one over u is u' = round(u + 4.17) = u + 4
+    u = np.flatnonzero(holes)[5:-5]
+    assert CAM.fx * 0.1 * (1 / 0.8 - 1 / 1.2) == pytest.approx(4.1667, abs=1e-4)
+    assert np.array_equal(~shadow[:, u], np.broadcast_to(holes[u + 4], (10, len(u))))
+    assert 0.2 < (~shadow[0, u]).mean() < 0.8  # some of the ground is lit, some is not
+    # where the sheet ends (ground left of u = 100), only the band beside its edge is in shadow:
+    # the ground pixels whose column u - 8.33 reaches the sheet's footprint, 100 - 12.5 - 0.5
+    edge = np.full((10, 400), 0.8)
+    edge[:, :100] = 1.2
+    assert np.flatnonzero(projector_shadow(edge, CAM.fx, 0.1).any(axis=0)).tolist() == [96, 97, 98, 99]
 
 
 def test_axial_noise_follows_the_nguyen_law() -> None:

@@ -7,11 +7,11 @@ with parameters in physical units:
 1. **Projector shadows** (structured light; ``baseline_m`` > 0). The projector sits ``baseline_m``
    to the camera's +x with the camera's orientation and intrinsics, so a point seen at pixel
    (u, v) with depth z is lit from projector column ``u_p = u - fx b / z`` on the same row
-   (camera and projector rows coincide: epipolar lines are image rows). Along a row, lit surface
-   points keep their order in both views; a point whose ``u_p`` exceeds that of any point to its
-   right (smaller z, on the projector ray between it and the projector) is in shadow: no depth.
-   This uses the surfaces the camera sees (the standard depth-map approximation; an occluder
-   invisible to the camera casts no shadow).
+   (camera and projector rows coincide: epipolar lines are image rows). A point is in shadow (no
+   depth) when a nearer surface covers its projector column: a depth buffer of the projector per
+   row, each pixel covering its footprint (``u_p`` ± 0.5), so the projector lights through the
+   holes of a perforated sheet what lies behind it. This uses the surfaces the camera sees (the
+   standard depth-map approximation; an occluder invisible to the camera casts no shadow).
 2. **Depth edges** (a jump larger than ``edge_jump_m`` between neighbours): the far side loses
    ``edge_missing_px`` pixels with probability ``edge_missing_prob`` (the correlation window of
    structured light, the blurred return of time of flight); with probability
@@ -47,9 +47,17 @@ from typing import Any
 
 import cv2
 import numpy as np
+import torch
 
 from opnet.geometry.camera import Camera
 from opnet.synthesis.config import from_known_keys
+
+#: a surface casts a shadow on a point only when it is this much nearer (metres, and relative to
+#: the depth): a surface does not shadow itself where it slopes within a pixel's footprint
+SHADOW_TOLERANCE = 0.003
+SHADOW_TOLERANCE_REL = 0.003
+#: the projector's depth buffer has this many bins per pixel
+SHADOW_SUBPIXELS = 4
 
 #: entropy tag of the sensor's random stream (SeedSequence([seed, cycle, scene, SENSOR_STREAM]))
 SENSOR_STREAM = 0x5E45
@@ -182,14 +190,38 @@ class SensorModel:
 
 def projector_shadow(z: np.ndarray, fx: float, baseline_m: float) -> np.ndarray:
     """(H, W) bool: pixels whose surface point the projector ``baseline_m`` to the camera's +x does
-    not light (module doc, step 1). NaN depth casts no shadow and gets none."""
-    W = z.shape[1]
-    u = np.arange(W, dtype=np.float64)[None, :]
-    u_p = np.where(np.isfinite(z), u - fx * baseline_m / z, np.inf)
-    # smallest projector column among the pixels strictly to the right, per row
-    right_min = np.minimum.accumulate(u_p[:, ::-1], axis=1)[:, ::-1]
-    right_min = np.concatenate([right_min[:, 1:], np.full((z.shape[0], 1), np.inf)], axis=1)
-    return np.isfinite(z) & (u_p > right_min)
+    not light (module doc, step 1). NaN depth casts no shadow and gets none.
+
+    A depth buffer of the projector, row by row: every pixel covers the projector columns of its
+    footprint, ``u_p`` ± 0.5 in quarter-pixel bins (consecutive pixels of a surface overlap, so a surface leaves no gap),
+    and a pixel is in shadow when a surface more than :data:`SHADOW_TOLERANCE` nearer covers its
+    own projector column. Through the holes of a perforated sheet the projector lights what lies
+    behind wherever its ray passes a hole, as a real one does (an ordering test along the row
+    would shadow everything behind the sheet)."""
+    H, W = z.shape
+    valid = np.isfinite(z) & (z > 0)
+    if not valid.any():
+        return valid
+    rows, cols = np.nonzero(valid)
+    depth = z[rows, cols]
+    # projector columns in bins of 1 / SHADOW_SUBPIXELS px, counted from the smallest
+    u_p = (cols - fx * baseline_m / depth) * SHADOW_SUBPIXELS
+    u_p -= math.floor(float(u_p.min())) - SHADOW_SUBPIXELS
+    bins = math.ceil(float(u_p.max())) + 2 * SHADOW_SUBPIXELS
+    first = np.floor(u_p - SHADOW_SUBPIXELS / 2).astype(np.int64)  # the footprint's bins
+    last = np.ceil(u_p + SHADOW_SUBPIXELS / 2).astype(np.int64) - 1
+    index, values = [], []
+    for k in range(SHADOW_SUBPIXELS + 1):
+        take = first + k <= last
+        index.append(rows[take] * bins + first[take] + k)
+        values.append(depth[take])
+    # a scatter-min (order-free, so deterministic); torch's is ~10x numpy's minimum.at
+    buffer = torch.full((H * bins,), math.inf, dtype=torch.float64)
+    buffer.scatter_reduce_(0, torch.from_numpy(np.concatenate(index)), torch.from_numpy(np.concatenate(values)), "amin")
+    nearest = buffer.numpy()[rows * bins + np.floor(u_p).astype(np.int64)]
+    out = np.zeros((H, W), dtype=bool)
+    out[rows, cols] = nearest < depth - np.maximum(SHADOW_TOLERANCE, SHADOW_TOLERANCE_REL * depth)
+    return out
 
 
 def _depth_edges(z: np.ndarray, jump: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
