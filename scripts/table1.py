@@ -2,6 +2,8 @@
 
     python scripts/table1.py --objects bunny,ring_screw,gear_shaft --seeds 0 1 2 --steps 1350
     python scripts/table1.py --collect            # only re-make results/table1/ from the finished runs
+    python scripts/table1.py --combine results/table1/vanilla_eve_ap results/table1/z_mp_si
+                                                  # one table from tables made at different times
 
 Each arm is ``python train.py experiment=table1 object=O parameterization=P seed=S
 trainer.max_steps=N`` in ``--runs-dir``/``P_O_sS`` (its console in ``console.log``); an arm whose
@@ -15,6 +17,12 @@ two of three objects; EVE >= vanilla). The table comes twice: with the configure
 settings tuned once on bunny-vanilla, ``decoding=tuned``), and with the decoding of each arm tuned on
 its own validation split (``scripts/tune_decoding.py``, cached in the arm's ``decoding_tuned.json``;
 ``--no-tune`` skips it), then scored on the held-out test split.
+
+``--combine DIR ...`` makes ``--out`` from tables this script wrote earlier (each ``DIR`` with its
+``table1.csv`` and the machine line of its ``README.md``; a table made on another machine or day
+keeps its source named beside every row): one table in the paper's order, the first ``DIR`` that
+has a cell giving it, and the cells two tables both have side by side (the same arms on two
+machines: how far the rest of the table compares).
 
 ``experiment=table1`` (conf/experiment/table1.yaml) is the small preset on 20-part piles
 generated once per object. The default budget, 1350 steps of batch 16 per arm, is the quickstart's
@@ -54,6 +62,10 @@ PAPER = {
     "si": {"bunny": 0.30, "ring_screw": 0.56, "gear_shaft": 0.88},
 }
 DEFAULT_STEPS = 1350
+#: the two decodings of every table, as its README names them
+DECODINGS = {"configured": "configured (`decoding=tuned`: the bunny-vanilla settings for every arm)",
+             "tuned on val": ("tuned per arm on its own validation split (`scripts/tune_decoding.py`; the test split "
+                              "never seen by the tuning)")}
 
 
 def _names(folder: str) -> list[str]:
@@ -84,7 +96,14 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--no-tune", dest="tune", action="store_false",
                     help="skip tuning each arm's decoding on its validation split")
     ap.add_argument("--dry-run", action="store_true", help="print the arms' commands, run nothing")
+    ap.add_argument("--combine", nargs="+", type=Path, default=None, metavar="DIR",
+                    help="only merge tables written earlier (DIR/table1.csv) into --out")
     args = ap.parse_args(argv)
+    if args.combine is not None:
+        missing = [str(d) for d in args.combine if not (d / "table1.csv").is_file()]
+        if missing:
+            raise ValueError(f"--combine: no table1.csv in {missing}")
+        return args
     args.objects = _choice(args.objects, _names("object"), "--objects")
     args.parameterizations = _choice(args.parameterizations, _names("parameterization"), "--parameterizations")
     if not args.seeds:
@@ -185,11 +204,9 @@ def report(rows: list[dict[str, object]], steps: int, requested: int | None = No
     w = csv.writer(buf)
     w.writerow(["decoding", "parameterization", "object", "runs", "ap_mean", "ap_sd", "paper", "found", "t_err_mm_p50",
                 "r_err_deg_p50"])
-    blocks = [("configured (`decoding=tuned`: the bunny-vanilla settings for every arm)", "configured", rows)]
+    blocks = [(DECODINGS["configured"], "configured", rows)]
     if tuned:
-        title = ("tuned per arm on its own validation split (`scripts/tune_decoding.py`; the test split "
-                 "never seen by the tuning)")
-        blocks.append((title, "tuned on val", tuned))
+        blocks.append((DECODINGS["tuned on val"], "tuned on val", tuned))
     for title, key, block in blocks:
         lines += [f"Decoding {title}:", ""]
         lines += _table(block, key, w)
@@ -273,12 +290,87 @@ def arms_csv(rows: list[dict[str, object]], tuned: list[dict[str, object]] | Non
     return buf.getvalue()
 
 
+def _source_machine(folder: Path) -> str:
+    readme = folder / "README.md"
+    lines = readme.read_text().splitlines() if readme.is_file() else []
+    found = next((line for line in lines if line.startswith("Machine:")), None)
+    return found.removeprefix("Machine:").split("(the arms'")[0].strip().rstrip(",") if found else "not recorded"
+
+
+def combine(folders: list[Path], rel_to: Path) -> tuple[str, str]:
+    """(README.md text, table1.csv text) of one table merged from the tables in ``folders``."""
+    sources, first, both = [], {}, []
+    for k, folder in enumerate(folders, 1):
+        rows = list(csv.DictReader((folder / "table1.csv").open()))
+        sources.append((k, folder, _source_machine(folder), rows))
+        for r in rows:
+            key = (r["decoding"], r["parameterization"], r["object"])
+            if key in first:
+                both.append((first[key], (k, r)))
+            else:
+                first[key] = (k, r)
+    order = {p: i for i, p in enumerate(compare_runs.PAPER_ORDER)}
+    keys = sorted(first, key=lambda key: (key[0] != "tuned on val", order.get(key[1], 99), key[2]))
+    objects = list(dict.fromkeys(key[2] for key in keys))
+    cell = lambda r: f"{float(r['ap_mean']):.3f} ± {float(r['ap_sd']):.3f} ({r['runs']})"  # noqa: E731
+    lines = ["# Table I", "",
+             "Held-out test AP (Brégier, max occlusion 0.5), mean ± sample sd over seeds (runs), per parameterization "
+             "and object; the paper's Table I value in brackets; the source table of each row as [k]. Merged by "
+             f"`python scripts/table1.py --combine {' '.join(os.path.relpath(f, REPO) for f in folders)}` from:", ""]
+    for k, folder, where, rows in sources:
+        params = ", ".join(dict.fromkeys(r["parameterization"] for r in rows))
+        lines.append(f"- [{k}] [`{os.path.relpath(folder, rel_to)}/`]({os.path.relpath(folder, rel_to)}/README.md): "
+                     f"{params}; machine: {where}")
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["decoding", "parameterization", "object", "runs", "ap_mean", "ap_sd", "paper", "found", "t_err_mm_p50",
+                "r_err_deg_p50", "source"])
+    for decoding in dict.fromkeys(key[0] for key in keys):
+        lines += ["", f"Decoding {DECODINGS.get(decoding, decoding)}:", "",
+                  "| parameterization | " + " | ".join(objects) + " | source |", "|" + "---|" * (len(objects) + 2)]
+        cells: dict[tuple[str, str], list[float]] = {}
+        for p in dict.fromkeys(key[1] for key in keys if key[0] == decoding):
+            texts, used = [], set()
+            for o in objects:
+                k_r = first.get((decoding, p, o))
+                if k_r is None:
+                    texts.append("–")
+                    continue
+                k, r = k_r
+                used.add(k)
+                cells[(p, o)] = [float(r["ap_mean"])]
+                texts.append(cell(r) + (f" [{float(r['paper']):.2f}]" if r["paper"] else ""))
+                w.writerow([r[c] for c in ("decoding", "parameterization", "object", "runs", "ap_mean", "ap_sd", "paper",
+                                           "found", "t_err_mm_p50", "r_err_deg_p50")] + [k])
+            lines.append(f"| {p} | " + " | ".join(texts) + " | " + ", ".join(f"[{k}]" for k in sorted(used)) + " |")
+        lines += ["", *checks(cells, objects)]
+    if both:
+        lines += ["", "The same arms in two tables (the first is the one above):", "",
+                  "| decoding | parameterization | object | first | second |", "|---|---|---|---|---|"]
+        lines += [f"| {a[1]['decoding']} | {a[1]['parameterization']} | {a[1]['object']} | {cell(a[1])} [{a[0]}] | "
+                  f"{cell(b[1])} [{b[0]}] |" for a, b in both]
+    return "\n".join(lines) + "\n", buf.getvalue()
+
+
+def _write(out: Path, files: dict[str, str]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    for name, body in files.items():
+        tmp = out / f".{name}.tmp"
+        tmp.write_text(body)
+        os.replace(tmp, out / name)
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = parse(argv)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    if args.combine is not None:
+        text, table_csv = combine(args.combine, args.out)
+        _write(args.out, {"README.md": text, "table1.csv": table_csv})
+        print(text)
+        return 0
     todo = arms(args)
     if args.dry_run:
         for _, cmd in todo:
@@ -293,11 +385,7 @@ def main(argv: list[str] | None = None) -> int:
     tuned = with_tuned(rows, args.runs_dir) if args.tune else None
     text, table_csv = report(rows, args.steps, len(todo), tuned)
     text += f"Machine: {machine()} (the arms' training path); every arm's seed in `arms.csv`.\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    for name, body in (("README.md", text), ("table1.csv", table_csv), ("arms.csv", arms_csv(rows, tuned))):
-        tmp = args.out / f".{name}.tmp"
-        tmp.write_text(body)
-        os.replace(tmp, args.out / name)
+    _write(args.out, {"README.md": text, "table1.csv": table_csv, "arms.csv": arms_csv(rows, tuned)})
     print(text)
     return 1 if failed else 0
 

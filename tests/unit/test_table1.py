@@ -97,3 +97,30 @@ def test_arms_csv_keeps_every_seed_with_its_tuned_score_and_the_machine() -> Non
     assert lines[1].startswith("z,bunny,0,0.500000,") and ",,," in lines[1]  # seed 0: not tuned
     assert lines[2].startswith("z,bunny,1,0.600000,") and ",0.650000,0.500000,z_bunny_s1," in lines[2]
     assert lines[2].endswith(table1.machine()) or table1.machine() in lines[2]
+
+
+def test_combine_merges_tables_of_two_machines_naming_each_rows_source(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    old, new, out = tmp_path / "old", tmp_path / "new", tmp_path / "all"
+    for folder, params, recorded in ((old, ("vanilla", "ap"), False), (new, ("z", "vanilla"), True)):
+        runs = tmp_path / f"runs_{folder.name}"
+        for p in params:
+            for seed in range(3):
+                _arm(runs, p, "bunny", seed, {"vanilla": 0.5, "ap": 0.6, "z": 0.55}[p] + (0.01 * seed if folder == new else 0))
+        assert table1.main(["--objects", "bunny", "--parameterizations", ",".join(params), "--runs-dir", str(runs),
+                            "--out", str(folder), "--collect", "--no-tune"]) == 0
+        if not recorded:  # a table of this script names its machine; an older one may not
+            (folder / "README.md").write_text("".join(x for x in (folder / "README.md").read_text().splitlines(True)
+                                                      if not x.startswith("Machine:")))
+    assert table1.main(["--combine", str(old), str(new), "--out", str(out)]) == 0
+    text = (out / "README.md").read_text()
+    assert "- [1] [`../old/`](../old/README.md): vanilla, ap; machine: not recorded" in text
+    assert f"- [2] [`../new/`](../new/README.md): vanilla, z; machine: {table1.machine()}\n" in text
+    # the paper's order; vanilla from the first table, z from the second
+    assert text.index("| vanilla | 0.500 ± 0.000 (3) [0.92] | [1] |") < text.index("| ap | 0.600") < text.index("| z | 0.560 ± 0.010 (3) [0.85] | [2] |")
+    assert "- ap >= vanilla on 1 of 1 objects (bunny); needed 1: holds" in text
+    assert "| configured | vanilla | bunny | 0.500 ± 0.000 (3) [1] | 0.510 ± 0.010 (3) [2] |" in text
+    rows = (out / "table1.csv").read_text().splitlines()
+    assert rows[0].endswith(",source") and len(rows) == 4 and rows[3].startswith("configured,z,bunny,3,0.56") and rows[3].endswith(",2")
+    capsys.readouterr()
+    assert table1.main(["--combine", str(tmp_path / "nothing"), "--out", str(out)]) == 2
+    assert "--combine: no table1.csv in" in capsys.readouterr().err
