@@ -19,6 +19,7 @@ in the README, ``../results/...`` in a docs page):
 | sensor | ``results/sensor/{holes,ab}.csv`` (``scripts/sensor_table.py``, ``scripts/sensor_ab.py``) |
 | real_frame | ``results/real_frame/summary.json`` (``scripts/real_frame.py``) |
 | framing | ``results/framing/framing.csv`` (``scripts/framing_table.py``) |
+| real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/real_ipd.py``) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
 | pictures_method | the ceiling chart |
@@ -284,6 +285,18 @@ def block_framing(results: Path, prefix: str = "") -> str:
                    "test AP"], rows) + "\n"
 
 
+def block_real_ipd(results: Path, prefix: str = "") -> str:
+    """The real Photoneo frames of IPD object 18 with their ground truth (scripts/real_ipd.py)."""
+    pct = lambda v: f"{100 * float(v):.1f}"  # noqa: E731
+    rows = [[r["visibility"], r["refine"], r["required"], f"**{float(r['ap']):.3f}**", pct(r["found"]),
+             pct(r["no_hypothesis"]), pct(r["position"]), pct(r["orientation"]), f"{float(r['confident_fp_per_frame']):.1f}",
+             "–" if r["t_err_mm_p50"] in ("", "nan") else f"{float(r['t_err_mm_p50']):.1f} / {float(r['r_err_deg_p50']):.1f}",
+             f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
+            for r in _csv(results / "real_ipd" / "real_ipd.csv")]
+    return _table(["visibility", "refine", "required", "**AP**", "found %", "no hypothesis %", "position %",
+                   "orientation %", "confident FP / frame", "t mm / r ° p50", "ICP ms / frame"], rows) + "\n"
+
+
 PICTURES = [
     ("quickstart/overlay.png", "Quickstart: the densest held-out scene, each estimated part's model drawn on the depth image"),
     ("quickstart/pr_curve.png", "Quickstart: the test split's precision-recall curve (Brégier protocol)"),
@@ -323,7 +336,8 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "speed": block_speed, "benchmarks": block_benchmarks, "pictures": block_pictures,
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
           "real_frame": block_real_frame, "pictures_data": block_pictures_data,
-          "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense}
+          "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense,
+          "real_ipd": block_real_ipd}
 
 
 def docs_pages(docs: Path = DOCS) -> dict[Path, str]:

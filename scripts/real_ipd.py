@@ -23,6 +23,14 @@ What a user with their own cell would do, step by step (each step is a command o
    official values read like a depth-agreement test, 0.10 for a part whose mask is 98 % unoccluded).
 
 Writes ``README.md``, ``real_ipd.csv`` and the overlays of the three frames to ``--out``.
+
+    python scripts/real_ipd.py --ab results/real_ipd/ab   # the A/B table of the arms kept there
+
+``--ab DIR`` writes ``DIR/../ab.md``: one line per arm (a subfolder of ``DIR`` holding the
+``README.md`` and ``real_ipd.csv`` a run of this script wrote, and a one-line ``change.txt``, in
+name order): what it changes, its command, AP on the
+generated piles of another seed, and AP, found %, no hypothesis % and position % on the three real
+frames (official ``visib_fract``, without and with ICP).
 """
 
 from __future__ import annotations
@@ -169,7 +177,43 @@ def _ms(value: Any) -> str:
     return "" if value in ("", None) else f"{float(value):.0f}"
 
 
+def ab_table(folder: Path) -> str:
+    """The A/B table (markdown) of the arms kept as subfolders of ``folder``."""
+    import re
+
+    lines = ["# Real IPD frames: what each change of the recipe is worth", "",
+             "Each arm is one run of `scripts/real_ipd.py` (the command in the row; the same ROI, clip planes, camera "
+             "pose, basket and 200 cycles x 2 views unless the row says otherwise), scored on the three real frames "
+             "(official `visib_fract`) and on 240 generated scenes of another seed. Made by "
+             f"`python scripts/real_ipd.py --ab {os.path.relpath(folder, REPO)}`.", "",
+             "| arm | what changes | command | generated piles AP | real AP | real AP, ICP | found % | no hypothesis % | "
+             "position % |", "|---|---|---|---|---|---|---|---|---|"]
+    for arm in sorted(p for p in folder.iterdir() if (p / "real_ipd.csv").is_file()):
+        text = (arm / "README.md").read_text()
+        command = re.search(r"\(`(python scripts/real_ipd\.py[^`]*)`\)", text)
+        synthetic = re.search(r"test split\): AP (\d\.\d+)", text)
+        rows = {(r["visibility"], r["refine"]): r for r in csv.DictReader((arm / "real_ipd.csv").open())}
+        plain, icp = rows[("official visib_fract", "none")], rows[("official visib_fract", "icp")]
+        pct = lambda v: f"{100 * float(v):.1f}"  # noqa: E731
+        shown = re.sub(r" --(run-dir|out) \S+", "", command.group(1)) if command else "?"
+        change = (arm / "change.txt").read_text().strip() if (arm / "change.txt").is_file() else ""
+        lines.append(f"| {arm.name} | {change} | `{shown}` | {synthetic.group(1) if synthetic else '?'} | "
+                     f"**{float(plain['ap']):.3f}** | {float(icp['ap']):.3f} | {pct(plain['found'])} | "
+                     f"{pct(plain['no_hypothesis'])} | {pct(plain['position'])} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["--ab"]:
+        if len(argv) != 2 or not Path(argv[1]).is_dir():
+            print("error: --ab takes one folder of kept arms (e.g. results/real_ipd/ab)", file=sys.stderr)
+            return 2
+        folder = Path(argv[1]).resolve()
+        (folder.parent / "ab.md").write_text(ab_table(folder))
+        print((folder.parent / "ab.md").read_text())
+        return 0
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--roi", type=int, nargs=4, default=[560, 230, 1250, 1160], metavar=("X0", "Y0", "X1", "Y1"))
     ap.add_argument("--clip", type=float, nargs=2, default=[1.55, 2.05], metavar=("NEAR", "FAR"))
