@@ -224,7 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clutter", type=int, default=0, help="foreign pieces on the basket floor per pile (scene.clutter)")
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--extra", nargs="*", default=[], help="further train.py overrides")
-    ap.add_argument("--stage", choices=("all", "generate", "train", "eval"), default="all")
+    ap.add_argument("--stage", choices=("all", "generate", "train", "eval", "report"), default="all",
+                    help="report: only re-make --out from the evaluations already in --run-dir")
     ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "real_ipd")
     ap.add_argument("--run-dir", type=Path, default=REPO / "outputs" / "real_ipd" / "run")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "real_ipd")
@@ -238,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     train_root = args.data_dir / f"train_c{args.cycles}_v{args.views}_d{args.drops}_s0{tag}"
     test_root = args.data_dir / f"test_c{args.test_cycles}_d{args.drops}_s1{tag}"
     started = time.perf_counter()
-    if args.stage in ("all", "generate"):
+    if args.stage in ("all", "generate") and args.stage != "report":
         generate(camera, train_root, args.cycles, args.drops, args.views, 0, logs, args.clutter)
         generate(camera, test_root, args.test_cycles, args.drops, 1, 1, logs, args.clutter)
     gen_minutes = (time.perf_counter() - started) / 60
@@ -247,16 +248,39 @@ def main(argv: list[str] | None = None) -> int:
     if args.stage == "generate":
         return 0
     ckpt = best_checkpoint(args.run_dir)
-    splits = {"official visib_fract": FRAMES / "test", "mask visibility": mask_visibility_split(args.data_dir / "ipd_mask_visib")}
     rows, evals = [], args.run_dir / "eval_real"
-    for visibility, split in splits.items():
+    for visibility in ("official visib_fract", "mask visibility"):
         for icp in (False, True):
             tag = f"{'official' if visibility.startswith('official') else 'masks'}{'_icp' if icp else ''}"
-            rows.append(row(evaluate(ckpt, split, evals / tag, args.roi, args.clip, icp), visibility,
-                            "icp" if icp else "none"))
+            if args.stage == "report":
+                summary = json.loads((evals / tag / "summary.json").read_text())
+            else:
+                split = FRAMES / "test" if tag.startswith("official") else mask_visibility_split(args.data_dir / "ipd_mask_visib")
+                summary = evaluate(ckpt, split, evals / tag, args.roi, args.clip, icp)
+            rows.append(row(summary, visibility, "icp" if icp else "none"))
     synthetic = json.loads((args.run_dir / "test" / "summary.json").read_text())
     write_results(args, rows, evals, ckpt, synthetic, gen_minutes)
     return 0
+
+
+def _recipe_argv() -> list[str]:
+    """This run's arguments as the command that makes its numbers (``--stage report`` only re-wrote them)."""
+    argv = sys.argv[1:]
+    k = argv.index("--stage") if "--stage" in argv else -1
+    return argv[:k] + argv[k + 2:] if k >= 0 and argv[k + 1:k + 2] == ["report"] else argv
+
+
+def per_frame(folder: Path) -> list[tuple[str, Any, float]]:
+    """(frame, its error diagnostics, its AP) of an evaluation folder of eval.py (its gt/ and results/)."""
+    from opnet.datasets.sileane_json import read_scene_pairs
+    from opnet.metrics.diagnostics import diagnose
+    from opnet.objects.bop import bop_object
+
+    obj = bop_object(FRAMES / "models", OBJECT_ID)
+    per_scene = json.loads((folder / "summary.json").read_text())["per_scene"]
+    pairs = read_scene_pairs(folder / "gt", folder / "results")
+    return [(name, diagnose({name: pair}, obj.pose_space, obj.diameter), float(per_scene[name]))
+            for name, pair in pairs.items()]
 
 
 def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: Path, ckpt: Path,
@@ -271,7 +295,7 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
         shutil.copyfile(png, out / f"overlay_{png.name}")
     pct = lambda x: f"{100 * x:.1f}"  # noqa: E731
     lines = ["# Real Photoneo frames of IPD object 18, scored with their ground truth", "",
-             f"The recipe of `scripts/real_ipd.py` (`python scripts/real_ipd.py {' '.join(sys.argv[1:])}`): "
+             f"The recipe of `scripts/real_ipd.py` (`python scripts/real_ipd.py {' '.join(_recipe_argv())}`): "
              f"region of interest {args.roi}, clip planes {args.clip} m, {args.cycles} generated cycles "
              f"({args.views} views per pile, up to {args.drops} plates), EVE, {args.steps} steps; checkpoint "
              f"`{os.path.relpath(ckpt, REPO)}`. AP: Brégier, max occlusion 0.5, over the three frames "
@@ -286,6 +310,14 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
                      f"{r['t_err_mm_p90']:.1f} | {r['r_err_deg_p50']:.1f} / {r['r_err_deg_p90']:.1f} | "
                      f"{_ms(r['ms_per_frame'])} |")
     lines += ["", f"On generated piles of another seed (the training's test split): AP {synthetic['ap']:.3f}.", ""]
+    lines += ["Per frame (official `visib_fract`; without / with ICP): what limits the score, part by part.", "",
+              "| frame | refine | AP | required | found | no hypothesis | position | orientation | hypotheses | "
+              "confident (≥ 0.5) false positives |", "|" + "---|" * 10]
+    for tag, refine in (("official", "none"), ("official_icp", "icp")):
+        for name, d, ap_frame in per_frame(evals / tag):
+            lines.append(f"| {name} | {refine} | {ap_frame:.3f} | {d.to_find} | {d.matched} | {d.no_hypothesis} | "
+                         f"{d.position} | {d.orientation} | {d.hypotheses} | {d.confident_false_positives} |")
+    lines.append("")
     lines += [f"![frame {p.stem}]({p.name})" for p in sorted(out.glob("overlay_*.png"))]
     (out / "README.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
