@@ -17,7 +17,8 @@ What a user with their own cell would do, step by step (each step is a command o
    floor, tilted 19.9 degrees towards azimuth -30.3), jittered; a perforated basket (square holes
    through floor and walls, standing off the ground, the ground beyond the far plane written at it:
    ``scene.outside_clip=clamp``) of any yaw; ``--clutter`` foreign discs and flat boxes on its floor
-   (``scene.clutter``); up to ``--drops`` plates. The defaults are the recipe that scored best on the
+   (``scene.clutter``); ``--holes`` basket meshes (several: the cycles shared out among them); up
+   to ``--drops`` plates. The defaults are the recipe that scored best on the
    real frames (results/real_ipd/ab.md).
 4. **Training** (``train.py``), scored on generated piles of another seed.
 5. **Evaluation** of the real frames (``eval.py data=bop ... +data.roi=<box> +data.clip=<planes>``),
@@ -101,16 +102,18 @@ def roi_camera(roi: list[int], clip: list[float], out: Path) -> Path:
 
 
 def generate(camera: Path, out: Path, cycles: int, drops: int, views: int, seed: int, logs: Path,
-             clutter: int = 0) -> None:  # fmt: skip
+             clutter: int = 0, holes: tuple[float, float] | None = None) -> None:  # fmt: skip
     scene = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
-             **({"clutter": clutter} if clutter else {})}
+             **({"clutter": clutter} if clutter else {}),
+             **({"bin_hole_size": holes[0], "bin_hole_pitch": holes[1]} if holes else {})}
     run([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", f"cycles={cycles}", f"drops={drops}",
          "workers=2", f"seed={seed}", f"out={out}", "progress=false", "previews=4",
          *(f"scene.{k}={v}" for k, v in scene.items())], logs / f"generate_{out.name}.log")  # fmt: skip
 
 
-def train(train_root: Path, test_root: Path, run_dir: Path, steps: int, extra: list[str]) -> None:
-    run([sys.executable, "train.py", "object=ipd_plate", "data=ipa", f"data.root={train_root}", "data.generate=null",
+def train(train_roots: list[Path], test_root: Path, run_dir: Path, steps: int, extra: list[str]) -> None:
+    root = str(train_roots[0]) if len(train_roots) == 1 else "[" + ",".join(map(str, train_roots)) + "]"
+    run([sys.executable, "train.py", "object=ipd_plate", "data=ipa", f"data.root={root}", "data.generate=null",
          f"data.test_root={test_root}", "parameterization=eve", "augmentation.p_rotate=0.5",
          f"trainer.max_steps={steps}", "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
          *extra, f"hydra.run.dir={run_dir}"], run_dir / "console.log")  # fmt: skip
@@ -226,6 +229,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--drops", type=int, default=10)
     ap.add_argument("--clutter", type=int, default=8, help="foreign pieces on the basket floor per pile (scene.clutter)")
     ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--holes", default=f"{BASKET['bin_hole_size']}:{BASKET['bin_hole_pitch']}",
+                    help="basket meshes, SIZE:PITCH metres, comma-separated: the training cycles shared out among "
+                         "them (domain randomization of the basket); the test piles use the first")
     ap.add_argument("--extra", nargs="*", default=[], help="further train.py overrides")
     ap.add_argument("--stage", choices=("all", "generate", "train", "eval", "report"), default="all",
                     help="report: only re-make --out from the evaluations already in --run-dir")
@@ -233,21 +239,37 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--run-dir", type=Path, default=REPO / "outputs" / "real_ipd" / "run")
     ap.add_argument("--out", type=Path, default=REPO / "results" / "real_ipd")
     args = ap.parse_args(argv)
+    given = args.holes
+    try:
+        args.holes = [tuple(float(v) for v in h.split(":")) for h in given.split(",")]
+        if any(len(h) != 2 or not 0 < h[0] < h[1] for h in args.holes):
+            raise ValueError
+    except ValueError:
+        print(f"error: --holes {given!r}: expected SIZE:PITCH[,SIZE:PITCH...] metres, 0 < SIZE < PITCH", file=sys.stderr)
+        return 2
     if not (FRAMES / "test").is_dir():
         print(f"error: {FRAMES}: the real frames are not there (../shared, or OPNET_SHARED)", file=sys.stderr)
         return 2
     logs = args.run_dir.parent / "logs"
     camera = roi_camera(args.roi, args.clip, args.data_dir / "camera_roi.yaml")
     tag = ("_clamp" if BASKET.get("outside_clip") == "clamp" else "") + (f"_k{args.clutter}" if args.clutter else "")
-    train_root = args.data_dir / f"train_c{args.cycles}_v{args.views}_d{args.drops}_s0{tag}"
+    # one training set per basket mesh (--holes), the cycles shared out; the test set has the first
+    default_holes = (BASKET["bin_hole_size"], BASKET["bin_hole_pitch"])
+    variants = []
+    for k, holes in enumerate(args.holes):
+        cycles = args.cycles // len(args.holes) + (k < args.cycles % len(args.holes))
+        name = f"train_c{cycles}_v{args.views}_d{args.drops}_s{k}{tag}"
+        name += "" if holes == default_holes else f"_h{holes[0] * 1000:g}-{holes[1] * 1000:g}"
+        variants.append((args.data_dir / name, cycles, k, holes))
     test_root = args.data_dir / f"test_c{args.test_cycles}_d{args.drops}_s1{tag}"
     started = time.perf_counter()
     if args.stage in ("all", "generate") and args.stage != "report":
-        generate(camera, train_root, args.cycles, args.drops, args.views, 0, logs, args.clutter)
+        for root, cycles, k, holes in variants:
+            generate(camera, root, cycles, args.drops, args.views, k, logs, args.clutter, holes)
         generate(camera, test_root, args.test_cycles, args.drops, 1, 1, logs, args.clutter)
     gen_minutes = (time.perf_counter() - started) / 60
     if args.stage in ("all", "train"):
-        train(train_root, test_root, args.run_dir, args.steps, args.extra)
+        train([root for root, *_ in variants], test_root, args.run_dir, args.steps, args.extra)
     if args.stage == "generate":
         return 0
     ckpt = best_checkpoint(args.run_dir)
