@@ -263,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
         variants.append((args.data_dir / name, cycles, k, holes))
     test_root = args.data_dir / f"test_c{args.test_cycles}_d{args.drops}_s1{tag}"
     started = time.perf_counter()
-    if args.stage in ("all", "generate") and args.stage != "report":
+    if args.stage in ("all", "generate"):
         for root, cycles, k, holes in variants:
             generate(camera, root, cycles, args.drops, args.views, k, logs, args.clutter, holes)
         generate(camera, test_root, args.test_cycles, args.drops, 1, 1, logs, args.clutter)
@@ -274,14 +274,16 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     ckpt = best_checkpoint(args.run_dir)
     rows, evals = [], args.run_dir / "eval_real"
-    for visibility in ("official visib_fract", "mask visibility"):
+    for visibility, name in (("official visib_fract", "official"), ("mask visibility", "masks")):
+        # the split with the masks' visibility is rendered once, for both refinements
+        split = None if args.stage == "report" else (
+            FRAMES / "test" if name == "official" else mask_visibility_split(args.data_dir / "ipd_mask_visib"))
         for icp in (False, True):
-            tag = f"{'official' if visibility.startswith('official') else 'masks'}{'_icp' if icp else ''}"
-            if args.stage == "report":
-                summary = json.loads((evals / tag / "summary.json").read_text())
+            folder = evals / f"{name}{'_icp' if icp else ''}"
+            if split is None:
+                summary = json.loads((folder / "summary.json").read_text())
             else:
-                split = FRAMES / "test" if tag.startswith("official") else mask_visibility_split(args.data_dir / "ipd_mask_visib")
-                summary = evaluate(ckpt, split, evals / tag, args.roi, args.clip, icp)
+                summary = evaluate(ckpt, split, folder, args.roi, args.clip, icp)
             rows.append(row(summary, visibility, "icp" if icp else "none"))
     synthetic = json.loads((args.run_dir / "test" / "summary.json").read_text())
     write_results(args, rows, evals, ckpt, synthetic, gen_minutes)
