@@ -1,14 +1,19 @@
 """ICP refinement A/B (issue 26): the same network outputs scored without and with ICP.
 
     python scripts/icp_ab.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/<best>.ckpt \\
-        [--ckpt ...] [--split test] [--budget-ms 100 none] [--out results/icp]
+        [--ckpt ...] [--split test] [--budget-ms 100 none] [--search] [--decoding averaging=false] \\
+        [--data test_root=<dataset> --data cache=false] [--out results/icp]
 
 Per checkpoint the network runs once over the split (held-out scenes); the hypotheses are then
 scored as decoded and refined with ``conf/refine/icp.yaml``'s settings at each time budget per
-image (``none``: every hypothesis). Printed and written to ``--out``/``ab.md`` and ``ab.csv``: AP
-(Brégier, max occlusion 0.5), parts found, matched translation / rotation error p50 and p90, ICP
-milliseconds per image and how many hypotheses were refined, rejected by the guard, skipped for
-want of depth, or left by the budget.
+image (``none``: every hypothesis), and with ``--search`` by ``conf/refine/search.yaml`` (ICP and
+the depth-agreement search, no budget). ``--decoding KEY=VALUE`` overrides the checkpoint's
+decoding as ``eval.py decoding=`` does, ``--data KEY=VALUE`` its data section (another test set,
+the scene cache off: refinement at the dataset's own resolution). Printed and written to
+``--out``/``ab.md`` and ``ab.csv``: AP (Brégier, max occlusion 0.5), parts found, matched
+translation / rotation error p50 and p90, refinement milliseconds per image and how many
+hypotheses were refined, searched, dropped as duplicates, rejected by the guard, skipped for want
+of depth, or left by the budget.
 """
 
 from __future__ import annotations
@@ -30,8 +35,8 @@ import torch  # noqa: E402
 from omegaconf import OmegaConf  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
-from opnet.cli.eval import refine_scenes  # noqa: E402
-from opnet.geometry.icp import ICPSettings  # noqa: E402
+from opnet.cli.eval import refine_scenes, with_decoding_overrides  # noqa: E402
+from opnet.geometry.icp import ICPSettings, settings_from_config  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.diagnostics import scene_outcomes  # noqa: E402
 from opnet.system import predict_split  # noqa: E402
@@ -69,25 +74,45 @@ def score(scenes: dict[str, Any], obj: Any, max_occlusion: float) -> dict[str, f
             "r_deg_p50": pct(r, 50), "r_deg_p90": pct(r, 90)}  # fmt: skip
 
 
-def run(ckpt: Path, split: str, budget_list: list[float | None]) -> list[dict[str, Any]]:
+def key_values(values: list[str], option: str) -> dict[str, Any]:
+    """``["averaging=false", "threshold=0.05"]`` -> {"averaging": False, "threshold": 0.05} (YAML
+    values); ValueError naming a bad one."""
+    out: dict[str, Any] = {}
+    for v in values:
+        key, sep, value = v.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{option} {v!r}: expected KEY=VALUE")
+        out[key] = OmegaConf.create({"v": value})["v"] if value else None
+    return out
+
+
+def run(ckpt: Path, split: str, budget_list: list[float | None], search: bool = False,
+        decoding: dict[str, Any] | None = None, data: dict[str, Any] | None = None) -> list[dict[str, Any]]:  # fmt: skip
     system, cfg = load_checkpoint(str(ckpt))
+    system.parameterization = with_decoding_overrides(system.parameterization, decoding)
+    if data:
+        cfg = OmegaConf.merge(cfg, {"data": {**data, **({"generate": None} if cfg.data.get("generate") else {})}})
     obj = system.parameterization.obj
     dm = build_datamodule(cfg, obj, train=False)
     dm.setup("test")
     scenes = predict_split(system, getattr(dm, f"{split}_dataloader")())
     max_occ = system.hparams.max_occlusion
     name = ckpt.resolve().parent.parent.name
-    rows = [{"run": name, "object": obj.name, "refine": "none", "scenes": len(scenes),
+    shown = ",".join(f"{k}={v}" for k, v in (decoding or {}).items()) or "as trained"
+    rows = [{"run": name, "object": obj.name, "decoding": shown, "refine": "none", "scenes": len(scenes),
              **score(scenes, obj, max_occ)}]  # fmt: skip
     base = dict(OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "refine" / "icp.yaml"))["icp"])
-    for budget in budget_list:
-        settings = ICPSettings.from_config({**base, "budget_ms": budget})
+    arms: list[tuple[str, ICPSettings]] = [
+        ("icp, no budget" if b is None else f"icp, {b:g} ms budget", ICPSettings.from_config({**base, "budget_ms": b}))
+        for b in budget_list]  # fmt: skip
+    if search:
+        arms.append(("icp + search", settings_from_config(OmegaConf.load(REPO / "conf" / "refine" / "search.yaml"))))
+    for label, settings in arms:
         refined = copy.deepcopy(scenes)
         start = time.perf_counter()
         report = refine_scenes(refined, dm.splits[split], obj, settings)
         wall = time.perf_counter() - start
-        label = "icp, no budget" if budget is None else f"icp, {budget:g} ms budget"
-        rows.append({"run": name, "object": obj.name, "refine": label, "scenes": len(scenes),
+        rows.append({"run": name, "object": obj.name, "decoding": shown, "refine": label, "scenes": len(scenes),
                      **score(refined, obj, max_occ), "icp_ms_per_image": report["ms_per_image"],
                      "wall_s": wall, **report["statuses"]})  # fmt: skip
         print(f"{name}: {label}: AP {rows[-1]['ap']:.4f}", flush=True)
@@ -95,8 +120,8 @@ def run(ckpt: Path, split: str, budget_list: list[float | None]) -> list[dict[st
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    keys = ["run", "object", "refine", "scenes", "ap", "found", "t_mm_p50", "t_mm_p90", "r_deg_p50", "r_deg_p90",
-            "icp_ms_per_image", "refined", "rejected", "no_depth", "budget"]
+    keys = ["run", "object", "decoding", "refine", "scenes", "ap", "found", "t_mm_p50", "t_mm_p90", "r_deg_p50",
+            "r_deg_p90", "icp_ms_per_image", "refined", "searched", "suppressed", "rejected", "no_depth", "budget"]
 
     def fmt(v: Any) -> str:
         return "–" if v is None else f"{v:.3f}" if isinstance(v, float) else str(v)
@@ -111,17 +136,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ckpt", action="append", required=True, type=Path)
     parser.add_argument("--split", default="test", choices=("val", "test"))
     parser.add_argument("--budget-ms", nargs="+", default=["100", "none"])
+    parser.add_argument("--search", action="store_true", help="also ICP + the depth-agreement search (refine=search)")
+    parser.add_argument("--decoding", action="append", default=[], metavar="KEY=VALUE",
+                        help="decoding override (eval.py decoding=), e.g. averaging=false")
+    parser.add_argument("--data", action="append", default=[], metavar="KEY=VALUE",
+                        help="data-section override, e.g. test_root=<dataset> or cache=false")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "icp")
     args = parser.parse_args(argv)
     try:
         budget_list = budgets(args.budget_ms)
+        decoding, data = key_values(args.decoding, "--decoding"), key_values(args.data, "--data")
     except ValueError as e:
         parser.error(str(e))
     for ckpt in args.ckpt:
         if not ckpt.is_file():
             parser.error(f"--ckpt {ckpt}: no such file")
     torch.set_grad_enabled(False)
-    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list)]
+    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list, args.search, decoding, data)]
     text = markdown(rows)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)

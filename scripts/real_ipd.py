@@ -22,19 +22,23 @@ What a user with their own cell would do, step by step (each step is a command o
    real frames (results/real_ipd/ab.md).
 4. **Training** (``train.py``), scored on generated piles of another seed.
 5. **Evaluation** of the real frames (``eval.py data=bop ... +data.roi=<box> +data.clip=<planes>``),
-   with and without ICP, once with the official ``visib_fract`` and once with the visibility of the
-   frames' own masks (mask pixels / pixels of the part rendered alone at its ground-truth pose: the
-   official values read like a depth-agreement test, 0.10 for a part whose mask is 98 % unoccluded).
+   as decoded, with ICP (``refine=icp``) and with ICP and the depth-agreement search
+   (``refine=search +decoding.averaging=false``: every hypothesis turned about the plate's normal and
+   slid along its plane, scored by how well the measured depth agrees), once with the official
+   ``visib_fract`` and once with the visibility of the frames' own masks (mask pixels / pixels of the
+   part rendered alone at its ground-truth pose: the official values read like a depth-agreement
+   test, 0.10 for a part whose mask is 98 % unoccluded).
 
 Writes ``README.md``, ``real_ipd.csv`` and the overlays of the three frames to ``--out``.
 
     python scripts/real_ipd.py --ab results/real_ipd/ab   # the A/B table of the arms kept there
+    python scripts/real_ipd.py --seeds RUN_DIR ...        # results/real_ipd/seeds.md: runs, mean ± sd
 
 ``--ab DIR`` writes ``DIR/../ab.md``: one line per arm (a subfolder of ``DIR`` holding the
 ``README.md`` and ``real_ipd.csv`` a run of this script wrote, and a one-line ``change.txt``, in
 name order): what it changes, its command, AP on the
 generated piles of another seed, and AP, found %, no hypothesis % and position % on the three real
-frames (official ``visib_fract``, without and with ICP).
+frames (official ``visib_fract``, as decoded, with ICP and with the search).
 """
 
 from __future__ import annotations
@@ -70,6 +74,14 @@ BASKET = {"bin_inner": 0.3, "bin_inner_y": 0.65, "bin_wall_height": 0.1, "bin_wa
           # the ground 0.6 m under the basket lies beyond the far plane: a real frame measures it
           # (the input clamps it to 1), so the generated depth holds it at the plane, not as missing
           "outside_clip": "clamp"}  # fmt: skip
+#: the basket perforations of the training piles (square holes SIZE:PITCH, metres): the real basket is
+#: expanded metal; three square perforations scored best on the real frames (results/real_ipd/ab.md, arm 5)
+HOLES = "0.012:0.018,0.016:0.021,0.02:0.026"
+#: the refinements each real frame is scored with (conf/refine/): none, ICP, ICP + depth-agreement search
+REFINEMENTS = ("none", "icp", "search")
+#: the search starts from every hypothesis the network decodes, not from their DBSCAN averages (an average
+#: of a right and a turned hypothesis is neither; measured: results/real_ipd/search_ab.md)
+SEARCH_DECODING = ["+decoding.averaging=false"]
 ROW_FIELDS = ("visibility", "refine", "frames", "required", "ap", "map", "found", "no_hypothesis", "position",
               "orientation", "confident_fp_per_frame", "t_err_mm_p50", "t_err_mm_p90", "r_err_deg_p50",
               "r_err_deg_p90", "ms_per_frame")  # fmt: skip
@@ -158,12 +170,12 @@ def mask_visibility_split(out: Path) -> Path:
     return out / "test"
 
 
-def evaluate(ckpt: Path, split: Path, out: Path, roi: list[int], clip: list[float], icp: bool) -> dict[str, Any]:
+def evaluate(ckpt: Path, split: Path, out: Path, roi: list[int], clip: list[float], refine: str) -> dict[str, Any]:
     split = split.resolve()  # read whole as the test split (data.root too: nothing else is opened)
     run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
          f"+data.object_id={OBJECT_ID}", f"+data.roi=[{','.join(map(str, roi))}]", f"+data.clip=[{clip[0]},{clip[1]}]",
          "+data.cache=false", f"out={out}", "examples=3",
-         *(["refine=icp"] if icp else [])], out.with_suffix(".log"))  # fmt: skip
+         f"refine={refine}", *SEARCH_DECODING * (refine == "search")], out.with_suffix(".log"))  # fmt: skip
     return json.loads((out / "summary.json").read_text())
 
 
@@ -192,26 +204,83 @@ def ab_table(folder: Path) -> str:
              "pose, basket and 200 cycles x 2 views unless the row says otherwise), scored on the three real frames "
              "(official `visib_fract`) and on 240 generated scenes of another seed. Made by "
              f"`python scripts/real_ipd.py --ab {os.path.relpath(folder, REPO)}`.", "",
-             "| arm | what changes | command | generated piles AP | real AP | real AP, ICP | found % | no hypothesis % | "
-             "position % |", "|---|---|---|---|---|---|---|---|---|"]
+             "| arm | what changes | command | generated piles AP | real AP | real AP, ICP | real AP, search | found % | "
+             "no hypothesis % | position % |", "|---|---|---|---|---|---|---|---|---|---|"]
     for arm in sorted(p for p in folder.iterdir() if (p / "real_ipd.csv").is_file()):
         text = (arm / "README.md").read_text()
         command = re.search(r"\(`(python scripts/real_ipd\.py[^`]*)`\)", text)
         synthetic = re.search(r"test split\): AP (\d\.\d+)", text)
         rows = {(r["visibility"], r["refine"]): r for r in csv.DictReader((arm / "real_ipd.csv").open())}
         plain, icp = rows[("official visib_fract", "none")], rows[("official visib_fract", "icp")]
+        search = rows.get(("official visib_fract", "search"))  # arms made before the search have none
+        searched = f"{float(search['ap']):.3f}" if search else ""
         pct = lambda v: f"{100 * float(v):.1f}"  # noqa: E731
         shown = re.sub(r" --(run-dir|out) \S+", "", command.group(1)) if command else "?"
         change = (arm / "change.txt").read_text().strip() if (arm / "change.txt").is_file() else ""
         lines.append(f"| {arm.name} | {change} | `{shown}` | {synthetic.group(1) if synthetic else '?'} | "
-                     f"**{float(plain['ap']):.3f}** | {float(icp['ap']):.3f} | {pct(plain['found'])} | "
+                     f"**{float(plain['ap']):.3f}** | {float(icp['ap']):.3f} | "
+                     f"{searched} | {pct(plain['found'])} | "
                      f"{pct(plain['no_hypothesis'])} | {pct(plain['position'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def run_info(run: Path) -> tuple[str, str]:
+    """(training seed, parameterization name) of a run folder of train.py, from its logged
+    hyperparameters ('?' where they are not there)."""
+    import re
+
+    path = run / "tensorboard" / "hparams.yaml"
+    hp = path.read_text() if path.is_file() else ""
+    seed = re.search(r"^  seed: (\d+)$", hp, re.M)
+    param = re.search(r"parameterization:\n\s+_target_: opnet\.parameterizations\.\w+\.(\w+)Parameterization", hp)
+    return (seed.group(1) if seed else "?"), (param.group(1) if param else "?")
+
+
+def seeds_table(runs: list[Path]) -> str:
+    """The table (markdown) of several runs of the recipe (e.g. training seeds): per run its seed
+    and parameterization, AP on the generated piles and on the real frames (official ``visib_fract``)
+    per refinement, found % with the search; then mean ± sd over the runs."""
+    import numpy as np
+
+    lines = ["# Real IPD frames: the recipe over several runs", "",
+             "Each row is one run of `scripts/real_ipd.py` (its run folder; the same generated data, another "
+             "training seed), scored on the three real frames (official `visib_fract`) and on the generated piles "
+             f"of another seed. Made by `python scripts/real_ipd.py --seeds {' '.join(os.path.relpath(r, REPO) for r in runs)}`.",
+             "", "| run | seed | parameterization | generated piles AP | real AP | real AP, ICP | real AP, search | "
+             "found %, search |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    table = []
+    for run in runs:
+        seed, param = run_info(run)
+        values = [json.loads((run / "test" / "summary.json").read_text())["ap"]]
+        for refine in REFINEMENTS:
+            folder = run / "eval_real" / f"official{'' if refine == 'none' else '_' + refine}"
+            values.append(json.loads((folder / "summary.json").read_text())["ap"])
+        d = json.loads((run / "eval_real" / "official_search" / "summary.json").read_text())["diagnostics"]
+        values.append(100 * d["matched"] / max(d["to_find"], 1))
+        table.append(values)
+        lines.append(f"| `{os.path.relpath(run, REPO)}` | {seed} | {param} | " + " | ".join(f"{v:.3f}" for v in values[:-1])
+                     + f" | {values[-1]:.1f} |")
+    a = np.asarray(table)
+    sd = a.std(0, ddof=1) if len(a) > 1 else np.zeros(a.shape[1])
+    lines.append(f"| mean ± sd ({len(a)} runs) | | | " + " | ".join(f"{m:.3f} ± {e:.3f}" for m, e in zip(a.mean(0)[:-1], sd[:-1]))
+                 + f" | {a.mean(0)[-1]:.1f} ± {sd[-1]:.1f} |")
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
+    if argv[:1] == ["--seeds"]:
+        runs = [Path(a) for a in argv[1:]]
+        missing = [str(r) for r in runs if not (r / "eval_real" / "official_search" / "summary.json").is_file()]
+        if not runs or missing:
+            print(f"error: --seeds takes run folders of this script with their evaluations (eval_real/); "
+                  f"{'none given' if not runs else 'not one: ' + ', '.join(missing)}", file=sys.stderr)
+            return 2
+        out = REPO / "results" / "real_ipd" / "seeds.md"
+        out.write_text(seeds_table([r.resolve() for r in runs]))
+        print(out.read_text())
+        return 0
     if argv[:1] == ["--ab"]:
         if len(argv) != 2 or not Path(argv[1]).is_dir():
             print("error: --ab takes one folder of kept arms (e.g. results/real_ipd/ab)", file=sys.stderr)
@@ -229,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--drops", type=int, default=10)
     ap.add_argument("--clutter", type=int, default=8, help="foreign pieces on the basket floor per pile (scene.clutter)")
     ap.add_argument("--steps", type=int, default=3000)
-    ap.add_argument("--holes", default=f"{BASKET['bin_hole_size']}:{BASKET['bin_hole_pitch']}",
+    ap.add_argument("--holes", default=HOLES,
                     help="basket meshes, SIZE:PITCH metres, comma-separated: the training cycles shared out among "
                          "them (domain randomization of the basket); the test piles use the first")
     ap.add_argument("--extra", nargs="*", default=[], help="further train.py overrides")
@@ -278,23 +347,24 @@ def main(argv: list[str] | None = None) -> int:
         # the split with the masks' visibility is rendered once, for both refinements
         split = None if args.stage == "report" else (
             FRAMES / "test" if name == "official" else mask_visibility_split(args.data_dir / "ipd_mask_visib"))
-        for icp in (False, True):
-            folder = evals / f"{name}{'_icp' if icp else ''}"
+        for refine in REFINEMENTS:
+            folder = evals / f"{name}{'' if refine == 'none' else '_' + refine}"
             if split is None:
                 summary = json.loads((folder / "summary.json").read_text())
             else:
-                summary = evaluate(ckpt, split, folder, args.roi, args.clip, icp)
-            rows.append(row(summary, visibility, "icp" if icp else "none"))
+                summary = evaluate(ckpt, split, folder, args.roi, args.clip, refine)
+            rows.append(row(summary, visibility, refine))
     synthetic = json.loads((args.run_dir / "test" / "summary.json").read_text())
     write_results(args, rows, evals, ckpt, synthetic, gen_minutes)
     return 0
 
 
 def _recipe_argv() -> list[str]:
-    """This run's arguments as the command that makes its numbers (``--stage report`` only re-wrote them)."""
+    """This run's arguments as the command that makes its numbers (``--stage report`` only re-wrote them,
+    ``--stage eval`` re-scored the run's model: the whole recipe made it)."""
     argv = sys.argv[1:]
     k = argv.index("--stage") if "--stage" in argv else -1
-    return argv[:k] + argv[k + 2:] if k >= 0 and argv[k + 1:k + 2] == ["report"] else argv
+    return argv[:k] + argv[k + 2:] if k >= 0 and argv[k + 1:k + 2] in (["report"], ["eval"]) else argv
 
 
 def per_frame(folder: Path) -> list[tuple[str, Any, float]]:
@@ -318,17 +388,20 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
         w = csv.DictWriter(f, fieldnames=ROW_FIELDS)
         w.writeheader()
         w.writerows(rows)
-    for png in sorted((evals / "masks_icp" / "predictions").glob("*.png")):
+    for png in sorted((evals / "masks_search" / "predictions").glob("*.png")):
         shutil.copyfile(png, out / f"overlay_{png.name}")
     pct = lambda x: f"{100 * x:.1f}"  # noqa: E731
     lines = ["# Real Photoneo frames of IPD object 18, scored with their ground truth", "",
              f"The recipe of `scripts/real_ipd.py` (`python scripts/real_ipd.py {' '.join(_recipe_argv())}`): "
              f"region of interest {args.roi}, clip planes {args.clip} m, {args.cycles} generated cycles "
-             f"({args.views} views per pile, up to {args.drops} plates), EVE, {args.steps} steps; checkpoint "
+             f"({args.views} views per pile, up to {args.drops} plates), {run_info(args.run_dir)[1]}, training seed "
+             f"{run_info(args.run_dir)[0]}, {args.steps} steps; checkpoint "
              f"`{os.path.relpath(ckpt, REPO)}`. AP: Brégier, max occlusion 0.5, over the three frames "
-             "(the same six plates captured three times).", "",
+             "(the same six plates captured three times). Refinement: none, `refine=icp`, or `refine=search "
+             "+decoding.averaging=false` (ICP and the depth-agreement search; the hypotheses then ranked by their "
+             "agreement, so 'confident', score >= 0.5, means agreement >= 0.5 there).", "",
              "| visibility | refine | frames | required | **AP** | MAP | found % | no hyp % | position % | "
-             "orientation % | conf. FP/frame | t p50 / p90 mm | r p50 / p90 ° | ICP ms/frame |",
+             "orientation % | conf. FP/frame | t p50 / p90 mm | r p50 / p90 ° | refine ms/frame |",
              "|" + "---|" * 14]  # fmt: skip
     for r in rows:
         lines.append(f"| {r['visibility']} | {r['refine']} | {r['frames']} | {r['required']} | **{r['ap']:.3f}** | "
@@ -339,10 +412,10 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
     lines += ["", f"On generated piles of another seed (the training's test split): AP {synthetic['ap']:.3f}.", ""]
     lines += ["What each change of the recipe was worth: [`ab.md`](ab.md) (one training seed per arm, and the three "
               "frames show the same six plates: differences of a few hundredths lie within that noise).", "",
-              "Per frame (official `visib_fract`; without / with ICP): what limits the score, part by part.", "",
+              "Per frame (official `visib_fract`; as decoded, with ICP, with the search): what limits the score, part by part.", "",
               "| frame | refine | AP | required | found | no hypothesis | position | orientation | hypotheses | "
               "confident (≥ 0.5) false positives |", "|" + "---|" * 10]
-    for tag, refine in (("official", "none"), ("official_icp", "icp")):
+    for tag, refine in (("official", "none"), ("official_icp", "icp"), ("official_search", "search")):
         for name, d, ap_frame in per_frame(evals / tag):
             lines.append(f"| {name} | {refine} | {ap_frame:.3f} | {d.to_find} | {d.matched} | {d.no_hypothesis} | "
                          f"{d.position} | {d.orientation} | {d.hypotheses} | {d.confident_false_positives} |")

@@ -215,4 +215,15 @@ def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpo
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     bad = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o2"),
                           "--icp-budget-ms", "5"], capture_output=True, text=True, cwd=REPO_ROOT)
-    assert bad.returncode == 2 and bad.stderr.strip() == "error: --icp-budget-ms is a setting of --icp, which is not given"
+    assert bad.returncode == 2 and bad.stderr.strip() == "error: --icp-budget-ms is a setting of --icp or --search, neither is given"
+    # the depth-agreement search: the runtime refines and re-scores as eval.py's refine=search does
+    from opnet.geometry.search import SearchSettings
+
+    searching = ICPSettings(budget_ms=None, search=SearchSettings(turn_step_deg=30.0, shift=0.04))
+    expected, status = Refiner.for_object(system.parameterization.obj, searching)(h0, record.depth, record.camera)
+    got = OnnxPoseEstimator(onnx_path, icp=searching).predict(record.depth, record.camera)
+    assert set(status) <= {"searched", "no_depth"} and "searched" in status
+    assert np.abs(got.t - expected.t).max() < 1e-5 and np.abs(got.score - expected.score).max() < 1e-6
+    proc = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o3"),
+                           "--search", "--icp-budget-ms", "50"], capture_output=True, text=True, cwd=REPO_ROOT)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]

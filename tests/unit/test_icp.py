@@ -93,9 +93,10 @@ def test_hypotheses_are_refined_best_first_within_the_budget() -> None:
     poses = [_perturbed(R_gt, rng, deg=4.0, mm=4.0) for _ in range(3)]
     R, t = np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses])
     score = np.array([0.2, 0.9, 0.5])
-    _, t1, status = refine_hypotheses(R, t, score, model, scene, space, ICPSettings(budget_ms=None))
+    _, t1, status, score1 = refine_hypotheses(R, t, score, model, scene, space, ICPSettings(budget_ms=None))
     assert status == ["refined"] * 3 and (np.linalg.norm(t1 - T_GT, axis=1) < 1e-3).all()
-    R2, t2, status = refine_hypotheses(R, t, score, model, scene, space, ICPSettings(budget_ms=0))
+    assert np.array_equal(score1, score)  # ICP alone keeps the network's scores
+    R2, t2, status, _ = refine_hypotheses(R, t, score, model, scene, space, ICPSettings(budget_ms=0))
     assert status == ["budget"] * 3 and np.array_equal(t2, t) and np.array_equal(R2, R)
 
 

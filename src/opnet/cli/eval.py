@@ -131,12 +131,26 @@ def write_examples(
     return written
 
 
+def with_decoding_overrides(param: Any, overrides: Any) -> Any:
+    """The checkpoint's parameterization with the decoding settings of ``decoding=`` overridden
+    (threshold, score, min_visibility; averaging: false, or a mapping of eps, min_samples,
+    cluster_score); nothing given: unchanged. A wrong key is one error naming it."""
+    if not overrides:
+        return param
+    settings = OmegaConf.to_container(overrides) if isinstance(overrides, DictConfig) else dict(overrides)
+    try:
+        return param.with_decoding(**settings)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"decoding={settings}: {e}") from None
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of eval.py (see conf/eval.yaml)."""
     started = time.monotonic()
     out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
     require_output_folder(out_dir, [Path(cfg.ckpt)], "out=")  # a file or /dev/null: refused before the evaluation
     system, run_cfg = load_checkpoint(cfg.ckpt)
+    system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
     log.info("inference: %s", system.configure_inference(cfg.get("inference")))
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
     if overrides.get("root") is not None and run_cfg.data.get("generate") is not None:

@@ -29,6 +29,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import DiskFullError
 from opnet.geometry.icp import ICPSettings
+from opnet.geometry.search import SearchSettings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,18 +44,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overwrite", action="store_true")
     ap.add_argument("--roi", default="model", help="region of interest: x0,y0,x1,y1 pixels, auto, or null (default: the model's)")
     ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
-    ap.add_argument("--icp-budget-ms", type=float, default=None, help="with --icp: milliseconds per image (default 100; 0 = none refined)")
+    ap.add_argument("--search", action="store_true",
+                    help="ICP, then the depth-agreement search of each pose (turns about the part's axis, shifts "
+                         "across it; conf/refine/search.yaml's defaults): for flat parts; ranks poses by agreement")
+    ap.add_argument("--icp-budget-ms", type=float, default=None,
+                    help="with --icp or --search: milliseconds per image (default 100 with --icp, none with --search; "
+                         "0 = none refined)")
     args = ap.parse_args(argv)
     try:
         from opnet.deploy.runtime import OnnxPoseEstimator
 
         camera_cfg = {k: getattr(args, k) for k in ("file", "fx", "fy", "cx", "cy", "clip_start", "clip_end", "depth_scale")}
         given = given_camera(camera_cfg)
-        if args.icp_budget_ms is not None and not args.icp:
-            raise ValueError("--icp-budget-ms is a setting of --icp, which is not given")
+        if args.icp_budget_ms is not None and not (args.icp or args.search):
+            raise ValueError("--icp-budget-ms is a setting of --icp or --search, neither is given")
         icp = None
-        if args.icp:
-            icp = ICPSettings() if args.icp_budget_ms is None else ICPSettings(budget_ms=args.icp_budget_ms)
+        if args.icp or args.search:
+            budget = args.icp_budget_ms if args.icp_budget_ms is not None else (None if args.search else 100.0)
+            icp = ICPSettings(budget_ms=budget, search=SearchSettings() if args.search else None)
         roi = None if args.roi in ("null", "none") else args.roi
         estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi)
         inputs = list_inputs(args.input)

@@ -30,6 +30,7 @@ Per hypothesis (:func:`refine_pose`):
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -37,9 +38,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from opnet.geometry.pose_numpy import closest_equivalent
+from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
+from opnet.geometry.search import SearchSettings, model_axis, pose_agreement, search_pose
 
-STATUSES = ("refined", "no_depth", "rejected", "budget")
+STATUSES = ("refined", "searched", "suppressed", "no_depth", "rejected", "budget")
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,8 @@ class ICPSettings:
         budget_ms: time for all hypotheses of one image (None: no limit).
         model_points: points sampled on the mesh surface.
         stride: use every stride-th pixel of the depth image in each direction.
+        search: None (ICP only), or the depth-agreement search (:mod:`opnet.geometry.search`) run
+            after ICP on each hypothesis within the budget, its best pose polished by ICP again.
     """
 
     iterations: int = 20
@@ -69,6 +73,7 @@ class ICPSettings:
     budget_ms: float | None = 100.0
     model_points: int = 600
     stride: int = 1
+    search: SearchSettings | None = None
 
     def __post_init__(self) -> None:
         positive = {"radius": self.radius, "max_distance": self.max_distance, "huber": self.huber,
@@ -87,9 +92,10 @@ class ICPSettings:
     def from_config(cls, cfg: Any) -> ICPSettings:
         """From a mapping (a config group); unknown keys are an error naming them."""
         cfg = dict(cfg or {})
-        unknown = set(cfg) - set(cls.__dataclass_fields__)
+        unknown = set(cfg) - set(cls.__dataclass_fields__) | ({"search"} & set(cfg))
         if unknown:
-            raise ValueError(f"icp: unknown keys {sorted(unknown)}; expected {', '.join(cls.__dataclass_fields__)}")
+            raise ValueError(f"icp: unknown keys {sorted(unknown)}; expected "
+                             f"{', '.join(k for k in cls.__dataclass_fields__ if k != 'search')}")
         return cls(**cfg)
 
 
@@ -287,23 +293,54 @@ def refine_pose(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneClo
 
 
 def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: ModelCloud, scene: SceneCloud,
-                      space: Any, settings: ICPSettings = ICPSettings()) -> tuple[np.ndarray, np.ndarray, list[str]]:  # fmt: skip
+                      space: Any, settings: ICPSettings = ICPSettings(), depth: np.ndarray | None = None,
+                      camera: Any = None) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:  # fmt: skip
     """Refine the hypotheses of one image, best score first, within ``settings.budget_ms``.
 
     Args:
         R: (N, 3, 3), t: (N, 3) metres, camera frame; score: (N,).
+        depth, camera: the depth image (H, W) and its camera (fx, fy, cx, cy) the scene was made
+            from; needed with ``settings.search``.
     Returns:
-        refined R (N, 3, 3), t (N, 3) in the input order, and each one's status.
+        refined R (N, 3, 3), t (N, 3) in the input order, each one's status, and its score: the
+        input's, or with ``settings.search`` the one its ``score`` setting names (a hypothesis the
+        budget left unrefined: its agreement where it stands); status ``suppressed``: a duplicate
+        the search made (``search.suppress``), which :func:`refine_image` leaves out.
     """
     R_out, t_out = np.array(R, np.float64, copy=True), np.array(t, np.float64, copy=True)
+    score_in = np.asarray(score, np.float64)
     status = ["budget"] * len(R_out)
+    search = settings.search
+    if search is not None and (depth is None or camera is None):
+        raise ValueError("icp: the search needs the depth image and its camera")
+    agree = np.zeros(len(R_out))
+    axis = model_axis(model.points, search.axis) if search is not None else None
     start = time.perf_counter()
-    for k in np.argsort(-np.asarray(score), kind="stable"):
+    for k in np.argsort(-score_in, kind="stable"):
         if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
             break
         result = refine_pose(R_out[k], t_out[k], model, scene, space, settings)
         R_out[k], t_out[k], status[k] = result.R, result.t, result.status
-    return R_out, t_out, status
+        if search is not None and result.status != "no_depth":
+            Rs, ts, _ = search_pose(R_out[k], t_out[k], model, depth, camera, axis, search)
+            polished = refine_pose(Rs, ts, model, scene, space, settings)
+            R_out[k], t_out[k], status[k] = polished.R, polished.t, "searched"
+            agree[k] = pose_agreement(R_out[k], t_out[k], model, depth, camera, search)
+    if search is None:
+        return R_out, t_out, status, score_in.copy()
+    for k, st in enumerate(status):
+        if st != "searched":
+            agree[k] = pose_agreement(R_out[k], t_out[k], model, depth, camera, search)
+    final = {"agreement": agree, "network": score_in.copy(), "product": score_in * np.maximum(agree, 0.0)}[search.score]
+    if search.suppress > 0:  # duplicates: searches from nearby hypotheses that ended on one pose
+        kept: list[int] = []
+        for k in np.argsort(-final, kind="stable"):
+            if kept and (pose_distance(space, R_out[k], t_out[k], R_out[kept], t_out[kept])
+                         < search.suppress * space.delta).any():  # fmt: skip
+                status[k] = "suppressed"
+            else:
+                kept.append(int(k))
+    return R_out, t_out, status, final
 
 
 def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCloud, space: Any,
@@ -313,8 +350,11 @@ def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCl
     if depth.shape != (camera.height, camera.width):
         raise ValueError(f"icp: depth of shape {depth.shape} does not match the camera ({camera.height}, {camera.width})")
     scene = SceneCloud.from_depth(depth, camera.fx, camera.fy, camera.cx, camera.cy, settings.stride)
-    R, t, status = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space, settings)
-    return type(hypotheses)(R, t, hypotheses.score, hypotheses.visibility), status
+    R, t, status, score = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space,
+                                            settings, np.asarray(depth, np.float64), camera)  # fmt: skip
+    keep = np.array([s != "suppressed" for s in status], bool)
+    visibility = None if hypotheses.visibility is None else np.asarray(hypotheses.visibility)[keep]
+    return type(hypotheses)(R[keep], t[keep], score[keep], visibility), status
 
 
 @dataclass(frozen=True)
@@ -341,16 +381,20 @@ class Refiner:
 
 
 def settings_from_config(refine: Any) -> ICPSettings | None:
-    """The ``refine`` config group (conf/refine/): ICP settings for ``method: icp``, None for
+    """The ``refine`` config group (conf/refine/): ICP settings for ``method: icp``, ICP with the
+    depth-agreement search for ``method: search`` (its settings from ``refine.search``), None for
     ``method: none`` or no group; ValueError for another method."""
     if not refine:
         return None
     method = refine.get("method", "none")
     if method == "none":
         return None
-    if method != "icp":
-        raise ValueError(f"refine.method={method!r}, expected none or icp")
-    return ICPSettings.from_config(refine.get("icp"))
+    if method not in ("icp", "search"):
+        raise ValueError(f"refine.method={method!r}, expected none, icp or search")
+    settings = ICPSettings.from_config(refine.get("icp"))
+    if method == "search":
+        settings = dataclasses.replace(settings, search=SearchSettings.from_config(refine.get("search")))
+    return settings
 
 
 __all__ = ["STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "Refiner", "SceneCloud", "refine_hypotheses",

@@ -1,0 +1,153 @@
+"""The depth-agreement search (opnet.geometry.search) against depth rendered by the real renderer: a
+flat T-plate turned half a revolution about its normal and slid along its plane -- a pose ICP keeps,
+since its surface fits the plane -- is brought back by the search, which ranks it by its agreement;
+the search never leaves a right pose; bad settings are one clear error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from opnet.geometry.camera import Camera
+from opnet.geometry.icp import ICPSettings, ModelCloud, SceneCloud, _rotation, refine_hypotheses, refine_pose, \
+    settings_from_config
+from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.geometry.search import SearchSettings, agreement, model_axis, pose_agreement, search_pose
+from opnet.objects.model import ObjectModel
+from opnet.synthesis.layout import homogeneous
+from opnet.synthesis.rendering import SceneRenderer
+
+CAM = Camera(900.0, 900.0, 255.5, 255.5, 512, 512, 0.3, 2.0)
+T_GT = np.array([0.01, -0.02, 0.8])
+
+
+def _t_plate() -> ObjectModel:
+    """A 120 x 120 x 2 mm T (bar 25 mm wide, stem 20 mm), its normal the model's y axis, no symmetry
+    but the mirror a T has: none among rotations -- a turn about the normal is a different pose."""
+    bar = trimesh.creation.box((0.12, 0.002, 0.025), homogeneous(np.eye(3), [0.0, 0.0, 0.0475]))
+    stem = trimesh.creation.box((0.02, 0.002, 0.095), homogeneous(np.eye(3), [0.0, 0.0, -0.0125]))
+    mesh = trimesh.util.concatenate([bar, stem])
+    mesh.vertices -= (mesh.bounds[0] + mesh.bounds[1]) / 2  # the origin at the box's centre, as IPD's
+    return ObjectModel.from_mesh("t_plate", mesh)
+
+
+@pytest.fixture(scope="module")
+def plate_scene() -> tuple[ObjectModel, np.ndarray, np.ndarray, ModelCloud, PoseSpaceArrays]:
+    obj = _t_plate()
+    # the plate seen 20 degrees off its normal (as the IPD camera sees the basket floor), over a sheet
+    # 2 mm beneath it with 12 mm holes every 18 mm (the ground far behind shows through them)
+    R_gt = _rotation(np.array([np.radians(-70.0), 0.0, 0.0])) @ _rotation(np.array([0.0, 0.6, 0.0]))
+    bars = [trimesh.creation.box((0.36, 0.001, 0.006), homogeneous(np.eye(3), [0.0, 0.0, z])) for z in
+            np.arange(-0.18, 0.19, 0.018)] + [trimesh.creation.box((0.006, 0.001, 0.36), homogeneous(np.eye(3),
+            [x, 0.0, 0.0])) for x in np.arange(-0.18, 0.19, 0.018)]  # fmt: skip
+    sheet = trimesh.util.concatenate(bars)  # a grid of 6 mm wires: 12 mm square holes
+    renderer = SceneRenderer(obj.mesh, CAM)
+    below = homogeneous(R_gt, T_GT + R_gt @ np.array([0.0, -0.0025, 0.0]))
+    renderer.begin_cycle(below, sheet)
+    depth = renderer.render(homogeneous(R_gt, T_GT)[None]).depth
+    renderer.close()
+    depth = np.where(np.isfinite(depth), depth, CAM.clip_end)  # the ground beyond the far plane, at it
+    model = ModelCloud.from_mesh(obj.mesh, 800, obj.diameter)
+    return obj, R_gt, depth, model, PoseSpaceArrays.of(obj.pose_space)
+
+
+def _turned(R: np.ndarray, deg: float, shift_mm: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """R turned ``deg`` about the plate's normal (model y), its origin slid along the plate's plane."""
+    n, e1 = R @ np.array([0.0, 1.0, 0.0]), R @ np.array([1.0, 0.0, 0.0])
+    return _rotation(n * np.radians(deg)) @ R, T_GT + e1 * shift_mm[0] / 1000 + np.cross(n, e1) * shift_mm[1] / 1000
+
+
+def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))))
+
+
+def test_the_axis_of_a_flat_part_is_its_normal() -> None:
+    assert abs(model_axis(ModelCloud.from_mesh(_t_plate().mesh, 800, 0.15).points) @ [0, 1, 0]) > 0.999
+    assert np.array_equal(model_axis(np.zeros((3, 3)), "z"), [0.0, 0.0, 1.0])
+
+
+def test_agreement_is_highest_at_the_true_pose(plate_scene) -> None:
+    obj, R_gt, depth, model, _ = plate_scene
+    s = SearchSettings()
+    right = pose_agreement(R_gt, T_GT, model, depth, CAM, s)
+    assert right > 0.9
+    for deg in (90.0, 180.0, 270.0):
+        assert pose_agreement(*_turned(R_gt, deg, (0.0, 0.0)), model, depth, CAM, s) < right - 0.2
+    # a point measured behind the model counts against it, a missing one neither way
+    pts = np.array([[[0.0, 0.0, 0.5], [0.005, 0.0, 0.5]]])  # pixels (0, 0) and (1, 0)
+    probe = np.array([[0.40, np.nan], [np.nan, np.nan]])
+    cam = Camera(100.0, 100.0, 0.0, 0.0, 2, 2, 0.1, 2.0)
+    assert agreement(pts, np.ones((1, 2), bool), probe, cam, 0.01, 1.0)[0] == 0.0  # occluded + missing
+    assert agreement(pts, np.ones((1, 2), bool), probe + 0.2, cam, 0.01, 1.0)[0] == -0.5  # seen through
+    assert agreement(pts, np.ones((1, 2), bool), probe + 0.1, cam, 0.01, 1.0)[0] == 0.5  # agrees
+
+
+@pytest.mark.parametrize(("deg", "shift"), [(180.0, (8.0, -5.0)), (90.0, (-6.0, 6.0)), (35.0, (0.0, 9.0))])
+def test_the_search_brings_back_a_turned_and_slid_plate_that_icp_keeps(plate_scene, deg, shift) -> None:
+    obj, R_gt, depth, model, space = plate_scene
+    R0, t0 = _turned(R_gt, deg, shift)
+    scene = SceneCloud.from_depth(depth, CAM.fx, CAM.fy, CAM.cx, CAM.cy)
+    icp = refine_pose(R0, t0, model, scene, space)
+    assert _angle(R_gt, icp.R) > 20.0  # ICP fits the plane, not the turn
+    R, t, score = search_pose(icp.R, icp.t, model, depth, CAM, model_axis(model.points), SearchSettings())
+    step = SearchSettings().shift_step * model.diameter  # within a step of the grids (ICP polishes after)
+    assert _angle(R_gt, R) < SearchSettings().turn_step_deg and np.linalg.norm(t - T_GT) < step
+    assert score > 0.9
+
+
+def test_the_search_never_leaves_the_right_pose(plate_scene) -> None:
+    obj, R_gt, depth, model, _ = plate_scene
+    R, t, _ = search_pose(R_gt, T_GT, model, depth, CAM, model_axis(model.points), SearchSettings())
+    assert _angle(R_gt, R) < 1e-9 and np.linalg.norm(t - T_GT) < 1e-12
+
+
+def test_refine_with_search_ranks_hypotheses_by_their_agreement(plate_scene) -> None:
+    obj, R_gt, depth, model, space = plate_scene
+    scene = SceneCloud.from_depth(depth, CAM.fx, CAM.fy, CAM.cx, CAM.cy)
+    far = T_GT + np.array([0.4, 0.0, 0.0])  # nothing there: ICP skips it, its agreement is where it stands
+    poses = [_turned(R_gt, 180.0, (5.0, 5.0)), (R_gt, far)]
+    R, t = np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses])
+    settings = ICPSettings(budget_ms=None, search=SearchSettings())
+    R1, t1, status, score = refine_hypotheses(R, t, np.array([0.3, 0.9]), model, scene, space, settings, depth, CAM)
+    assert status == ["searched", "no_depth"]
+    assert _angle(R_gt, R1[0]) < 2.0 and np.linalg.norm(t1[0] - T_GT) * 1000 < 2.0
+    assert score[0] > 0.9 and score[1] <= 0.0  # the refined plate now outranks the empty hypothesis
+    with pytest.raises(ValueError, match="the search needs the depth image"):
+        refine_hypotheses(R, t, np.array([0.3, 0.9]), model, scene, space, settings)
+
+
+@pytest.mark.parametrize(("refine", "message"), [
+    ({"method": "search", "search": {"axis": "w"}}, "search.axis must be one of auto, x, y, z"),
+    ({"method": "search", "search": {"tolerance": 0}}, "search.tolerance must be a positive number"),
+    ({"method": "search", "search": {"score": "best"}}, "search.score must be one of agreement"),
+    ({"method": "search", "search": {"shift": 1.0, "shift_step": 0.001}}, "more than 101 x 101 shifts"),
+    ({"method": "search", "search": {"turn_stp_deg": 5}}, r"search: unknown keys \['turn_stp_deg'\]"),
+    ({"method": "icp", "icp": {"search": {}}}, r"icp: unknown keys \['search'\]"),
+    ({"method": "serch"}, "expected none, icp or search"),
+])
+def test_bad_search_settings_are_one_clear_error(refine: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        settings_from_config(refine)
+
+
+def test_search_config_reads_into_settings() -> None:
+    settings = settings_from_config({"method": "search", "icp": {"budget_ms": None}, "search": {"turn_step_deg": 10}})
+    assert settings.search == SearchSettings(turn_step_deg=10) and settings.budget_ms is None
+    assert settings_from_config({"method": "icp"}).search is None
+
+
+def test_searches_that_end_on_one_pose_leave_one_hypothesis(plate_scene) -> None:
+    from opnet.geometry.icp import refine_image
+    from opnet.metrics.records import HypothesisSet
+
+    obj, R_gt, depth, model, space = plate_scene
+    poses = [_turned(R_gt, 180.0, (5.0, 5.0)), _turned(R_gt, 20.0, (-6.0, 0.0)), _turned(R_gt, 90.0, (0.0, 7.0))]
+    hyps = HypothesisSet(np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]), np.array([0.9, 0.5, 0.2]))
+    settings = ICPSettings(budget_ms=None, search=SearchSettings())
+    out, status = refine_image(hyps, depth, CAM, model, space, settings)
+    assert sorted(status) == ["searched", "suppressed", "suppressed"] and len(out.t) == 1
+    assert np.linalg.norm(out.t[0] - T_GT) * 1000 < 2.0 and out.score[0] > 0.9
+    kept, status = refine_image(hyps, depth, CAM, model, space,
+                                ICPSettings(budget_ms=None, search=SearchSettings(suppress=0.0)))
+    assert status == ["searched"] * 3 and len(kept.t) == 3  # suppress 0: every hypothesis kept
