@@ -7,8 +7,8 @@
 Per checkpoint the network runs once over the split (held-out scenes); the hypotheses are then
 scored as decoded and refined with ``conf/refine/icp.yaml``'s settings at each time budget per
 image (``none``: every hypothesis), and with ``--search`` by ``conf/refine/search.yaml`` (ICP and
-the depth-agreement search, no budget). ``--decoding KEY=VALUE`` overrides the checkpoint's
-decoding as ``eval.py decoding=`` does, ``--data KEY=VALUE`` its data section (another test set,
+the depth-agreement search, no budget). ``--decoding KEY=VALUE`` adds the same rows with the
+checkpoint's decoding overridden as ``eval.py decoding=`` does, ``--data KEY=VALUE`` sets its data section (another test set,
 the scene cache off: refinement at the dataset's own resolution). Printed and written to
 ``--out``/``ab.md`` and ``ab.csv``: AP (Brégier, max occlusion 0.5), parts found, matched
 translation / rotation error p50 and p90, refinement milliseconds per image and how many
@@ -88,6 +88,13 @@ def key_values(values: list[str], option: str) -> dict[str, Any]:
 
 def run(ckpt: Path, split: str, budget_list: list[float | None], search: bool = False,
         decoding: dict[str, Any] | None = None, data: dict[str, Any] | None = None) -> list[dict[str, Any]]:  # fmt: skip
+    """The rows of one checkpoint: its decoding as trained, then (``decoding``) as overridden."""
+    rows = run_decoding(ckpt, split, budget_list, search, None, data)
+    return rows + (run_decoding(ckpt, split, budget_list, search, decoding, data) if decoding else [])
+
+
+def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search: bool,
+                 decoding: dict[str, Any] | None, data: dict[str, Any] | None) -> list[dict[str, Any]]:  # fmt: skip
     system, cfg = load_checkpoint(str(ckpt))
     system.parameterization = with_decoding_overrides(system.parameterization, decoding)
     if data:

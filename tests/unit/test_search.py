@@ -151,3 +151,13 @@ def test_searches_that_end_on_one_pose_leave_one_hypothesis(plate_scene) -> None
     kept, status = refine_image(hyps, depth, CAM, model, space,
                                 ICPSettings(budget_ms=None, search=SearchSettings(suppress=0.0)))
     assert status == ["searched"] * 3 and len(kept.t) == 3  # suppress 0: every hypothesis kept
+
+
+def test_the_runtimes_search_settings_are_the_configs() -> None:
+    from omegaconf import OmegaConf
+
+    from opnet.geometry.icp import search_settings
+    from opnet.paths import REPO_ROOT
+
+    conf = settings_from_config(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
+    assert conf == search_settings(budget_ms=None)

@@ -28,8 +28,7 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import DiskFullError
-from opnet.geometry.icp import ICPSettings
-from opnet.geometry.search import SearchSettings
+from opnet.geometry.icp import ICPSettings, search_settings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -61,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         icp = None
         if args.icp or args.search:
             budget = args.icp_budget_ms if args.icp_budget_ms is not None else (None if args.search else 100.0)
-            icp = ICPSettings(budget_ms=budget, search=SearchSettings() if args.search else None)
+            icp = search_settings(budget) if args.search else ICPSettings(budget_ms=budget)
         roi = None if args.roi in ("null", "none") else args.roi
         estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi)
         inputs = list_inputs(args.input)

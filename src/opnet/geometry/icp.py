@@ -380,6 +380,12 @@ class Refiner:
         return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings)
 
 
+def search_settings(budget_ms: float | None = None) -> ICPSettings:
+    """The settings of ``conf/refine/search.yaml`` (ICP with a wider reach and a looser guard, then
+    the search; a test keeps the two equal), for the runtime, which reads no config."""
+    return ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, search=SearchSettings())
+
+
 def settings_from_config(refine: Any) -> ICPSettings | None:
     """The ``refine`` config group (conf/refine/): ICP settings for ``method: icp``, ICP with the
     depth-agreement search for ``method: search`` (its settings from ``refine.search``), None for
@@ -398,4 +404,4 @@ def settings_from_config(refine: Any) -> ICPSettings | None:
 
 
 __all__ = ["STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "Refiner", "SceneCloud", "refine_hypotheses",
-           "refine_image", "refine_pose", "rotation_change_deg", "settings_from_config"]
+           "refine_image", "refine_pose", "rotation_change_deg", "search_settings", "settings_from_config"]
