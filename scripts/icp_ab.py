@@ -32,6 +32,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+import yaml  # noqa: E402
 from omegaconf import OmegaConf  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
@@ -82,7 +83,7 @@ def key_values(values: list[str], option: str) -> dict[str, Any]:
         key, sep, value = v.partition("=")
         if not sep or not key:
             raise ValueError(f"{option} {v!r}: expected KEY=VALUE")
-        out[key] = OmegaConf.create({"v": value})["v"] if value else None
+        out[key] = yaml.safe_load(value) if value else None
     return out
 
 

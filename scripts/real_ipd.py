@@ -236,6 +236,25 @@ def run_info(run: Path) -> tuple[str, str]:
     return (seed.group(1) if seed else "?"), (param.group(1) if param else "?")
 
 
+SEED_FIELDS = ("run", "seed", "parameterization", "generated_ap", "real_ap", "real_ap_icp", "real_ap_search",
+               "found_search")  # fmt: skip
+
+
+def seed_rows(runs: list[Path]) -> list[list[Any]]:
+    """Per run (a folder of this script with its evaluations): :data:`SEED_FIELDS` (APs; found % of
+    the search on the real frames, official ``visib_fract``)."""
+    rows = []
+    for run in runs:
+        seed, param = run_info(run)
+        values = [json.loads((run / "test" / "summary.json").read_text())["ap"]]
+        for refine in REFINEMENTS:
+            folder = run / "eval_real" / f"official{'' if refine == 'none' else '_' + refine}"
+            values.append(json.loads((folder / "summary.json").read_text())["ap"])
+        d = json.loads((run / "eval_real" / "official_search" / "summary.json").read_text())["diagnostics"]
+        rows.append([os.path.relpath(run, REPO), seed, param, *values, 100 * d["matched"] / max(d["to_find"], 1)])
+    return rows
+
+
 def seeds_table(runs: list[Path]) -> str:
     """The table (markdown) of several runs of the recipe (e.g. training seeds): per run its seed
     and parameterization, AP on the generated piles and on the real frames (official ``visib_fract``)
@@ -249,16 +268,9 @@ def seeds_table(runs: list[Path]) -> str:
              "", "| run | seed | parameterization | generated piles AP | real AP | real AP, ICP | real AP, search | "
              "found %, search |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     table = []
-    for run in runs:
-        seed, param = run_info(run)
-        values = [json.loads((run / "test" / "summary.json").read_text())["ap"]]
-        for refine in REFINEMENTS:
-            folder = run / "eval_real" / f"official{'' if refine == 'none' else '_' + refine}"
-            values.append(json.loads((folder / "summary.json").read_text())["ap"])
-        d = json.loads((run / "eval_real" / "official_search" / "summary.json").read_text())["diagnostics"]
-        values.append(100 * d["matched"] / max(d["to_find"], 1))
+    for name, seed, param, *values in seed_rows(runs):
         table.append(values)
-        lines.append(f"| `{os.path.relpath(run, REPO)}` | {seed} | {param} | " + " | ".join(f"{v:.3f}" for v in values[:-1])
+        lines.append(f"| `{name}` | {seed} | {param} | " + " | ".join(f"{v:.3f}" for v in values[:-1])
                      + f" | {values[-1]:.1f} |")
     a = np.asarray(table)
     sd = a.std(0, ddof=1) if len(a) > 1 else np.zeros(a.shape[1])
@@ -279,6 +291,10 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         out = REPO / "results" / "real_ipd" / "seeds.md"
         out.write_text(seeds_table([r.resolve() for r in runs]))
+        with (out.with_suffix(".csv")).open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(SEED_FIELDS)
+            w.writerows(seed_rows([r.resolve() for r in runs]))
         print(out.read_text())
         return 0
     if argv[:1] == ["--ab"]:

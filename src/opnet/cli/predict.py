@@ -38,6 +38,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import load_checkpoint
+from opnet.cli.eval import with_decoding_overrides
 from opnet.data.preprocess import to_network_input
 from opnet.datasets.depth_inputs import (
     DepthImage,
@@ -141,6 +142,7 @@ def run(cfg: DictConfig) -> int:
     given = given_camera(camera_cfg)
     icp = settings_from_config(cfg.get("refine"))
     system, _ = load_checkpoint(cfg.ckpt)
+    system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
 
