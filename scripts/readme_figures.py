@@ -20,6 +20,7 @@ in the README, ``../results/...`` in a docs page):
 | real_frame | ``results/real_frame/summary.json`` (``scripts/real_frame.py``) |
 | framing | ``results/framing/framing.csv`` (``scripts/framing_table.py``) |
 | real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/real_ipd.py``) |
+| real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/real_ipd.py --seeds``) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
 | pictures_method | the ceiling chart |
@@ -294,7 +295,27 @@ def block_real_ipd(results: Path, prefix: str = "") -> str:
              f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
             for r in _csv(results / "real_ipd" / "real_ipd.csv")]
     return _table(["visibility", "refine", "required", "**AP**", "found %", "no hypothesis %", "position %",
-                   "orientation %", "confident FP / frame", "t mm / r ° p50", "ICP ms / frame"], rows) + "\n"
+                   "orientation %", "confident FP / frame", "t mm / r ° p50", "refine ms / frame"], rows) + "\n"
+
+
+def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
+    """The real-frame recipe over training seeds: AP per refinement, then mean ± sd (real_ipd.py --seeds)."""
+    import statistics
+
+    runs = _csv(results / "real_ipd" / "seeds.csv")
+    keys = ["generated_ap", "real_ap", "real_ap_icp", "real_ap_search"]
+    rows = [[r["seed"], r["parameterization"], *(f"{float(r[k]):.3f}" for k in keys), f"{float(r['found_search']):.1f}"]
+            for r in runs]
+
+    def spread(key: str, digits: int) -> str:
+        v = [float(r[key]) for r in runs]
+        sd = statistics.stdev(v) if len(v) > 1 else 0.0
+        return f"{statistics.mean(v):.{digits}f} ± {sd:.{digits}f}"
+
+    rows.append([f"mean ± sd ({len(runs)})", "", *(f"**{spread(k, 3)}**" if k == "real_ap_search" else spread(k, 3)
+                                                  for k in keys), spread("found_search", 1)])
+    return _table(["training seed", "parameterization", "generated piles AP", "real AP", "real AP, ICP",
+                   "**real AP, search**", "found %, search"], rows) + "\n"
 
 
 PICTURES = [
@@ -337,7 +358,7 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
           "real_frame": block_real_frame, "pictures_data": block_pictures_data,
           "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense,
-          "real_ipd": block_real_ipd}
+          "real_ipd": block_real_ipd, "real_ipd_seeds": block_real_ipd_seeds}
 
 
 def docs_pages(docs: Path = DOCS) -> dict[Path, str]:

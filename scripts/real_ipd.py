@@ -427,7 +427,9 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
                      f"{_ms(r['ms_per_frame'])} |")
     lines += ["", f"On generated piles of another seed (the training's test split): AP {synthetic['ap']:.3f}.", ""]
     lines += ["What each change of the recipe was worth: [`ab.md`](ab.md) (one training seed per arm, and the three "
-              "frames show the same six plates: differences of a few hundredths lie within that noise).", "",
+              "frames show the same six plates: differences of a few hundredths lie within that noise); each step of "
+              "the search over three training seeds: [`search_ab.md`](search_ab.md); the recipe over training seeds: "
+              "[`seeds.md`](seeds.md).", "",
               "Per frame (official `visib_fract`; as decoded, with ICP, with the search): what limits the score, part by part.", "",
               "| frame | refine | AP | required | found | no hypothesis | position | orientation | hypotheses | "
               "confident (≥ 0.5) false positives |", "|" + "---|" * 10]

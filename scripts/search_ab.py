@@ -8,7 +8,8 @@ Each run folder of ``scripts/real_ipd.py`` (one training seed each) is scored on
 overrides, from the network alone to ``refine=search +decoding.averaging=false`` (the recipe): what
 each step of the search is worth, mean ± sd over the runs. ``--generated`` adds the table that
 ``scripts/icp_ab.py --search`` wrote for held-out generated piles (the same refinements on 240
-scenes of another generation seed). Writes ``--out`` and prints it.
+scenes of another generation seed). Writes ``--out`` and prints it; ``--report`` re-makes it from the
+evaluations already made (``<run>/search_ab/<arm>/``).
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--generated", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=REPO / "results" / "real_ipd" / "search_ab.md")
+    ap.add_argument("--report", action="store_true", help="re-make the page from the evaluations already made")
     args = ap.parse_args(argv)
     for run in args.runs:
         if not (run / "checkpoints").is_dir():
@@ -93,7 +95,11 @@ def main(argv: list[str] | None = None) -> int:
     for name, change, overrides in ARMS:
         aps, found = [], []
         for run in runs:
-            summary = score(run, overrides, run / "search_ab" / name)
+            folder = run / "search_ab" / name
+            if args.report and not (folder / "summary.json").is_file():
+                print(f"error: --report: {folder} holds no evaluation; run without --report first", file=sys.stderr)
+                return 2
+            summary = json.loads((folder / "summary.json").read_text()) if args.report else score(run, overrides, folder)
             aps.append(summary["ap"])
             found.append(100 * summary["diagnostics"]["matched"] / max(summary["diagnostics"]["to_find"], 1))
             print(f"{run.name} {name}: AP {aps[-1]:.3f}", flush=True)

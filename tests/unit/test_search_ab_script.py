@@ -1,0 +1,33 @@
+"""scripts/search_ab.py: a folder that is no run, or --report without evaluations, is one line."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from opnet.paths import REPO_ROOT
+
+spec = importlib.util.spec_from_file_location("search_ab", REPO_ROOT / "scripts" / "search_ab.py")
+search_ab = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(search_ab)
+
+
+def test_a_folder_without_checkpoints_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert search_ab.main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a run folder of scripts/real_ipd.py" in err
+
+
+def test_report_without_evaluations_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    (tmp_path / "checkpoints").mkdir()
+    assert search_ab.main([str(tmp_path), "--report", "--out", str(tmp_path / "ab.md")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds no evaluation" in err and not (tmp_path / "ab.md").exists()
+
+
+def test_every_arm_names_its_overrides_and_the_last_is_the_recipe() -> None:
+    names = [a[0] for a in search_ab.ARMS]
+    assert names[0] == "none" and names[-1] == "recipe" and len(set(names)) == len(names)
+    assert search_ab.ARMS[-1][2] == ["refine=search", *search_ab.real_ipd.SEARCH_DECODING]
