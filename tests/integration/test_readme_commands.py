@@ -119,6 +119,13 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
     run("refine the poses with ICP against the depth (eval, predict)", [("<ckpt>", str(ckpt))],
         ["examples=0", f"out={ws / 'eval_icp'}"])
     assert "icp" in json.loads((ws / "eval_icp" / "summary.json").read_text())
+    run("refine flat parts: ICP + the depth-agreement search, ranked by agreement (eval, predict)", [("<ckpt>", str(ckpt))],
+        ["examples=0", f"out={ws / 'eval_search'}", "refine.search.turn_step_deg=45", "refine.search.shift=0.04"])
+    searched = json.loads((ws / "eval_search" / "summary.json").read_text())["icp"]
+    assert searched["settings"]["search"]["turn_step_deg"] == 45 and "searched" in searched["statuses"]
+    run("evaluate with another decoding than the checkpoint's", [("<ckpt>", str(ckpt))],
+        ["examples=0", f"out={ws / 'eval_decoding'}"])
+    assert (ws / "eval_decoding" / "summary.json").is_file()
     run("estimate poses", [("<ckpt>", str(ckpt)), ("<depth png, .npy, or folder>", str(data / "p_depth")),
                            ("<dir>", str(ws / "pred"))])
     assert len(list((ws / "pred" / "results").glob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
