@@ -170,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     writer.writeheader()
     writer.writerows(rows)
     (args.out / "ab.csv").write_text(buf.getvalue())
+    (args.out / "command.txt").write_text("python scripts/icp_ab.py " + " ".join(sys.argv[1:] if argv is None else argv) + "\n")
     return 0
 
 
