@@ -27,6 +27,7 @@ that is an input, and a second run into a folder another run is writing into are
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from pathlib import Path
@@ -35,7 +36,7 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from opnet.cli.build import load_checkpoint
 from opnet.cli.eval import with_decoding_overrides
@@ -50,6 +51,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import write_bytes_atomic
 from opnet.data.roi import crop_image, parse_roi
+from opnet.geometry.camera import MAX_CLIP_END_M
 from opnet.geometry.icp import Refiner, settings_from_config
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
@@ -135,6 +137,20 @@ _PALETTE = [(0.9, 0.1, 0.1), (0.1, 0.7, 0.1), (0.1, 0.3, 0.9), (0.9, 0.6, 0.0), 
 PREDICT_SUFFIXES = (".json", ".png", ".ply")
 
 
+def parse_clip(value: Any) -> tuple[float, float] | None:
+    """``clip=[near, far]`` (metres) of predict.py, or None; one error naming what is wrong."""
+    if value is None:
+        return None
+    items = list(value) if isinstance(value, list | tuple | ListConfig) else None
+    try:
+        near, far = (float(v) for v in items)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ValueError(f"clip={value!r}: expected [near, far] in metres") from None
+    if not (0 < near < far <= MAX_CLIP_END_M):
+        raise ValueError(f"clip=[{near:g}, {far:g}]: expected 0 < near < far <= {MAX_CLIP_END_M:g} metres")
+    return near, far
+
+
 def run(cfg: DictConfig) -> int:
     """Entry logic of predict.py; returns the number of images that failed (bad input of the whole
     run, e.g. a missing checkpoint or conflicting camera values, raises ValueError instead)."""
@@ -147,8 +163,11 @@ def run(cfg: DictConfig) -> int:
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
 
     roi = "checkpoint" if cfg.get("roi") is None else parse_roi(cfg.roi, "roi")
+    clip = parse_clip(cfg.get("clip"))
 
     def estimate(image: DepthImage) -> HypothesisSet:
+        if clip is not None:  # the model's working range in place of the camera's (the input's normalization)
+            image = dataclasses.replace(image, camera=dataclasses.replace(image.camera, clip_start=clip[0], clip_end=clip[1]))
         hyps = predict_image(system, image, roi)
         return hyps if refiner is None else refiner(hyps, image.depth, image.camera)[0]
 
