@@ -25,7 +25,10 @@ Per hypothesis (:func:`refine_pose`):
    the hypothesis, and its mean residual must not grow; otherwise status ``rejected``, pose kept.
 
 :func:`refine_hypotheses` refines an image's hypotheses best score first within a time budget
-(``budget_ms``; the rest keep their pose, status ``budget``).
+(``budget_ms``; the rest keep their pose, status ``budget``). With ``search`` settings
+(``refine=search``) each refined hypothesis then goes through the depth-agreement search of
+:mod:`opnet.geometry.search` (turns and shifts ICP cannot tell apart on a flat part), is polished
+by ICP again and scored by its agreement; duplicates the searches made are dropped.
 """
 
 from __future__ import annotations
