@@ -123,6 +123,7 @@ def test_refine_with_search_ranks_hypotheses_by_their_agreement(plate_scene) -> 
     ({"method": "search", "search": {"score": "best"}}, "search.score must be one of agreement"),
     ({"method": "search", "search": {"shift": 1.0, "shift_step": 0.001}}, "more than 101 x 101 shifts"),
     ({"method": "search", "search": {"turn_stp_deg": 5}}, r"search: unknown keys \['turn_stp_deg'\]"),
+    ({"method": "search", "search": {"coarse": 0}}, "search.coarse must be a positive integer"),
     ({"method": "icp", "icp": {"search": {}}}, r"icp: unknown keys \['search'\]"),
     ({"method": "serch"}, "expected none, icp or search"),
 ])
@@ -161,3 +162,13 @@ def test_the_runtimes_search_settings_are_the_configs() -> None:
 
     conf = settings_from_config(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
     assert conf == search_settings(budget_ms=None)
+
+
+@pytest.mark.parametrize("coarse", [1, 3])
+def test_the_whole_grid_and_coarse_to_fine_find_the_same_pose(plate_scene, coarse: int) -> None:
+    obj, R_gt, depth, model, _ = plate_scene
+    R0, t0 = _turned(R_gt, 140.0, (7.0, -4.0))
+    settings = SearchSettings(coarse=coarse)
+    R, t, score = search_pose(R0, t0, model, depth, CAM, model_axis(model.points), settings)
+    assert _angle(R_gt, R) < settings.turn_step_deg and np.linalg.norm(t - T_GT) < settings.shift_step * model.diameter
+    assert score > 0.9

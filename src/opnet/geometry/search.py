@@ -53,6 +53,8 @@ class SearchSettings:
             distance, symmetry-aware) of a better-scored one is dropped: searches from nearby
             hypotheses end on the same pose, and the copy could only count as a false positive
             (0: keep all).
+        coarse: 1 searches the whole grid; N > 1 first a grid N times coarser, then the fine grid
+            around its three best turns (about N² times fewer candidates).
     """
 
     axis: str = "auto"
@@ -63,6 +65,7 @@ class SearchSettings:
     see_through_weight: float = 1.0
     score: str = "agreement"
     suppress: float = 1.0
+    coarse: int = 3
 
     def __post_init__(self) -> None:
         if self.axis not in AXES:
@@ -77,6 +80,8 @@ class SearchSettings:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"search.{key} must be a number >= 0, got {value!r}")
+        if isinstance(self.coarse, bool) or not isinstance(self.coarse, int) or self.coarse < 1:
+            raise ValueError(f"search.coarse must be a positive integer, got {self.coarse!r}")
         if self.turn_step_deg > 360:
             raise ValueError(f"search.turn_step_deg must be at most 360, got {self.turn_step_deg!r}")
         if self.shift / self.shift_step > 50:
@@ -129,9 +134,34 @@ def _turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
+def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, n: np.ndarray,
+             angles: np.ndarray, offsets: np.ndarray, frame: tuple[np.ndarray, np.ndarray], settings: SearchSettings,
+             keep: int = 1) -> list[tuple[float, np.ndarray, np.ndarray, float, int, int]]:  # fmt: skip
+    """The ``keep`` best (agreement, R, t, angle, i, j) among the turns ``angles`` (radians) of R about
+    ``n`` through t and the shifts ``offsets[i] e1 + offsets[j] e2`` (metres); the best turn of each
+    angle only, best first (ties: the earlier angle, the smaller shift)."""
+    e1, e2 = frame
+    grid = np.stack(np.meshgrid(np.arange(len(offsets)), np.arange(len(offsets)), indexing="ij"), -1).reshape(-1, 2)
+    shifts = offsets[grid[:, 0], None] * e1 + offsets[grid[:, 1], None] * e2  # (M, 3)
+    D, found = model.diameter, []
+    for angle, Rk in zip(angles, _turns(n, angles) @ R, strict=True):  # one turn at a time: (M, K, 3) stays small
+        local = model.points @ Rk.T
+        facing = np.sum((model.normals @ Rk.T) * (local + t), -1) < 0
+        pts = local[facing] + t
+        scores = agreement(pts[None] + shifts[:, None], np.ones((len(shifts), len(pts)), bool), depth, camera,
+                           settings.tolerance * D, settings.see_through_weight)  # fmt: skip
+        m = int(np.argmax(scores))
+        found.append((float(scores[m]), Rk, t + shifts[m], float(angle), int(grid[m, 0]), int(grid[m, 1])))
+    found.sort(key=lambda f: -f[0])  # stable: ties keep the earlier angle
+    return found[:keep]
+
+
 def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, axis: np.ndarray,
                 settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
     """The best pose among the turns and shifts of (R, t) (module docstring) and its agreement.
+
+    With ``coarse`` > 1 the grid is first searched at ``coarse`` times its steps, then at its own
+    steps around the three best coarse turns (± one coarse step of turn and shift each way).
 
     Args:
         R (3, 3), t (3,): the pose (camera frame, metres). model: a :class:`opnet.geometry.icp.ModelCloud`.
@@ -145,23 +175,27 @@ def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, cam
     helper = np.eye(3)[int(np.argmin(np.abs(n)))]
     e1 = np.cross(n, helper)
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n, e1)
-    steps = int(np.floor(s.shift / s.shift_step + 1e-9))
-    offsets = np.arange(-steps, steps + 1) * s.shift_step * D
-    offsets = offsets[np.argsort(np.abs(offsets), kind="stable")]  # no shift first: it wins ties
-    shifts = (offsets[:, None, None] * e1 + offsets[None, :, None] * e2).reshape(-1, 3)  # (M, 3)
-    angles = np.radians(np.arange(0.0, 360.0 - 1e-9, s.turn_step_deg))
-    rotations = _turns(n, angles) @ R  # (T, 3, 3)
-    best = (-np.inf, R, t)
-    for Rk in rotations:  # one turn at a time: (M, K, 3) stays small
-        local = model.points @ Rk.T
-        facing = np.sum((model.normals @ Rk.T) * (local + t), -1) < 0
-        pts = local[facing] + t
-        scores = agreement(pts[None] + shifts[:, None], np.ones((len(shifts), len(pts)), bool), depth, camera,
-                           s.tolerance * D, s.see_through_weight)  # fmt: skip
-        m = int(np.argmax(scores))
-        if scores[m] > best[0]:
-            best = (float(scores[m]), Rk, t + shifts[m])
+    frame = (e1, np.cross(n, e1))
+
+    def offsets(step: float, reach: float) -> np.ndarray:
+        k = int(np.floor(reach / step + 1e-9))
+        values = np.arange(-k, k + 1) * step
+        return values[np.argsort(np.abs(values), kind="stable")]  # no shift first: it wins ties
+
+    if s.coarse <= 1:
+        angles = np.radians(np.arange(0.0, 360.0 - 1e-9, s.turn_step_deg))
+        best = _best_of(R, t, model, depth, camera, n, angles, offsets(s.shift_step * D, s.shift * D), frame, s)[0]
+        return best[1], best[2], best[0]
+    turn, step = s.turn_step_deg * s.coarse, s.shift_step * s.coarse
+    angles = np.radians(np.arange(0.0, 360.0 - 1e-9, turn))
+    coarse = _best_of(R, t, model, depth, camera, n, angles, offsets(step * D, s.shift * D), frame, s, keep=3)
+    best = None
+    for _, _, t_c, angle, _, _ in coarse:
+        fine = np.radians(np.arange(-turn, turn + 1e-9, s.turn_step_deg)) + angle
+        fine = fine[np.argsort(np.abs(fine - angle), kind="stable")]  # the coarse turn first: it wins ties
+        found = _best_of(R, t_c, model, depth, camera, n, fine, offsets(s.shift_step * D, step * D), frame, s)[0]
+        if best is None or found[0] > best[0]:
+            best = found
     return best[1], best[2], best[0]
 
 
