@@ -6,12 +6,12 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
-from opnet.cli.predict import parse_clip
+from opnet.geometry.camera import parse_clip
 
 
 def test_clip_reads_two_metres() -> None:
     assert parse_clip(None) is None
-    assert parse_clip(OmegaConf.create({"c": [1.55, 2.05]}).c) == (1.55, 2.05)
+    assert parse_clip(OmegaConf.to_container(OmegaConf.create({"c": [1.55, 2.05]}).c)) == (1.55, 2.05)
     assert parse_clip([1, 2]) == (1.0, 2.0)
 
 
@@ -19,6 +19,7 @@ def test_clip_reads_two_metres() -> None:
     ([2.05, 1.55], r"clip=\[2.05, 1.55\]: expected 0 < near < far"),
     ([0.5], r"clip=\[0.5\]: expected \[near, far\] in metres"),
     ("1.5", r"clip='1.5': expected \[near, far\] in metres"),
+    ("12", r"clip='12': expected \[near, far\] in metres"),
     ([0.5, 1550.0], r"far <= 50 metres"),
 ])
 def test_a_bad_clip_is_one_error(value, message: str) -> None:

@@ -51,7 +51,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import write_bytes_atomic
 from opnet.data.roi import crop_image, parse_roi
-from opnet.geometry.camera import MAX_CLIP_END_M
+from opnet.geometry.camera import parse_clip, with_clip
 from opnet.geometry.icp import Refiner, settings_from_config
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
@@ -137,20 +137,6 @@ _PALETTE = [(0.9, 0.1, 0.1), (0.1, 0.7, 0.1), (0.1, 0.3, 0.9), (0.9, 0.6, 0.0), 
 PREDICT_SUFFIXES = (".json", ".png", ".ply")
 
 
-def parse_clip(value: Any) -> tuple[float, float] | None:
-    """``clip=[near, far]`` (metres) of predict.py, or None; one error naming what is wrong."""
-    if value is None:
-        return None
-    items = list(value) if isinstance(value, list | tuple | ListConfig) else None
-    try:
-        near, far = (float(v) for v in items)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        raise ValueError(f"clip={value!r}: expected [near, far] in metres") from None
-    if not (0 < near < far <= MAX_CLIP_END_M):
-        raise ValueError(f"clip=[{near:g}, {far:g}]: expected 0 < near < far <= {MAX_CLIP_END_M:g} metres")
-    return near, far
-
-
 def run(cfg: DictConfig) -> int:
     """Entry logic of predict.py; returns the number of images that failed (bad input of the whole
     run, e.g. a missing checkpoint or conflicting camera values, raises ValueError instead)."""
@@ -163,11 +149,11 @@ def run(cfg: DictConfig) -> int:
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
 
     roi = "checkpoint" if cfg.get("roi") is None else parse_roi(cfg.roi, "roi")
-    clip = parse_clip(cfg.get("clip"))
+    clip = parse_clip(OmegaConf.to_container(cfg.clip) if isinstance(cfg.get("clip"), ListConfig) else cfg.get("clip"))
 
     def estimate(image: DepthImage) -> HypothesisSet:
         if clip is not None:  # the model's working range in place of the camera's (the input's normalization)
-            image = dataclasses.replace(image, camera=dataclasses.replace(image.camera, clip_start=clip[0], clip_end=clip[1]))
+            image = dataclasses.replace(image, camera=with_clip(image.camera, clip))
         hyps = predict_image(system, image, roi)
         return hyps if refiner is None else refiner(hyps, image.depth, image.camera)[0]
 

@@ -28,6 +28,7 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import DiskFullError
+from opnet.geometry.camera import parse_clip, with_clip
 from opnet.geometry.icp import ICPSettings, search_settings
 
 
@@ -42,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="ONNX Runtime threads (default: one per core)")
     ap.add_argument("--overwrite", action="store_true")
     ap.add_argument("--roi", default="model", help="region of interest: x0,y0,x1,y1 pixels, auto, or null (default: the model's)")
+    ap.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), default=None,
+                    help="the model's working clip planes (metres) in place of the camera's: they set the input's "
+                         "depth normalization (a model trained with other planes than the camera file's)")
     ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
     ap.add_argument("--search", action="store_true",
                     help="ICP, then the depth-agreement search of each pose (turns about the part's axis, shifts "
@@ -62,12 +66,13 @@ def main(argv: list[str] | None = None) -> int:
             budget = args.icp_budget_ms if args.icp_budget_ms is not None else (None if args.search else 100.0)
             icp = search_settings(budget) if args.search else ICPSettings(budget_ms=budget)
         roi = None if args.roi in ("null", "none") else args.roi
+        clip = parse_clip(args.clip, "--clip")
         estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi)
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))
             failed = predict_inputs(
-                inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, image.camera),
+                inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, with_clip(image.camera, clip)),
                 lambda name, image, hyps, scene: write_pose_files(args.out, name, image, hyps, obj, scene))
     except (ValueError, FileNotFoundError, DiskFullError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -26,6 +26,27 @@ MIN_FOV_DEG = 0.5
 MAX_FOV_DEG = 175.0
 
 
+def parse_clip(value: object, option: str = "clip") -> tuple[float, float] | None:
+    """``[near, far]`` working clip planes (metres) given by a user, or None; one error naming the
+    option and what is wrong."""
+    if value is None:
+        return None
+    try:
+        if isinstance(value, str | bytes) or not isinstance(value, list | tuple):
+            raise TypeError
+        near, far = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{option}={value!r}: expected [near, far] in metres") from None
+    if not (0 < near < far <= MAX_CLIP_END_M):
+        raise ValueError(f"{option}=[{near:g}, {far:g}]: expected 0 < near < far <= {MAX_CLIP_END_M:g} metres")
+    return near, far
+
+
+def with_clip(camera: Camera, clip: tuple[float, float] | None) -> Camera:
+    """``camera`` with the clip planes ``clip`` (None: unchanged)."""
+    return camera if clip is None else replace(camera, clip_start=clip[0], clip_end=clip[1])
+
+
 @dataclass(frozen=True)
 class Camera:
     """Intrinsics, image size and clip planes of a depth camera.
