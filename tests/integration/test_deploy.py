@@ -227,6 +227,9 @@ def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpo
     proc = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o3"),
                            "--search", "--icp-budget-ms", "50"], capture_output=True, text=True, cwd=REPO_ROOT)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    # without the exported averaging: the hypotheses of the checkpoint decoded with averaging off
+    raw = OnnxPoseEstimator(onnx_path, averaging=False)
+    assert raw.averaging is None and len(raw.predict(record.depth, record.camera).t) >= len(h0.t)
     bad = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o4"),
                           "--clip", "2", "1"], capture_output=True, text=True, cwd=REPO_ROOT)
     assert bad.returncode == 2 and bad.stderr.strip() == "error: --clip=[2, 1]: expected 0 < near < far <= 50 metres"

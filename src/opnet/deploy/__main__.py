@@ -46,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), default=None,
                     help="the model's working clip planes (metres) in place of the camera's: they set the input's "
                          "depth normalization (a model trained with other planes than the camera file's)")
+    ap.add_argument("--no-averaging", action="store_true",
+                    help="decode without the exported DBSCAN averaging (with --search: every hypothesis a start)")
     ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
     ap.add_argument("--search", action="store_true",
                     help="ICP, then the depth-agreement search of each pose (turns about the part's axis, shifts "
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
             icp = search_settings(budget) if args.search else ICPSettings(budget_ms=budget)
         roi = None if args.roi in ("null", "none") else args.roi
         clip = parse_clip(args.clip, "--clip")
-        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi)
+        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi, averaging=not args.no_averaging)
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))

@@ -46,6 +46,10 @@ class OnnxPoseEstimator:
         path: the ``.onnx`` file written by ``python export.py``.
         providers: ONNX Runtime execution providers (default: CPU).
         threads: intra-op threads (default: ONNX Runtime's choice, one per core).
+        icp: ICP (and search) settings to refine with, or None. roi: the region of interest
+            ("model": the exported one). averaging: False decodes without the exported DBSCAN
+            averaging (as ``eval.py +decoding.averaging=false``; with the search, every hypothesis
+            is a start).
     Raises:
         FileNotFoundError: no such file.
         ValueError: not an ONNX model, no opnet metadata, or metadata that contradicts the graph
@@ -53,7 +57,8 @@ class OnnxPoseEstimator:
     """
 
     def __init__(self, path: str | Path, providers: Sequence[str] = ("CPUExecutionProvider",),
-                 threads: int | None = None, icp: ICPSettings | None = None, roi: Any = "model") -> None:
+                 threads: int | None = None, icp: ICPSettings | None = None, roi: Any = "model",
+                 averaging: bool = True) -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
@@ -81,7 +86,7 @@ class OnnxPoseEstimator:
         ps = s["pose_space"]
         space = PoseSpaceArrays(ps["Lambda"], ps["group"], ps["delta"], ps["revolution"], ps["lam"])
         avg = s["averaging"]
-        self.averaging = None if avg is None else PoseAveraging(space, avg["eps"], avg["min_samples"],
+        self.averaging = None if avg is None or not averaging else PoseAveraging(space, avg["eps"], avg["min_samples"],
                                                                 avg["cluster_score"], avg["keep_noise"])
         self.input_size = s["input_size"]
         self.fit = s["fit"]
