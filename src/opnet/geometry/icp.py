@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
-from opnet.geometry.search import SearchSettings, model_axis, pose_agreement, search_pose
+from opnet.geometry.search import SearchSettings, model_axis, pose_agreement, search_pose, turns
 
 STATUSES = ("refined", "searched", "suppressed", "no_depth", "rejected", "budget")
 
@@ -121,6 +121,11 @@ class ModelCloud:
             points, faces = np.vstack((points, extra)), np.concatenate((faces, extra_faces))
         return cls(np.asarray(points, np.float64), np.asarray(mesh.face_normals[faces], np.float64), float(diameter))
 
+    def posed(self, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The points at the pose (R, t) in the camera frame (P, 3), and which face the camera (P,)."""
+        p = self.points @ R.T + t
+        return p, np.sum((self.normals @ R.T) * p, -1) < 0
+
 
 @dataclass
 class SceneCloud:
@@ -175,8 +180,7 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     angle = float(np.linalg.norm(w))
     if angle < 1e-12:
         return np.eye(3) + _skew(w)
-    K = _skew(w / angle)
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    return turns(w / angle, np.array([angle]))[0]
 
 
 def _residuals(R: np.ndarray, t: np.ndarray, model: ModelCloud, local: tuple[cKDTree, np.ndarray, np.ndarray],
@@ -184,8 +188,7 @@ def _residuals(R: np.ndarray, t: np.ndarray, model: ModelCloud, local: tuple[cKD
     """Correspondences of the model points facing the camera with the scene points near the
     hypothesis (``local``: their tree, points, normals): (p (K, 3), q (K, 3), n_q (K, 3))."""
     tree, points, normals = local
-    p = model.points @ R.T + t
-    facing = np.sum((model.normals @ R.T) * p, -1) < 0
+    p, facing = model.posed(R, t)
     p = p[facing]
     if not len(p):
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
@@ -316,7 +319,6 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     search = settings.search
     if search is not None and (depth is None or camera is None):
         raise ValueError("icp: the search needs the depth image and its camera")
-    agree = np.zeros(len(R_out))
     axis = model_axis(model.points, search.axis) if search is not None else None
     start = time.perf_counter()
     for k in np.argsort(-score_in, kind="stable"):
@@ -328,12 +330,9 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
             Rs, ts, _ = search_pose(R_out[k], t_out[k], model, depth, camera, axis, search)
             polished = refine_pose(Rs, ts, model, scene, space, settings)
             R_out[k], t_out[k], status[k] = polished.R, polished.t, "searched"
-            agree[k] = pose_agreement(R_out[k], t_out[k], model, depth, camera, search)
     if search is None:
         return R_out, t_out, status, score_in.copy()
-    for k, st in enumerate(status):
-        if st != "searched":
-            agree[k] = pose_agreement(R_out[k], t_out[k], model, depth, camera, search)
+    agree = np.array([pose_agreement(Rk, tk, model, depth, camera, search) for Rk, tk in zip(R_out, t_out, strict=True)])
     final = {"agreement": agree, "network": score_in.copy(), "product": score_in * np.maximum(agree, 0.0)}[search.score]
     if search.suppress > 0:  # duplicates: searches from nearby hypotheses that ended on one pose
         kept: list[int] = []

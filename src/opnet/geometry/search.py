@@ -127,7 +127,7 @@ def agreement(points: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: 
     return (agree - see_through_weight * through) / np.maximum(np.sum(valid, -1), 1)
 
 
-def _turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
+def turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """Rotations (T, 3, 3) by ``angles`` (T,) radians about the unit ``axis`` (Rodrigues)."""
     K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     s, c = np.sin(angles)[:, None, None], np.cos(angles)[:, None, None]
@@ -136,22 +136,20 @@ def _turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
 
 def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, n: np.ndarray,
              angles: np.ndarray, offsets: np.ndarray, frame: tuple[np.ndarray, np.ndarray], settings: SearchSettings,
-             keep: int = 1) -> list[tuple[float, np.ndarray, np.ndarray, float, int, int]]:  # fmt: skip
-    """The ``keep`` best (agreement, R, t, angle, i, j) among the turns ``angles`` (radians) of R about
+             keep: int = 1) -> list[tuple[float, np.ndarray, np.ndarray, float]]:  # fmt: skip
+    """The ``keep`` best (agreement, R, t, angle) among the turns ``angles`` (radians) of R about
     ``n`` through t and the shifts ``offsets[i] e1 + offsets[j] e2`` (metres); the best turn of each
     angle only, best first (ties: the earlier angle, the smaller shift)."""
     e1, e2 = frame
-    grid = np.stack(np.meshgrid(np.arange(len(offsets)), np.arange(len(offsets)), indexing="ij"), -1).reshape(-1, 2)
-    shifts = offsets[grid[:, 0], None] * e1 + offsets[grid[:, 1], None] * e2  # (M, 3)
+    shifts = (offsets[:, None, None] * e1 + offsets[None, :, None] * e2).reshape(-1, 3)  # (M, 3), row-major (i, j)
     D, found = model.diameter, []
-    for angle, Rk in zip(angles, _turns(n, angles) @ R, strict=True):  # one turn at a time: (M, K, 3) stays small
-        local = model.points @ Rk.T
-        facing = np.sum((model.normals @ Rk.T) * (local + t), -1) < 0
-        pts = local[facing] + t
+    for angle, Rk in zip(angles, turns(n, angles) @ R, strict=True):  # one turn at a time: (M, K, 3) stays small
+        posed, facing = model.posed(Rk, t)
+        pts = posed[facing]
         scores = agreement(pts[None] + shifts[:, None], np.ones((len(shifts), len(pts)), bool), depth, camera,
                            settings.tolerance * D, settings.see_through_weight)  # fmt: skip
         m = int(np.argmax(scores))
-        found.append((float(scores[m]), Rk, t + shifts[m], float(angle), int(grid[m, 0]), int(grid[m, 1])))
+        found.append((float(scores[m]), Rk, t + shifts[m], float(angle)))
     found.sort(key=lambda f: -f[0])  # stable: ties keep the earlier angle
     return found[:keep]
 
@@ -190,7 +188,7 @@ def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, cam
     angles = np.radians(np.arange(0.0, 360.0 - 1e-9, turn))
     coarse = _best_of(R, t, model, depth, camera, n, angles, offsets(step * D, s.shift * D), frame, s, keep=3)
     best = None
-    for _, _, t_c, angle, _, _ in coarse:
+    for _, _, t_c, angle in coarse:
         fine = np.radians(np.arange(-turn, turn + 1e-9, s.turn_step_deg)) + angle
         fine = fine[np.argsort(np.abs(fine - angle), kind="stable")]  # the coarse turn first: it wins ties
         found = _best_of(R, t_c, model, depth, camera, n, fine, offsets(s.shift_step * D, step * D), frame, s)[0]
@@ -202,10 +200,9 @@ def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, cam
 def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
                    settings: SearchSettings) -> float:  # fmt: skip
     """:func:`agreement` of one pose (its model points facing the camera)."""
-    local = model.points @ R.T
-    facing = np.sum((model.normals @ R.T) * (local + t), -1) < 0
-    return float(agreement((local + t)[None], facing[None], depth, camera, settings.tolerance * model.diameter,
+    posed, facing = model.posed(R, t)
+    return float(agreement(posed[None], facing[None], depth, camera, settings.tolerance * model.diameter,
                            settings.see_through_weight)[0])  # fmt: skip
 
 
-__all__ = ["AXES", "SCORES", "SearchSettings", "agreement", "model_axis", "pose_agreement", "search_pose"]
+__all__ = ["AXES", "SCORES", "SearchSettings", "agreement", "model_axis", "pose_agreement", "search_pose", "turns"]
