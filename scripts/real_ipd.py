@@ -63,6 +63,10 @@ from opnet.paths import best_checkpoint, shared_dir  # noqa: E402
 
 FRAMES = shared_dir() / "data" / "ipd_real_obj18"
 OBJECT_ID = 18
+#: the region of interest (pixels of the 2064 x 1544 frames) around the basket, found from the frames'
+#: depth alone, and the working clip planes around it (metres)
+ROI = [560, 230, 1250, 1160]
+CLIP = [1.55, 2.05]
 #: the pose of the camera over the basket floor, measured from the frames' ground truth
 #: (python -m opnet.synthesis.camera_pose ../shared/data/ipd_real_obj18/test --object-id 18)
 CAMERA_POSE = {"camera_height": 1.7748, "camera_tilt_deg": 19.86, "camera_azimuth_deg": -30.26}
@@ -170,13 +174,20 @@ def mask_visibility_split(out: Path) -> Path:
     return out / "test"
 
 
-def evaluate(ckpt: Path, split: Path, out: Path, roi: list[int], clip: list[float], refine: str) -> dict[str, Any]:
+def evaluate(ckpt: Path, split: Path, out: Path, roi: list[int], clip: list[float], overrides: list[str],
+             examples: int = 3) -> dict[str, Any]:  # fmt: skip
+    """``eval.py`` of ``ckpt`` on a BOP split of the frames (ROI, clip planes, the dataset's own
+    resolution) with further ``overrides``; its summary."""
     split = split.resolve()  # read whole as the test split (data.root too: nothing else is opened)
     run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
          f"+data.object_id={OBJECT_ID}", f"+data.roi=[{','.join(map(str, roi))}]", f"+data.clip=[{clip[0]},{clip[1]}]",
-         "+data.cache=false", f"out={out}", "examples=3",
-         f"refine={refine}", *SEARCH_DECODING * (refine == "search")], out.with_suffix(".log"))  # fmt: skip
+         "+data.cache=false", f"out={out}", f"examples={examples}", *overrides], out.with_suffix(".log"))  # fmt: skip
     return json.loads((out / "summary.json").read_text())
+
+
+def refine_overrides(refine: str) -> list[str]:
+    """The eval.py overrides of a refinement of :data:`REFINEMENTS`."""
+    return [f"refine={refine}", *SEARCH_DECODING * (refine == "search")]
 
 
 def row(summary: dict[str, Any], visibility: str, refine: str) -> dict[str, Any]:
@@ -306,8 +317,8 @@ def main(argv: list[str] | None = None) -> int:
         print((folder.parent / "ab.md").read_text())
         return 0
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--roi", type=int, nargs=4, default=[560, 230, 1250, 1160], metavar=("X0", "Y0", "X1", "Y1"))
-    ap.add_argument("--clip", type=float, nargs=2, default=[1.55, 2.05], metavar=("NEAR", "FAR"))
+    ap.add_argument("--roi", type=int, nargs=4, default=ROI, metavar=("X0", "Y0", "X1", "Y1"))
+    ap.add_argument("--clip", type=float, nargs=2, default=CLIP, metavar=("NEAR", "FAR"))
     ap.add_argument("--cycles", type=int, default=200)
     ap.add_argument("--test-cycles", type=int, default=24)
     ap.add_argument("--views", type=int, default=2)
@@ -368,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
             if split is None:
                 summary = json.loads((folder / "summary.json").read_text())
             else:
-                summary = evaluate(ckpt, split, folder, args.roi, args.clip, refine)
+                summary = evaluate(ckpt, split, folder, args.roi, args.clip, refine_overrides(refine))
             rows.append(row(summary, visibility, refine))
     synthetic = json.loads((args.run_dir / "test" / "summary.json").read_text())
     write_results(args, rows, evals, ckpt, synthetic, gen_minutes)

@@ -20,7 +20,6 @@ import importlib.util
 import json
 import os
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
@@ -45,17 +44,9 @@ ARMS = [
 
 
 def score(run: Path, overrides: list[str], out: Path) -> dict:
-    split = (real_ipd.FRAMES / "test").resolve()
-    ckpt = real_ipd.best_checkpoint(run)
-    cmd = [sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
-           f"+data.object_id={real_ipd.OBJECT_ID}", "+data.roi=[560,230,1250,1160]", "+data.clip=[1.55,2.05]",
-           "+data.cache=false", f"out={out}", "examples=0", *overrides]  # fmt: skip
-    log = out.with_suffix(".log")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("w") as f:
-        if subprocess.run(cmd, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, check=False).returncode:
-            raise SystemExit(f"error: eval.py failed; see {log}")
-    return json.loads((out / "summary.json").read_text())
+    """A run's best checkpoint on the real frames with one arm's eval.py overrides."""
+    return real_ipd.evaluate(real_ipd.best_checkpoint(run), real_ipd.FRAMES / "test", out, real_ipd.ROI, real_ipd.CLIP,
+                             overrides, examples=0)  # fmt: skip
 
 
 def generated_table(path: Path) -> list[str]:
