@@ -61,6 +61,16 @@ class OPNetSystem(L.LightningModule):
         self.test_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
         self._val_images: list[torch.Tensor] = []
 
+    def on_fit_start(self) -> None:
+        """Record the training scenes' clip planes in the run config the checkpoints carry
+        (``trained_clip``): predict.py and the ONNX runtime normalize a new image's depth with them,
+        whatever planes its camera file gives (:func:`trained_clip`)."""
+        config, datamodule = self.hparams.get("config"), getattr(self.trainer, "datamodule", None)
+        train = (getattr(datamodule, "splits", None) or {}).get("train")
+        if isinstance(config, dict) and train is not None and hasattr(train, "clip_planes"):
+            planes = train.clip_planes()
+            config["trained_clip"] = list(planes) if planes is not None else None
+
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) normalized depth -> (B, C, G, G) parameterization output."""
         return self.backbone(images)

@@ -1,12 +1,16 @@
-"""predict.py clip=[near, far]: the model's working clip planes in place of the camera's; a bad
-value is one error naming it."""
+"""The clip planes an input's depth is normalized with: the training scenes' (recorded by train.py
+when they share one pair), the camera's, or given ones (predict.py clip=, the runtime's --clip); a
+bad value is one error naming it."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import pytest
 from omegaconf import OmegaConf
 
-from opnet.geometry.camera import parse_clip
+from opnet.data.datamodule import SceneSamples
+from opnet.geometry.camera import Camera, describe_clip, parse_clip, working_clip
 
 
 def test_clip_reads_two_metres() -> None:
@@ -25,3 +29,38 @@ def test_clip_reads_two_metres() -> None:
 def test_a_bad_clip_is_one_error(value, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         parse_clip(value)
+
+
+def test_working_clip_is_the_models_planes_unless_told_otherwise() -> None:
+    trained = (1.55, 2.05)
+    assert working_clip("model", trained) == trained and working_clip(None, trained) == trained
+    assert working_clip("model", None) is None  # a checkpoint that records none: the camera's
+    assert working_clip("camera", trained) is None
+    assert working_clip([0.5, 1.5], trained) == (0.5, 1.5)
+    with pytest.raises(ValueError, match=r"clip='modle': expected model, camera or \[near, far\]"):
+        working_clip("modle", trained)
+    assert describe_clip(trained, trained) == "clip planes: [1.55, 2.05] m (the model's training planes)"
+    assert describe_clip((0.5, 1.5), trained) == "clip planes: [0.5, 1.5] m (given)"
+    assert describe_clip(None, None) == "clip planes: each camera's own (the model records no training planes)"
+
+
+class _Scenes:
+    """Records with only a camera, the planes of scene i from ``planes(i)``."""
+
+    def __init__(self, n: int, planes) -> None:
+        self.n, self.planes = n, planes
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> SimpleNamespace:
+        near, far = self.planes(i)
+        return SimpleNamespace(camera=Camera(500.0, 500.0, 63.5, 63.5, 128, 128, near, far))
+
+
+def test_training_scenes_clip_planes_are_one_pair_or_none() -> None:
+    same = SceneSamples(_Scenes(40, lambda i: (0.5, 1.5)), range(40))
+    assert same.clip_planes() == (0.5, 1.5)
+    mixed = SceneSamples(_Scenes(40, lambda i: (0.5, 1.5) if i < 30 else (1.0, 2.0)), range(40))
+    assert mixed.clip_planes() is None  # two camera set-ups: no one normalization
+    assert SceneSamples(_Scenes(3, lambda i: (0.5, 1.5)), []).clip_planes() is None

@@ -15,6 +15,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from opnet.cli.trusted import saved_config, short
+from opnet.geometry.camera import trained_clip
 from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
@@ -170,6 +171,8 @@ def check_framing(cfg: DictConfig, path: str | Path) -> None:
     if fit not in CANVAS_FITS:
         raise ValueError(f"{path}: the checkpoint's config data.fit={short(repr(fit))}, expected one of "
                          f"{', '.join(CANVAS_FITS)}")
+    trained_clip(cfg, path)
+
 
 
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:

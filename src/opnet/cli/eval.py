@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import build_datamodule, load_checkpoint
@@ -17,6 +18,7 @@ from opnet.cli.console import report, result_summary
 from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
+from opnet.geometry.camera import trained_clip
 from opnet.geometry.icp import STATUSES, ICPSettings, Refiner, settings_from_config
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import diagnose
@@ -144,6 +146,16 @@ def with_decoding_overrides(param: Any, overrides: Any) -> Any:
         raise ValueError(f"decoding={settings}: {e}") from None
 
 
+def warn_other_clip(samples: Any, trained: tuple[float, float] | None) -> None:
+    """Log a warning when the scenes' cameras normalize depth with other clip planes than the
+    model's training scenes did (the network then sees its inputs scaled otherwise)."""
+    planes = samples.clip_planes() if trained is not None and len(samples) else None
+    if planes is not None and not np.allclose(planes, trained, atol=1e-6):
+        log.warning("the scenes' clip planes [%g, %g] m differ from the model's training planes [%g, %g] m: the "
+                    "network sees their depth normalized otherwise (+data.clip=[%g,%g] for BOP data)",
+                    *planes, *trained, *trained)
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of eval.py (see conf/eval.yaml)."""
     started = time.monotonic()
@@ -158,6 +170,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if overrides:  # overrides of the data section (e.g. another dataset root)
         run_cfg = OmegaConf.merge(run_cfg, {"data": overrides})
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
+    datamodule.setup("test")
+    warn_other_clip(datamodule.splits[cfg.split], trained_clip(run_cfg, cfg.ckpt))
     icp = settings_from_config(cfg.get("refine"))
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)), icp=icp)
     lines = result_summary(result, str(out_dir / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))

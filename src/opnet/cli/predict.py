@@ -9,8 +9,11 @@ Accepted inputs:
      a camera YAML (``camera.file=<yaml>`` with the same keys). The PNG's depth encoding is
      ``camera.depth_scale`` metres per unit (0.001 for millimetre PNGs of RealSense / Kinect /
      Zivid exports; 0 = no depth) or, when it is null, the datasets' code between the clip planes
-     (65535 = no depth). The clip planes also set the network's depth normalization: use the
-     working range of the training data.
+     (65535 = no depth).
+  The network normalizes depth with the clip planes of its training scenes, which checkpoints
+  written by train.py record (``trained_clip``): ``clip=model`` (the default) uses them whatever
+  planes the camera gives, ``clip=camera`` the camera's, ``clip=[near,far]`` those (a checkpoint
+  that records none: the camera's).
 - a ``.npy`` array of depth in metres (NaN or 0 = missing; an integer array with
   ``camera.depth_scale``), with the intrinsics from the config as in 2.
 - a folder: every such file in it (recursively, regular files only).
@@ -51,7 +54,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import write_bytes_atomic
 from opnet.data.roi import crop_image, parse_roi
-from opnet.geometry.camera import parse_clip, with_clip
+from opnet.geometry.camera import describe_clip, trained_clip, with_clip, working_clip
 from opnet.geometry.icp import Refiner, settings_from_config
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
@@ -143,13 +146,16 @@ def run(cfg: DictConfig) -> int:
     camera_cfg = OmegaConf.to_container(cfg.camera, resolve=True) if cfg.get("camera") is not None else None
     given = given_camera(camera_cfg)
     icp = settings_from_config(cfg.get("refine"))
-    system, _ = load_checkpoint(cfg.ckpt)
+    system, run_cfg = load_checkpoint(cfg.ckpt)
     system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
+    trained = trained_clip(run_cfg, cfg.ckpt)
+    value = cfg.get("clip")
+    clip = working_clip(OmegaConf.to_container(value) if isinstance(value, ListConfig) else value, trained)
+    print(describe_clip(clip, trained))
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
 
     roi = "checkpoint" if cfg.get("roi") is None else parse_roi(cfg.roi, "roi")
-    clip = parse_clip(OmegaConf.to_container(cfg.clip) if isinstance(cfg.get("clip"), ListConfig) else cfg.get("clip"))
 
     def estimate(image: DepthImage) -> HypothesisSet:
         if clip is not None:  # the model's working range in place of the camera's (the input's normalization)

@@ -68,6 +68,16 @@ class SceneSamples(Dataset):
     def record(self, i: int) -> SceneRecord:
         return self.source[self.indices[i]]
 
+    def clip_planes(self, probes: int = 16) -> tuple[float, float] | None:
+        """The clip planes (metres) of these scenes' cameras, i.e. the depth normalization the
+        network learns, read from up to ``probes`` scenes spread over them; None when they differ
+        (several camera set-ups) or there are no scenes."""
+        if not self.indices:
+            return None
+        picks = sorted({round(k * (len(self) - 1) / max(1, probes - 1)) for k in range(probes)})
+        planes = {(float(c.clip_start), float(c.clip_end)) for c in (self.record(i).camera for i in picks)}
+        return planes.pop() if len(planes) == 1 else None
+
     def __getitem__(self, i: int) -> Sample:
         if not self.train:
             if i not in self._fixed:

@@ -2,13 +2,15 @@
 
     python -m opnet.deploy <model.onnx> <depth png, .npy or folder> --out <dir>
         [--camera <camera.yaml>] [--fx PX --fy PX --cx PX --cy PX --clip-start M --clip-end M]
-        [--depth-scale 0.001] [--threads N] [--overwrite]
+        [--depth-scale 0.001] [--threads N] [--overwrite] [--clip NEAR FAR | --camera-clip]
+        [--icp] [--search] [--no-averaging]
 
 The inputs and cameras are predict.py's (:mod:`opnet.datasets.depth_inputs`: a dataset PNG takes
 the camera file above it, other images the intrinsics given here), and so are the outputs
 ``<out>/<name>.json`` (poses, camera frame, and world frame when known) and
 ``<out>/results/<scene>.json`` (Siléane results format). Only numpy, OpenCV, SciPy, PyYAML and
-onnxruntime are imported. Outputs are never overwritten without ``--overwrite``; a second run into a
+onnxruntime are imported. An input's depth is normalized with the training scenes' clip planes
+the export records (``--clip`` other planes, ``--camera-clip`` the camera's own). Outputs are never overwritten without ``--overwrite``; a second run into a
 folder another run is writing into stops at once. Exit status: 0, 1 when some images failed, 2 on
 bad arguments.
 """
@@ -28,7 +30,7 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import DiskFullError
-from opnet.geometry.camera import parse_clip, with_clip
+from opnet.geometry.camera import describe_clip, parse_clip
 from opnet.geometry.icp import ICPSettings, search_settings
 
 
@@ -43,9 +45,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="ONNX Runtime threads (default: one per core)")
     ap.add_argument("--overwrite", action="store_true")
     ap.add_argument("--roi", default="model", help="region of interest: x0,y0,x1,y1 pixels, auto, or null (default: the model's)")
-    ap.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), default=None,
-                    help="the model's working clip planes (metres) in place of the camera's: they set the input's "
-                         "depth normalization (a model trained with other planes than the camera file's)")
+    planes = ap.add_mutually_exclusive_group()
+    planes.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), default=None,
+                        help="clip planes (metres) the input's depth is normalized with, in place of the model's "
+                             "training planes (default: those the export records, else the camera's)")
+    planes.add_argument("--camera-clip", action="store_true",
+                        help="normalize with each camera's own clip planes, not the model's training planes")
     ap.add_argument("--no-averaging", action="store_true",
                     help="decode without the exported DBSCAN averaging (with --search: every hypothesis a start)")
     ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
@@ -68,13 +73,15 @@ def main(argv: list[str] | None = None) -> int:
             budget = args.icp_budget_ms if args.icp_budget_ms is not None else (None if args.search else 100.0)
             icp = search_settings(budget) if args.search else ICPSettings(budget_ms=budget)
         roi = None if args.roi in ("null", "none") else args.roi
-        clip = parse_clip(args.clip, "--clip")
-        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi, averaging=not args.no_averaging)
+        clip = "camera" if args.camera_clip else parse_clip(args.clip, "--clip") or "model"
+        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi, averaging=not args.no_averaging,
+                                      clip=clip)
+        print(describe_clip(estimator.clip, estimator.trained_clip))
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))
             failed = predict_inputs(
-                inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, with_clip(image.camera, clip)),
+                inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, image.camera),
                 lambda name, image, hyps, scene: write_pose_files(args.out, name, image, hyps, obj, scene))
     except (ValueError, FileNotFoundError, DiskFullError) as e:
         print(f"error: {e}", file=sys.stderr)

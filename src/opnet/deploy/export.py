@@ -29,6 +29,7 @@ import torch
 
 from opnet import __version__
 from opnet.fileio.atomic import disk_full_named
+from opnet.geometry.camera import trained_clip
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
 from opnet.parameterizations.base import Parameterization
@@ -92,6 +93,8 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
                   "roi": _roi_json(data.get("roi")),
                   "layout": "NCHW float32, (z - clip_start) / (clip_end - clip_start), missing depth filled"},
         "camera_input": ["fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"],
+        # the training scenes' clip planes: the runtime normalizes an input's depth with them
+        "trained_clip": _clip_json(trained_clip(cfg, ckpt)),
         "outputs": list(OUTPUTS),
         "decoding": {"threshold": param.threshold, "score": param.score, "min_visibility": param.min_visibility,
                      "averaging": None if avg is None else {"eps": avg.eps, "min_samples": avg.min_samples,
@@ -100,6 +103,10 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
         "icp_model": icp_model_metadata(param.obj),
     }
+
+
+def _clip_json(clip: tuple[float, float] | None) -> list[float] | None:
+    return None if clip is None else [float(clip[0]), float(clip[1])]
 
 
 def _roi_json(value: Any) -> Any:

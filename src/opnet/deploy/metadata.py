@@ -17,6 +17,7 @@ import numpy as np
 from opnet._repr import short_repr
 from opnet.data.preprocess import CANVAS_FITS
 from opnet.data.roi import parse_roi
+from opnet.geometry.camera import parse_clip
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
 from opnet.parameterizations.averaging import CLUSTER_SCORES
 
@@ -102,7 +103,7 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         ``{"grid_size", "slots", "channels_per_slot", "input_size", "fit", "interpolation",
         "threshold", "score", "min_visibility", "averaging" (None or eps, min_samples,
         cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam),
-        "icp_model" (None or points, normals, diameter)}``.
+        "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far))}``.
     Raises:
         ValueError: ``<path>: opnet metadata <key> = <value>, expected <what>`` for the first bad field.
     """
@@ -163,6 +164,10 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         icp = {"points": points, "normals": normals,
                "diameter": f.number(icp, "diameter", 0.0, 1000.0, "icp_model.", low_open=True)}
     out["icp_model"] = icp
+    try:
+        out["trained_clip"] = parse_clip(meta.get("trained_clip"), "trained_clip")  # absent: exported before
+    except ValueError as e:
+        raise ValueError(f"{f.path}: opnet metadata {e}") from None
     out["pose_space"] = {
         "Lambda": f.array(ps, "Lambda", (3, 3), "pose_space."),
         "group": group,

@@ -27,7 +27,7 @@ from opnet._limits import check_threads
 from opnet.data.preprocess import to_network_input
 from opnet.deploy.metadata import validate_metadata
 from opnet.fileio.files import require_regular_file
-from opnet.geometry.camera import Camera
+from opnet.geometry.camera import Camera, with_clip, working_clip
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.data.roi import crop_image, parse_roi
@@ -49,7 +49,9 @@ class OnnxPoseEstimator:
         icp: ICP (and search) settings to refine with, or None. roi: the region of interest
             ("model": the exported one). averaging: False decodes without the exported DBSCAN
             averaging (as ``eval.py +decoding.averaging=false``; with the search, every hypothesis
-            is a start).
+            is a start). clip: the clip planes an input's depth is normalized with: "model" (the
+            training scenes' planes the export records; the camera's if it records none), "camera"
+            (each camera's own) or (near, far) metres.
     Raises:
         FileNotFoundError: no such file.
         ValueError: not an ONNX model, no opnet metadata, or metadata that contradicts the graph
@@ -58,7 +60,7 @@ class OnnxPoseEstimator:
 
     def __init__(self, path: str | Path, providers: Sequence[str] = ("CPUExecutionProvider",),
                  threads: int | None = None, icp: ICPSettings | None = None, roi: Any = "model",
-                 averaging: bool = True) -> None:
+                 averaging: bool = True, clip: Any = "model") -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
@@ -91,6 +93,8 @@ class OnnxPoseEstimator:
         self.input_size = s["input_size"]
         self.fit = s["fit"]
         self.roi = s["roi"] if roi == "model" else parse_roi(roi, "roi")
+        self.trained_clip: tuple[float, float] | None = s["trained_clip"]
+        self.clip = working_clip(clip, self.trained_clip)
         self.refiner: Refiner | None = None
         if icp is not None:
             cloud = s["icp_model"]
@@ -140,6 +144,7 @@ class OnnxPoseEstimator:
 
     def predict(self, depth: np.ndarray, camera: Camera) -> HypothesisSet:
         """Pose hypotheses of one depth image ((H, W) metres, NaN = missing) in its camera frame."""
+        camera = with_clip(camera, self.clip)
         image, cam = self.preprocess(depth, camera)
         presence, visibility, t, R = self.run(image, cam)
         return self.refine(self.decode(presence[0], visibility[0], t[0], R[0]), depth, camera)
@@ -150,6 +155,7 @@ class OnnxPoseEstimator:
 
     def predict_batch(self, depths: Sequence[np.ndarray], cameras: Sequence[Camera]) -> list[HypothesisSet]:
         """Several images in one graph run (faster per image on a CPU)."""
+        cameras = [with_clip(c, self.clip) for c in cameras]
         pairs = [self.preprocess(d, c) for d, c in zip(depths, cameras, strict=True)]
         if not pairs:
             return []

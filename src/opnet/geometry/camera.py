@@ -7,8 +7,9 @@ Pixel ``(u, v)`` = (column, row), 0-based, pixel centres at integers:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,6 +41,48 @@ def parse_clip(value: object, option: str = "clip") -> tuple[float, float] | Non
     if not (0 < near < far <= MAX_CLIP_END_M):
         raise ValueError(f"{option}=[{near:g}, {far:g}]: expected 0 < near < far <= {MAX_CLIP_END_M:g} metres")
     return near, far
+
+
+#: ``clip`` values of predict.py and the ONNX runtime that are no planes: the model's training
+#: planes (its checkpoint's ``trained_clip``), or the input camera's own
+CLIP_SOURCES = ("model", "camera")
+
+
+def working_clip(value: object, trained: tuple[float, float] | None, option: str = "clip") -> tuple[float, float] | None:
+    """The clip planes an input's depth is normalized with, in place of its camera's (None: the
+    camera's own). ``value``: ``"model"`` or None, the model's training planes ``trained`` (None when
+    it records none); ``"camera"``, the camera's; ``[near, far]``, those."""
+    if value is None or value == "model":
+        return trained
+    if value == "camera":
+        return None
+    if isinstance(value, str):
+        raise ValueError(f"{option}={value!r}: expected model, camera or [near, far] in metres")
+    return parse_clip(value, option)
+
+
+def trained_clip(config: Any, source: object) -> tuple[float, float] | None:
+    """The clip planes of the training scenes' cameras that a run config (a checkpoint's, read from
+    ``source``) records as ``trained_clip`` (train.py records them), or None.
+
+    Raises:
+        ValueError: naming ``source``: not [near, far] metres.
+    """
+    value = config.get("trained_clip")
+    if isinstance(value, Sequence) and not isinstance(value, str | bytes):
+        value = tuple(value)  # an OmegaConf list too
+    try:
+        return parse_clip(value, "trained_clip")
+    except ValueError as e:
+        raise ValueError(f"{source}: the checkpoint's config {e}") from None
+
+
+def describe_clip(clip: tuple[float, float] | None, trained: tuple[float, float] | None) -> str:
+    """One console line: the planes the inputs are normalized with and where they come from."""
+    if clip is None:
+        return "clip planes: each camera's own" + ("" if trained is not None else " (the model records no training planes)")
+    source = "the model's training planes" if clip == trained else "given"
+    return f"clip planes: [{clip[0]:g}, {clip[1]:g}] m ({source})"
 
 
 def with_clip(camera: Camera, clip: tuple[float, float] | None) -> Camera:

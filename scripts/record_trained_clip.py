@@ -1,0 +1,84 @@
+"""Record the training scenes' clip planes in a checkpoint written before train.py recorded them.
+
+    python scripts/record_trained_clip.py <ckpt> [--data ROOT ...] (--write <file.ckpt> | --in-place)
+
+train.py stores the clip planes of its training scenes' cameras in the run config of every
+checkpoint (``trained_clip``): predict.py and the ONNX runtime normalize a new image's depth with
+them. For an older checkpoint this reads the planes from its training datasets (the config's
+``data.root`` unless ``--data`` names them; their scenes must share one pair), writes them into a
+copy (or the file itself with ``--in-place``) atomically, and reads it back.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import torch  # noqa: E402
+
+from opnet.cli.build import load_checkpoint, read_checkpoint  # noqa: E402
+from opnet.data.datamodule import ConcatScenes, SceneSamples, as_paths  # noqa: E402
+from opnet.datasets import open_dataset  # noqa: E402
+from opnet.geometry.camera import trained_clip  # noqa: E402
+
+#: scenes whose cameras are read, spread over the datasets
+PROBES = 64
+
+
+def datasets_clip(roots: list[Path]) -> tuple[float, float]:
+    """The one pair of clip planes of the datasets' scenes.
+
+    Raises:
+        ValueError: a dataset is missing, or the scenes' planes differ.
+    """
+    for root in roots:
+        if not root.is_dir():
+            raise ValueError(f"{root}: training dataset not found (give the datasets with --data)")
+    sources = [open_dataset(root) for root in roots]
+    source = sources[0] if len(sources) == 1 else ConcatScenes(sources)
+    planes = SceneSamples(source, range(len(source))).clip_planes(PROBES)
+    if planes is None:
+        raise ValueError(f"{', '.join(map(str, roots))}: the scenes' cameras have several clip planes (or there are "
+                         "no scenes): no one normalization to record")
+    return planes
+
+
+def record(src: Path, dest: Path, roots: list[Path] | None = None) -> tuple[float, float]:
+    """Write ``src`` with its training planes recorded to ``dest`` (may be ``src``); the planes."""
+    ckpt = read_checkpoint(src)
+    _, cfg = load_checkpoint(src)
+    planes = datasets_clip(roots or as_paths(cfg.data.get("root")))
+    ckpt["hyper_parameters"]["config"]["trained_clip"] = [float(planes[0]), float(planes[1])]
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.tmp")
+    torch.save(ckpt, tmp)
+    os.replace(tmp, dest)
+    if trained_clip(load_checkpoint(dest)[1], dest) != planes:
+        raise ValueError(f"{dest}: the written checkpoint does not read back with trained_clip {planes}")
+    return planes
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("ckpt", type=Path)
+    ap.add_argument("--data", type=Path, nargs="+", default=None, help="the training datasets (default: the config's)")
+    where = ap.add_mutually_exclusive_group(required=True)
+    where.add_argument("--write", type=Path, help="the copy to write")
+    where.add_argument("--in-place", action="store_true", help="rewrite the checkpoint itself")
+    args = ap.parse_args(argv)
+    try:
+        dest = args.ckpt if args.in_place else args.write
+        planes = record(args.ckpt, dest, args.data)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"{dest}: trained_clip [{planes[0]:g}, {planes[1]:g}] m")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
