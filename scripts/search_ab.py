@@ -8,8 +8,10 @@ Each run folder of ``scripts/real_ipd.py`` (one training seed each) is scored on
 overrides, from the network alone to ``refine=search +decoding.averaging=false`` (the recipe): what
 each step of the search is worth, mean ± sd over the runs. ``--generated`` adds the table that
 ``scripts/icp_ab.py --search`` wrote for held-out generated piles (the same refinements on 240
-scenes of another generation seed). Writes ``--out`` and prints it; ``--report`` re-makes it from the
-evaluations already made (``<run>/search_ab/<arm>/``).
+scenes of another generation seed). ``VARIANTS`` (the recipe with one change each, measured and not
+adopted) follow the arms; ``--generated-run RUN`` also scores the recipe and its variants on RUN's own
+held-out generated piles (made once, reused). Writes ``--out`` and prints it; ``--report`` re-makes it
+from the evaluations already made (``<run>/search_ab/<arm>/``).
 """
 
 from __future__ import annotations
@@ -42,11 +44,37 @@ ARMS = [
      ["refine=search", "+decoding.averaging=false"]),
 ]  # fmt: skip
 
+#: variants of the recipe, each the recipe with one change (measured, not part of it)
+VARIANTS = [
+    ("start_0.05", "the recipe, searching from hypotheses down to presence 0.05 (decoding.threshold; as trained 0.1)",
+     [*ARMS[-1][2], "+decoding.threshold=0.05"]),
+    ("start_0.02", "the recipe, searching from hypotheses down to presence 0.02",
+     [*ARMS[-1][2], "+decoding.threshold=0.02"]),
+]  # fmt: skip
+
 
 def score(run: Path, overrides: list[str], out: Path) -> dict:
     """A run's best checkpoint on the real frames with one arm's eval.py overrides."""
     return real_ipd.evaluate(real_ipd.best_checkpoint(run), real_ipd.FRAMES / "test", out, real_ipd.ROI, real_ipd.CLIP,
                              overrides, examples=0)  # fmt: skip
+
+
+def generated_split(run: Path, arms: list[tuple[str, str, list[str]]]) -> list[str]:
+    """The recipe and its variants on ``run``'s own held-out generated piles (its test split at the
+    dataset's resolution): a table. Each evaluation (``<run>/search_ab/generated_<arm>/``) is made
+    once and reused (a few minutes each); delete its folder to make it again."""
+    lines = ["| arm | eval.py overrides | scenes | AP | found % | hypotheses searched from |", "|---|---|---|---|---|---|"]
+    for name, _, overrides in arms:
+        out = run / "search_ab" / f"generated_{name}"
+        if not (out / "summary.json").is_file():
+            real_ipd.run([sys.executable, "eval.py", f"ckpt={real_ipd.best_checkpoint(run)}", "+data.cache=false",
+                          f"out={out}", "examples=0", *overrides], out.with_suffix(".log"))  # fmt: skip
+        summary = json.loads((out / "summary.json").read_text())
+        d = summary["diagnostics"]
+        lines.append(f"| {name} | `{' '.join(overrides)}` | {summary['scenes']} | {summary['ap']:.3f} | "
+                     f"{100 * d['matched'] / max(d['to_find'], 1):.1f} | {sum(summary['icp']['statuses'].values())} |")
+        print(f"{run.name} generated {name}: AP {summary['ap']:.3f}", flush=True)
+    return lines
 
 
 def generated_table(path: Path) -> list[str]:
@@ -65,11 +93,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--generated", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=REPO / "results" / "real_ipd" / "search_ab.md")
     ap.add_argument("--report", action="store_true", help="re-make the page from the evaluations already made")
+    ap.add_argument("--generated-run", type=Path, default=None,
+                    help="also score the recipe and its variants on this run's held-out generated piles")
     args = ap.parse_args(argv)
     for run in args.runs:
         if not (run / "checkpoints").is_dir():
             print(f"error: {run}: not a run folder of scripts/real_ipd.py (no checkpoints/)", file=sys.stderr)
             return 2
+    if args.generated_run is not None and not (args.generated_run / "checkpoints").is_dir():
+        print(f"error: --generated-run {args.generated_run}: not a run folder of scripts/real_ipd.py", file=sys.stderr)
+        return 2
     if args.generated is not None and not args.generated.is_file():
         print(f"error: --generated {args.generated}: no such file (scripts/icp_ab.py --search writes it)", file=sys.stderr)
         return 2
@@ -77,13 +110,15 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [real_ipd.run_info(r)[0] for r in runs]
     lines = ["# The depth-agreement search on the real IPD frames, step by step", "",
              f"Made by `python scripts/search_ab.py {' '.join(os.path.relpath(r, REPO) for r in runs)}"
-             + (f" --generated {os.path.relpath(args.generated, REPO)}" if args.generated else "") + "`. "
+             + (f" --generated {os.path.relpath(args.generated, REPO)}" if args.generated else "")
+             + (f" --generated-run {os.path.relpath(args.generated_run.resolve(), REPO)}" if args.generated_run else "")
+             + "`. "
              "Each arm adds to the one before (unless it says otherwise); every run is one training seed of "
              "`scripts/real_ipd.py` (the same generated data), scored on the three real frames with the official "
              "`visib_fract` (AP: Brégier, max occlusion 0.5; found: plates matched of the 15 to find).", "",
              "| arm | what changes | eval.py overrides | " + " | ".join(f"AP seed {s}" for s in seeds)
              + " | **AP mean ± sd** | found % mean |", "|" + "---|" * (5 + len(runs))]
-    for name, change, overrides in ARMS:
+    for name, change, overrides in ARMS + VARIANTS:
         aps, found = [], []
         for run in runs:
             folder = run / "search_ab" / name
@@ -95,8 +130,16 @@ def main(argv: list[str] | None = None) -> int:
             found.append(100 * summary["diagnostics"]["matched"] / max(summary["diagnostics"]["to_find"], 1))
             print(f"{run.name} {name}: AP {aps[-1]:.3f}", flush=True)
         sd = statistics.stdev(aps) if len(aps) > 1 else 0.0
-        lines.append(f"| {name} | {change} | `{' '.join(overrides) or '(none)'}` | " + " | ".join(f"{a:.3f}" for a in aps)
+        label = f"variant {name}" if (name, change, overrides) in VARIANTS else name
+        lines.append(f"| {label} | {change} | `{' '.join(overrides) or '(none)'}` | " + " | ".join(f"{a:.3f}" for a in aps)
                      + f" | **{statistics.mean(aps):.3f} ± {sd:.3f}** | {statistics.mean(found):.1f} |")
+    lines += ["", "The variants are measured, not adopted: the recipe changes only where held-out generated piles "
+              "support it (`--generated-run`), since the three frames above are the test."]
+    if args.generated_run is not None:
+        run = args.generated_run.resolve()
+        lines += ["", f"The recipe and its variants on the held-out generated piles of `{os.path.relpath(run, REPO)}` "
+                  "(its test split: another generation seed, at the dataset's own resolution):", "",
+                  *generated_split(run, ARMS[-1:] + VARIANTS)]
     if args.generated is not None:
         command = args.generated.parent / "command.txt"
         made_by = f"`{command.read_text().strip()}`" if command.is_file() else "`scripts/icp_ab.py --search`"

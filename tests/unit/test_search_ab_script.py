@@ -31,3 +31,17 @@ def test_every_arm_names_its_overrides_and_the_last_is_the_recipe() -> None:
     names = [a[0] for a in search_ab.ARMS]
     assert names[0] == "none" and names[-1] == "recipe" and len(set(names)) == len(names)
     assert search_ab.ARMS[-1][2] == ["refine=search", *search_ab.real_ipd.SEARCH_DECODING]
+
+
+def test_each_variant_is_the_recipe_with_one_more_override() -> None:
+    recipe = search_ab.ARMS[-1][2]
+    for name, _, overrides in search_ab.VARIANTS:
+        assert overrides[:-1] == recipe and overrides[-1] not in recipe, name
+    assert not {v[0] for v in search_ab.VARIANTS} & {a[0] for a in search_ab.ARMS}
+
+
+def test_a_generated_run_that_is_no_run_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
+    assert search_ab.main([str(tmp_path / "run"), "--generated-run", str(tmp_path / "gone")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--generated-run" in err and "not a run folder" in err
