@@ -174,7 +174,6 @@ def check_framing(cfg: DictConfig, path: str | Path) -> None:
     trained_clip(cfg, path)
 
 
-
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
     """Rebuild a trained system from a checkpoint written by ``train.py``."""
     ckpt = read_checkpoint(path, map_location)

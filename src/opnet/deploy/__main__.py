@@ -10,9 +10,9 @@ the camera file above it, other images the intrinsics given here), and so are th
 ``<out>/<name>.json`` (poses, camera frame, and world frame when known) and
 ``<out>/results/<scene>.json`` (Siléane results format). Only numpy, OpenCV, SciPy, PyYAML and
 onnxruntime are imported. An input's depth is normalized with the training scenes' clip planes
-the export records (``--clip`` other planes, ``--camera-clip`` the camera's own). Outputs are never overwritten without ``--overwrite``; a second run into a
-folder another run is writing into stops at once. Exit status: 0, 1 when some images failed, 2 on
-bad arguments.
+the export records (``--clip`` other planes, ``--camera-clip`` the camera's own). Outputs are never
+overwritten without ``--overwrite``; a second run into a folder another run is writing into stops at
+once. Exit status: 0, 1 when some images failed, 2 on bad arguments.
 """
 
 from __future__ import annotations

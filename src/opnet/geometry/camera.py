@@ -52,12 +52,12 @@ def working_clip(value: object, trained: tuple[float, float] | None, option: str
     """The clip planes an input's depth is normalized with, in place of its camera's (None: the
     camera's own). ``value``: ``"model"`` or None, the model's training planes ``trained`` (None when
     it records none); ``"camera"``, the camera's; ``[near, far]``, those."""
-    if value is None or value == "model":
+    if value is None or value == CLIP_SOURCES[0]:
         return trained
-    if value == "camera":
+    if value == CLIP_SOURCES[1]:
         return None
     if isinstance(value, str):
-        raise ValueError(f"{option}={value!r}: expected model, camera or [near, far] in metres")
+        raise ValueError(f"{option}={value!r}: expected {', '.join(CLIP_SOURCES)} or [near, far] in metres")
     return parse_clip(value, option)
 
 
