@@ -140,3 +140,22 @@ def test_the_export_carries_the_planes_and_the_runtime_uses_them(checkpoint: Pat
     both = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o"),
                            "--camera-clip", "--clip", "1", "2"], capture_output=True, text=True, cwd=REPO_ROOT)
     assert both.returncode == 2 and "not allowed with argument" in both.stderr
+
+
+def test_eval_normalizes_bop_scenes_with_the_models_planes(checkpoint: Path, tiny_dataset: Path, tmp_path: Path,
+                                                           caplog) -> None:
+    from opnet.datasets.bop import convert_ipa_to_bop
+
+    split = convert_ipa_to_bop(tiny_dataset, tmp_path / "bop", split="test", obj_id=3)
+    planes = _planes(tiny_dataset)
+    base = [f"ckpt={checkpoint}", f"data.root={split}", f"data.test_root={split}", "+data.object_id=3",
+            "+data.cache=false", "examples=0", "+decoding.threshold=0.0"]
+    results = {}
+    for name, extra in (("default", []), ("given", [f"+data.clip=[{planes[0]},{planes[1]}]"]),
+                        ("other", [f"+data.clip=[{planes[0] / 2},{planes[1] + 0.3}]"])):
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            eval_cli.run(compose_cfg("eval", [*base, f"out={tmp_path / name}", *extra]))
+        results[name] = sorted((p.name, p.read_text()) for p in (tmp_path / name / "results").glob("*.json"))
+        assert ("differ from the model's training planes" in caplog.text) == (name == "other"), name
+    assert results["default"] == results["given"] and results["default"] != results["other"]

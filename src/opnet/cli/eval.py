@@ -148,7 +148,9 @@ def with_decoding_overrides(param: Any, overrides: Any) -> Any:
 
 def warn_other_clip(samples: Any, trained: tuple[float, float] | None) -> None:
     """Log a warning when the scenes' cameras normalize depth with other clip planes than the
-    model's training scenes did (the network then sees its inputs scaled otherwise)."""
+    model's training scenes did (the network then sees its inputs scaled otherwise): scenes whose
+    camera files set the planes (IPA, Siléane, generated); BOP scenes take the model's planes
+    unless ``data.clip`` gives others."""
     planes = samples.clip_planes() if trained is not None and len(samples) else None
     if planes is not None and not np.allclose(planes, trained, atol=1e-6):
         log.warning("the scenes' clip planes [%g, %g] m differ from the model's training planes [%g, %g] m: the "
@@ -165,13 +167,17 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
     log.info("inference: %s", system.configure_inference(cfg.get("inference")))
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
+    trained = trained_clip(run_cfg, cfg.ckpt)
+    if trained is not None and overrides.get("clip") is None:
+        # BOP scenes are normalized with the model's training planes, not a range guessed from their first image
+        overrides["clip"] = list(trained)
     if overrides.get("root") is not None and run_cfg.data.get("generate") is not None:
         overrides.setdefault("generate", None)  # another dataset is read as it is, never generated into
     if overrides:  # overrides of the data section (e.g. another dataset root)
         run_cfg = OmegaConf.merge(run_cfg, {"data": overrides})
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
     datamodule.setup("test")
-    warn_other_clip(datamodule.splits[cfg.split], trained_clip(run_cfg, cfg.ckpt))
+    warn_other_clip(datamodule.splits[cfg.split], trained)
     icp = settings_from_config(cfg.get("refine"))
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)), icp=icp)
     lines = result_summary(result, str(out_dir / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))
