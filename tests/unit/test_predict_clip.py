@@ -17,6 +17,7 @@ def test_clip_reads_two_metres() -> None:
     assert parse_clip(None) is None
     assert parse_clip(OmegaConf.to_container(OmegaConf.create({"c": [1.55, 2.05]}).c)) == (1.55, 2.05)
     assert parse_clip([1, 2]) == (1.0, 2.0)
+    assert parse_clip(OmegaConf.create({"c": [1.55, 2.05]}).c) == (1.55, 2.05)  # a Hydra override as it comes
 
 
 @pytest.mark.parametrize(("value", "message"), [

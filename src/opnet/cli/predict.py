@@ -39,7 +39,7 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import load_checkpoint
 from opnet.cli.eval import with_decoding_overrides
@@ -150,8 +150,7 @@ def run(cfg: DictConfig) -> int:
     system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
     trained = trained_clip(run_cfg, cfg.ckpt)
-    value = cfg.get("clip")
-    clip = working_clip(OmegaConf.to_container(value) if isinstance(value, ListConfig) else value, trained)
+    clip = working_clip(cfg.get("clip"), trained)
     print(describe_clip(clip, trained))
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
 

@@ -28,12 +28,12 @@ MAX_FOV_DEG = 175.0
 
 
 def parse_clip(value: object, option: str = "clip") -> tuple[float, float] | None:
-    """``[near, far]`` working clip planes (metres) given by a user, or None; one error naming the
-    option and what is wrong."""
+    """``[near, far]`` working clip planes (metres) given by a user (a list, a tuple or an OmegaConf
+    list), or None; one error naming the option and what is wrong."""
     if value is None:
         return None
     try:
-        if isinstance(value, str | bytes) or not isinstance(value, list | tuple):
+        if isinstance(value, str | bytes) or not isinstance(value, Sequence):
             raise TypeError
         near, far = (float(v) for v in value)
     except (TypeError, ValueError):
@@ -68,11 +68,8 @@ def trained_clip(config: Any, source: object) -> tuple[float, float] | None:
     Raises:
         ValueError: naming ``source``: not [near, far] metres.
     """
-    value = config.get("trained_clip")
-    if isinstance(value, Sequence) and not isinstance(value, str | bytes):
-        value = tuple(value)  # an OmegaConf list too
     try:
-        return parse_clip(value, "trained_clip")
+        return parse_clip(config.get("trained_clip"), "trained_clip")
     except ValueError as e:
         raise ValueError(f"{source}: the checkpoint's config {e}") from None
 
