@@ -303,11 +303,11 @@ def build_scene_cache(
         if workers == 1:
             _build_shards((source, path, todo, info))
         else:
-            import multiprocessing as mp
+            from opnet._pool import spawn_imap_unordered
 
             jobs = [(source, path, todo[w::workers], info) for w in range(workers)]
-            with mp.get_context("spawn").Pool(workers) as pool:
-                pool.map(_build_shards, jobs)
+            for _ in spawn_imap_unordered(_build_shards, jobs, workers):
+                pass
     return SceneCache(path)
 
 

@@ -12,7 +12,6 @@ the same bytes as an uninterrupted run.
 from __future__ import annotations
 
 import dataclasses
-import multiprocessing as mp
 import os
 import time
 from collections.abc import Iterator, Mapping
@@ -24,6 +23,7 @@ from tqdm import tqdm
 
 from opnet._deps import require
 from opnet._limits import check_threads
+from opnet._pool import spawn_imap_unordered
 from opnet._repr import short_repr
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.collision import CollisionModel, build_collision_model, check_solid
@@ -145,6 +145,9 @@ def _init_worker(job: _Job, threads: int) -> None:
     global _WORKER
     # llvmpipe (software GL) rasterizes with one thread per CPU in every worker: split the CPUs
     os.environ.setdefault("LP_NUM_THREADS", str(threads))
+    # MuJoCo simulates here, it does not render (pyrender does): without this, importing it loads
+    # glfw, which probes its library's version in a child process at every worker start
+    os.environ.setdefault("MUJOCO_GL", "disable")
     _WORKER = _Worker(job)
 
 
@@ -274,8 +277,7 @@ def _run(job: _Job, piles: list[tuple[int, tuple[int, ...]]], workers: int) -> I
             worker.generator.close()
         return
     threads = max(1, (os.cpu_count() or 1) // workers)
-    with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(job, threads)) as pool:
-        yield from pool.imap_unordered(_run_pile, piles, chunksize=1)
+    yield from spawn_imap_unordered(_run_pile, piles, workers, _init_worker, (job, threads))
 
 
 def _account(report: GenerationReport, done: _CycleDone, drops: int, ready_after: float) -> None:
