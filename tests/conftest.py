@@ -94,9 +94,13 @@ def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``last.ckpt`` of 2 training steps of the tiny vanilla network on :func:`tiny_dataset`."""
+    """``last.ckpt`` of 2 training steps of the tiny vanilla network on :func:`tiny_dataset`, in fp32:
+    ``precision: auto`` would train in bf16 on CPUs that compute it natively, whose kernels differ between
+    CPU kinds (AVX512-BF16 against AMX), and the tests that read this model's hypotheses must see the same
+    model on every machine CI may run on."""
     from opnet.cli import train as train_cli
 
     out = tmp_path_factory.mktemp("ckpt_run")
-    train_cli.run(tiny_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "test=false"]))
+    train_cli.run(tiny_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "test=false",
+                                                     "trainer.precision=32"]))
     return out / "checkpoints" / "last.ckpt"

@@ -222,7 +222,9 @@ def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpo
     searching = ICPSettings(budget_ms=None, search=SearchSettings(turn_step_deg=30.0, shift=0.04))
     expected, status = Refiner.for_object(system.parameterization.obj, searching)(h0, record.depth, record.camera)
     got = OnnxPoseEstimator(onnx_path, icp=searching).predict(record.depth, record.camera)
-    assert set(status) <= {"searched", "no_depth"} and "searched" in status
+    # a hypothesis the search turned onto another's pose is dropped as its duplicate ("suppressed"): how many
+    # are depends on the model's exact outputs, which is not what this test is about
+    assert set(status) <= {"searched", "no_depth", "suppressed"} and "searched" in status
     assert np.abs(got.t - expected.t).max() < 1e-5 and np.abs(got.score - expected.score).max() < 1e-6
     proc = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o3"),
                            "--search", "--icp-budget-ms", "50"], capture_output=True, text=True, cwd=REPO_ROOT)
