@@ -20,7 +20,7 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
-                 "outside_clip", "clutter")
+                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -62,6 +62,18 @@ class SceneConfig:
             axis, metres) and orientation (random axis, angle up to this many degrees).
         bin_jitter_m, bin_jitter_deg: per-cycle uniform jitter of the bin position on the ground
             (x and y, metres) and of its yaw (degrees).
+
+    Where the bin stands (a real cell's bins are swapped, pushed and turned; the camera stays):
+        bin_area: ``[x0, y0, x1, y1]`` metres, a rectangle of the ground in the world frame (its
+            origin is the point of the floor the image centre looks at, x and y as the camera's
+            azimuth measures them): each pile's bin floor centre is drawn uniformly in it,
+            independently of the camera; None = within ``bin_jitter_m`` of the origin (then
+            ``bin_jitter_m`` is not used). Every corner must be in the camera's view.
+        bin_yaw_deg: ``[lo, hi]`` degrees, the range each pile's bin yaw is drawn from uniformly;
+            None = ``[-bin_jitter_deg, bin_jitter_deg]``.
+        bin_tilt_deg: each pile's bin tilted by up to this many degrees about a horizontal axis
+            of any direction (a bin on an uneven floor or a pallet), lifted so that it stays above
+            the ground; 0 = level. The ground stays level.
 
     Bin (a tote of five boxes standing on a ground plane; floor top = bin frame origin, z up):
         bin_inner: inner side of the floor (along the bin's x), metres; None = from the object and
@@ -187,6 +199,9 @@ class SceneConfig:
     bin_clearance: float = 0.0
     outside_clip: str = "missing"
     clutter: int = 0
+    bin_area: tuple[float, float, float, float] | None = None
+    bin_yaw_deg: tuple[float, float] | None = None
+    bin_tilt_deg: float = 0.0
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -235,6 +250,23 @@ class SceneConfig:
         need(self.outside_clip in OUTSIDE_CLIP, "outside_clip", f"one of {OUTSIDE_CLIP}")
         need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
              "camera_azimuth_deg", "a finite number of degrees")
+        area = _numbers(self.bin_area, 4)
+        need(self.bin_area is None or (area is not None and area[0] <= area[2] and area[1] <= area[3]
+                                       and max(map(abs, area)) <= 100), "bin_area",
+             "null or [x0, y0, x1, y1] metres of the ground with x0 <= x1 and y0 <= y1 (the bin centre's area)")
+        yaw = _numbers(self.bin_yaw_deg, 2)
+        need(self.bin_yaw_deg is None or yaw is not None, "bin_yaw_deg", "null or [lo, hi] degrees")
+        need(yaw is None or yaw[0] <= yaw[1], "bin_yaw_deg", "[lo, hi] with lo <= hi (the yaw range is empty)")
+        need(yaw is None or yaw[1] - yaw[0] <= 360, "bin_yaw_deg", "[lo, hi] spanning at most 360 degrees")
+        need(_number(self.bin_tilt_deg) and 0 <= self.bin_tilt_deg <= 30, "bin_tilt_deg",
+             "degrees in [0, 30] (the bin's tilt off level)")
+        object.__setattr__(self, "bin_area", area)  # lists of a config or JSON file, as tuples of floats
+        object.__setattr__(self, "bin_yaw_deg", yaw)
+
+    @property
+    def yaw_range_deg(self) -> tuple[float, float]:
+        """(lo, hi) of the bin's yaw, degrees."""
+        return self.bin_yaw_deg or (-self.bin_jitter_deg, self.bin_jitter_deg)
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -250,9 +282,29 @@ class SceneConfig:
         """Plain JSON-able dict (the inverse of :meth:`from_dict`); fields added after datasets
         existed are left out at their defaults, so those datasets' ``generation.json`` still match."""
         out = dataclasses.asdict(self)
+        for key in ("bin_area", "bin_yaw_deg"):
+            out[key] = None if out[key] is None else list(out[key])
         for key in _LATER_FIELDS:
             if out[key] == getattr(SceneConfig, key):
                 del out[key]
         if out["physics"] == _LEGACY_PHYSICS:
             del out["physics"]
         return out
+
+
+def _number(value: Any) -> bool:
+    """A finite int or float (not a boolean)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _numbers(value: Any, n: int) -> tuple[float, ...] | None:
+    """``value`` as a tuple of ``n`` floats when it is a sequence of ``n`` finite numbers, else None."""
+    if value is None or isinstance(value, (str, bytes)):
+        return None
+    try:
+        items = list(value)
+    except TypeError:
+        return None
+    if len(items) != n or not all(_number(v) for v in items):
+        return None
+    return tuple(float(v) for v in items)

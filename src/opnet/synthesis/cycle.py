@@ -168,7 +168,7 @@ class CycleGenerator:
     def _render_view(self, seed: int, cycle: int, layout: CycleLayout, states: CycleStates) -> CycleResult:
         T_cam_world = layout.T_cam_world
         T_cam_bin = T_cam_world @ layout.T_world_bin
-        self.renderer.begin_cycle(T_cam_bin, clutter_mesh(layout.clutter))
+        self.renderer.begin_cycle(T_cam_bin, clutter_mesh(layout.clutter), T_cam_bin @ layout.T_bin_ground)
         records, solo_renders = [], 0
         for n, T_world_obj in enumerate(states.T_world_obj):
             T_cam_obj = T_cam_world @ T_world_obj  # (n, 4, 4)

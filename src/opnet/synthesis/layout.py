@@ -12,7 +12,7 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
   about ``bin_layers`` layers, and the longest part fits with room to turn;
 - wall height ``bin_wall_factor * D``;
 - camera height: the smallest at which the outer rim of the walls, grown by ``view_margin``, fits
-  into the smaller image side;
+  into the smaller image side (with a working area, ``bin_area``: the bin in any yaw anywhere in it);
 - a camera from a file (``camera_file``: its intrinsics and image size, any principal point):
   the camera moves sideways so that the image centre, not the optical axis, looks at the bin
   centre; its clip planes are used with ``camera_file_clip``, else derived as below;
@@ -175,16 +175,25 @@ class Rig:
 
 @dataclass(frozen=True)
 class CycleLayout:
-    """Per-cycle poses (jittered): (4, 4) bin-to-world and OpenCV-camera-to-world transforms, and
-    the foreign pieces lying on the pile's floor (:mod:`opnet.synthesis.clutter`; bin frame)."""
+    """Per-cycle poses (jittered): (4, 4) bin-to-world and OpenCV-camera-to-world transforms, the
+    foreign pieces lying on the pile's floor (:mod:`opnet.synthesis.clutter`; bin frame) and the
+    pose of the ground plate (None: the bin's; a tilted bin's ground stays level)."""
 
     T_world_bin: np.ndarray
     T_world_cam: np.ndarray
     clutter: tuple = ()
+    T_world_ground: np.ndarray | None = None
 
     @property
     def T_cam_world(self) -> np.ndarray:
         return inverse_pose(self.T_world_cam)
+
+    @property
+    def T_bin_ground(self) -> np.ndarray:
+        """The ground plate's pose in the bin frame (the identity for a level bin)."""
+        if self.T_world_ground is None:
+            return np.eye(4)
+        return inverse_pose(self.T_world_bin) @ self.T_world_ground
 
 
 def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig:
@@ -207,10 +216,14 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
         corner_tan = max(math.hypot((u - given.cx) / fx, (v - given.cy) / fy)
                          for u in (-0.5, width - 0.5) for v in (-0.5, height - 0.5))
     tan_half_image = min(width / 2.0 / fx, height / 2.0 / fy)
-    h = cfg.camera_height or wall + (bin_geom.outer / 2.0) * (1.0 + cfg.view_margin) / tan_half_image
+    half = bin_geom.outer / 2.0
+    if cfg.bin_area is not None:  # the bin in any yaw (its half diagonal) wherever the area lets it stand
+        half = max(map(abs, cfg.bin_area)) + math.hypot(*(side / 2.0 + bin_geom.thickness for side in bin_geom.sides))
+    h = cfg.camera_height or wall + half * (1.0 + cfg.view_margin) / tan_half_image
     _check_jitter(cfg, h, wall, math.degrees(math.atan(tan_half_image)))
     tilt = math.tan(math.radians(cfg.camera_jitter_deg))
-    clip_start = cfg.clip_start or max(h - wall - D - cfg.camera_jitter_m, 0.1 * h)
+    rise = bin_geom.outer * math.sin(math.radians(cfg.bin_tilt_deg))  # a tilted bin's rim rises up to this
+    clip_start = cfg.clip_start or max(h - wall - D - cfg.camera_jitter_m - rise, 0.1 * h)
     clip_end = cfg.clip_end or (h + bin_geom.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m
     if given is not None and cfg.camera_file_clip:
         clip_start, clip_end = cfg.clip_start or given.clip_start, cfg.clip_end or given.clip_end
@@ -251,7 +264,9 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
             near, far = tilted_clip(camera, T_world_cam, bin_geom, D, cfg)
             params = dataclasses.replace(params, clip_start=float(cfg.clip_start or near), clip_end=float(cfg.clip_end or far))
             camera = params.camera()
-    return Rig(bin_geom, params, camera, T_world_cam, radius)
+    rig = Rig(bin_geom, params, camera, T_world_cam, radius)
+    check_bin_area(rig, cfg)
+    return rig
 
 
 def tilted(T_world_cam: np.ndarray, tilt_deg: float, azimuth_deg: float) -> np.ndarray:
@@ -269,8 +284,13 @@ def tilted_clip(camera: Camera, T_world_cam: np.ndarray, bin_geom: BinGeometry, 
     to the farthest point of the ground the image corners see (2 % and the jitters to spare)."""
     R, C = T_world_cam[:3, :3], T_world_cam[:3, 3]
     hx, hy = (side / 2.0 + bin_geom.thickness for side in bin_geom.sides)
-    top = bin_geom.wall_height + diameter
-    corners = np.array([[x, y, z] for x in (-hx, hx) for y in (-hy, hy) for z in (-bin_geom.thickness, top)])
+    top = bin_geom.wall_height + diameter + bin_geom.outer * math.sin(math.radians(cfg.bin_tilt_deg))
+    if cfg.bin_area is None:
+        corners = np.array([[x, y, z] for x in (-hx, hx) for y in (-hy, hy) for z in (-bin_geom.thickness, top)])
+    else:  # wherever the bin may stand: any yaw (a circle of its half diagonal) about any point of the area
+        x0, y0, x1, y1, reach = *cfg.bin_area, math.hypot(hx, hy)
+        corners = np.array([[x + reach * math.cos(a), y + reach * math.sin(a), z] for x in (x0, x1) for y in (y0, y1)
+                            for a in np.radians(np.arange(0.0, 360.0, 15.0)) for z in (-bin_geom.thickness, top)])
     depth = (corners - C) @ R[:, 2]
     rays = np.array([[(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0]
                      for u in (-0.5, camera.width - 0.5) for v in (-0.5, camera.height - 0.5)])  # fmt: skip
@@ -297,15 +317,64 @@ def _check_jitter(cfg: SceneConfig, height: float, wall: float, half_fov_deg: fl
 
 
 def sample_layout(rig: Rig, cfg: SceneConfig, rng: np.random.Generator) -> CycleLayout:
-    """Jitter the bin (x, y, yaw) and the camera (position, small tilt) for one cycle."""
-    dx, dy = rng.uniform(-1.0, 1.0, 2) * cfg.bin_jitter_m
-    yaw = math.radians(cfg.bin_jitter_deg) * rng.uniform(-1.0, 1.0)
-    T_world_bin = homogeneous(rotation_about(np.array([0.0, 0.0, 1.0]), yaw), np.array([dx, dy, 0.0]))
+    """Place the bin (x, y in ``bin_area`` or the jitter, yaw, tilt) and jitter the camera
+    (position, small tilt) for one cycle. The draws of the defaults are those of every earlier
+    dataset (a level bin near the origin): their bytes do not change."""
+    u = rng.uniform(-1.0, 1.0, 2)
+    if cfg.bin_area is None:
+        dx, dy = u * cfg.bin_jitter_m
+    else:
+        x0, y0, x1, y1 = cfg.bin_area
+        dx, dy = x0 + (x1 - x0) * (u[0] + 1.0) / 2.0, y0 + (y1 - y0) * (u[1] + 1.0) / 2.0
+    w = rng.uniform(-1.0, 1.0)
+    if cfg.bin_yaw_deg is None:
+        yaw = math.radians(cfg.bin_jitter_deg) * w
+    else:
+        lo, hi = cfg.bin_yaw_deg
+        yaw = math.radians(lo + (hi - lo) * (w + 1.0) / 2.0)
+    T_world_ground = homogeneous(rotation_about(np.array([0.0, 0.0, 1.0]), yaw), np.array([dx, dy, 0.0]))
     axis = rng.standard_normal(3)
     angle = math.radians(cfg.camera_jitter_deg) * rng.uniform(0.0, 1.0)
     shift = rng.uniform(-1.0, 1.0, 3) * cfg.camera_jitter_m
     T_jitter = homogeneous(rotation_about(axis, angle), shift)
-    return CycleLayout(T_world_bin, T_jitter @ rig.T_world_cam)
+    if cfg.bin_tilt_deg <= 0:
+        return CycleLayout(T_world_ground, T_jitter @ rig.T_world_cam)
+    # drawn after the camera's: a tilted bin's dataset sees the cameras of the level one
+    direction, tilt = rng.uniform(0.0, 2.0 * math.pi), math.radians(cfg.bin_tilt_deg) * rng.uniform(0.0, 1.0)
+    T_tilt = homogeneous(rotation_about(np.array([math.cos(direction), math.sin(direction), 0.0]), tilt), np.zeros(3))
+    T_tilt[2, 3] = bin_lift(rig.bin, T_tilt[:3, :3])
+    return CycleLayout(T_world_ground @ T_tilt, T_jitter @ rig.T_world_cam, T_world_ground=T_world_ground)
+
+
+def bin_lift(bin_geom: BinGeometry, R_tilt: np.ndarray) -> float:
+    """How far a bin turned by ``R_tilt`` about its floor's centre must rise (metres) so that no
+    corner of its underside goes below where the level underside was (the ground)."""
+    hx, hy = (side / 2.0 + bin_geom.thickness for side in bin_geom.sides)
+    t = bin_geom.thickness
+    under = np.array([[x, y, -t] for x in (-hx, hx) for y in (-hy, hy)])
+    return float(max(0.0, -t - float((under @ R_tilt.T)[:, 2].min())))
+
+
+def check_bin_area(rig: Rig, cfg: SceneConfig) -> None:
+    """Refuse a working area (``scene.bin_area``) whose corners the nominal camera does not see:
+    a bin standing there would leave the image.
+
+    Raises:
+        ValueError: naming ``scene.bin_area``, the corner and where it falls.
+    """
+    if cfg.bin_area is None:
+        return
+    x0, y0, x1, y1 = cfg.bin_area
+    T_cam_world, cam = inverse_pose(rig.T_world_cam), rig.camera
+    for x, y in ((x0, y0), (x1, y0), (x0, y1), (x1, y1)):
+        p = T_cam_world[:3, :3] @ np.array([x, y, 0.0]) + T_cam_world[:3, 3]
+        u = cam.fx * p[0] / p[2] + cam.cx if p[2] > 0 else math.nan
+        v = cam.fy * p[1] / p[2] + cam.cy if p[2] > 0 else math.nan
+        if not (-0.5 <= u <= cam.width - 0.5 and -0.5 <= v <= cam.height - 0.5):
+            where = f"at pixel ({u:.0f}, {v:.0f})" if p[2] > 0 else "behind the camera"
+            raise ValueError(f"scene config: bin_area={list(cfg.bin_area)}: its corner ({x:g}, {y:g}) m lies outside "
+                             f"the camera's view ({where} of the {cam.width} x {cam.height} image); "
+                             "give an area of the floor the camera sees")
 
 
 def view_layout(rig: Rig, cfg: SceneConfig, pile: CycleLayout, rng: np.random.Generator) -> CycleLayout:
@@ -315,5 +384,7 @@ def view_layout(rig: Rig, cfg: SceneConfig, pile: CycleLayout, rng: np.random.Ge
     distribution of a cycle's; only the pile is shared (``scene.views``)."""
     fresh = sample_layout(rig, cfg, rng)
     T_bin_cam = inverse_pose(fresh.T_world_bin) @ fresh.T_world_cam
-    return CycleLayout(pile.T_world_bin, pile.T_world_bin @ T_bin_cam, pile.clutter)
+    # the ground as the fresh cycle has it under its bin, carried along the same way
+    T_ground = None if fresh.T_world_ground is None else pile.T_world_bin @ fresh.T_bin_ground
+    return CycleLayout(pile.T_world_bin, pile.T_world_bin @ T_bin_cam, pile.clutter, T_ground)
 

@@ -106,12 +106,14 @@ class SceneRenderer:
         self._objects: list[pyrender.Node] = []
         self._statics: list[pyrender.Node] = []
         self._clutter: pyrender.Node | None = None
+        self._ground: pyrender.Node | None = None
         if bin_mesh is not None:
             self._statics.append(self._scene.add(pyrender.Mesh.from_trimesh(bin_mesh, smooth=False)))
         if ground_size > 0:
             plate = trimesh.creation.box(extents=(ground_size, ground_size, 0.01))
             plate.apply_translation((0.0, 0.0, -ground_depth - 0.005))
-            self._statics.append(self._scene.add(pyrender.Mesh.from_trimesh(plate, smooth=False)))
+            self._ground = self._scene.add(pyrender.Mesh.from_trimesh(plate, smooth=False))
+            self._statics.append(self._ground)
         self._cache: dict[int, tuple[np.ndarray, int]] = {}
 
     def _gl_camera(self, ox: int, oy: int) -> pyrender.IntrinsicsCamera:
@@ -125,13 +127,14 @@ class SceneRenderer:
         """Drop the scene's objects (the shared GL context stays for the next renderer)."""
         for node in [*self._objects, *self._statics]:
             self._scene.remove_node(node)
-        self._objects, self._statics, self._clutter = [], [], None
+        self._objects, self._statics, self._clutter, self._ground = [], [], None, None
         self._cache.clear()
 
-    def begin_cycle(self, T_cam_bin: np.ndarray, clutter: trimesh.Trimesh | None = None) -> None:
-        """New cycle: place the bin and the ground (both in the bin frame), replace the foreign
-        pieces on the floor (``clutter``, bin frame, drawn like the bin; None = none) and forget
-        cached counts."""
+    def begin_cycle(self, T_cam_bin: np.ndarray, clutter: trimesh.Trimesh | None = None,
+                    T_cam_ground: np.ndarray | None = None) -> None:  # fmt: skip
+        """New cycle: place the bin and the ground (``T_cam_ground``, the frame the ground plate
+        hangs from; None = the bin's), replace the foreign pieces on the floor (``clutter``, bin
+        frame, drawn like the bin; None = none) and forget cached counts."""
         if self._clutter is not None:
             self._scene.remove_node(self._clutter)
             self._statics.remove(self._clutter)
@@ -140,7 +143,7 @@ class SceneRenderer:
             self._clutter = self._scene.add(pyrender.Mesh.from_trimesh(clutter, smooth=False))
             self._statics.append(self._clutter)
         for node in self._statics:
-            self._scene.set_pose(node, T_cam_bin)
+            self._scene.set_pose(node, T_cam_bin if node is not self._ground or T_cam_ground is None else T_cam_ground)
         self._cache.clear()
 
     # ---- rendering ---------------------------------------------------------------------------
