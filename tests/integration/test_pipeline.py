@@ -320,3 +320,33 @@ def test_a_region_of_interest_is_trained_kept_and_applied_by_eval_predict_and_ex
     model = tmp_path / "m.onnx"
     export_cli.run(_cfg("export", [f"ckpt={ckpt}", f"out={model}", "check=false"]))
     assert OnnxPoseEstimator(model).roi == (8, 4, 120, 116)
+
+
+def test_the_bin_finder_roi_is_trained_on_moved_bins_and_kept_by_the_checkpoint_and_the_onnx_export(
+        tmp_path: Path) -> None:  # fmt: skip
+    """``data.roi=auto:S`` on piles whose bin moves: the checkpoint and the ONNX metadata keep the policy, and
+    eval.py, predict.py and the ONNX runtime each find the bin of every image they read."""
+    from opnet.cli import export as export_cli
+    from opnet.data.bin_finder import find_bin
+    from opnet.datasets.ipa import IPADataset
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    data = small_builtin_dataset(tmp_path / "moved", "zbracket", 4, 3, 1, bin_area=[-0.03, -0.03, 0.03, 0.03],
+                                 bin_yaw_deg=[0.0, 90.0])  # fmt: skip
+    out = tmp_path / "run"
+    train_cli.run(_train_cfg(data, out, ["data.roi=auto:0.2", "test=false"]))
+    assert list(data.glob("cache_*_roiauto0.2"))
+    ckpt = out / "checkpoints" / "last.ckpt"
+    system = eval_cli.load_checkpoint(ckpt)[0]
+    assert system.hparams["config"]["data"]["roi"] == "auto:0.2"
+    assert eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"out={tmp_path / 'eval'}", "examples=0"]))["scenes"] > 0
+    png = sorted((data / "p_depth").rglob("*.png"))[-1]
+    assert predict_cli.run(_cfg("predict", [f"ckpt={ckpt}", f"input={png}", f"out={tmp_path / 'pred'}"])) == 0
+    model = tmp_path / "m.onnx"
+    export_cli.run(_cfg("export", [f"ckpt={ckpt}", f"out={model}", "check=false"]))
+    runtime = OnnxPoseEstimator(model)
+    assert runtime.roi == "auto:0.2"
+    record = IPADataset(data)[len(IPADataset(data)) - 1]
+    box = find_bin(record.depth, record.camera, 0.2).box
+    assert box[2] - box[0] < record.camera.width  # a crop, not the whole image
+    runtime.predict(record.depth, record.camera)  # the runtime crops it the same way

@@ -7,9 +7,13 @@ the same camera frame and nothing else changes. Values:
 
 - ``null``: the whole image (the default);
 - ``[x0, y0, x1, y1]``: a pixel box of the full image (``x1``, ``y1`` exclusive);
-- ``auto``: per image, the bounding box of the pixels whose depth lies in the working volume
-  (between the clip planes), enlarged by 2 % of the image side on each side; an image without
-  such depth keeps the whole image.
+- ``auto``: per image, the box of the bin found in the depth (:mod:`opnet.data.bin_finder`: the largest
+  connected region of depth in the working volume, between the clip planes), 2 % of the image side to spare;
+- ``auto:S``: per image, a square of ``S`` metres at the bin's depth centred on the bin found: a fixed
+  metric size, so parts keep their size in network pixels wherever the bin stands (the policy for a cell
+  whose bin moves: train with it on generated piles of moved bins, the checkpoint keeps ``S``).
+
+A frame with no bin between the clip planes is a one-line error naming it.
 
 The checkpoint keeps it (a data key), ``predict.py`` and the ONNX export apply it as ``data.fit``.
 Training records are cropped with their segmentation, and the ground-truth visibility of a part is
@@ -20,6 +24,7 @@ visible pixels over unoccluded pixels, and the box only removes visible pixels).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -28,28 +33,53 @@ import numpy as np
 from opnet.geometry.camera import Camera
 
 AUTO = "auto"
-AUTO_MARGIN = 0.02  # of the image side, on each side of the automatic box
+#: the largest side ``auto:S`` takes, metres
+MAX_AUTO_SIDE = 20.0
 
 Box = tuple[int, int, int, int]
 
 
+def is_auto(roi: Any) -> bool:
+    """``roi`` is a bin finder (``auto`` or ``auto:S``), found anew in every image."""
+    return isinstance(roi, str) and (roi == AUTO or roi.startswith(AUTO + ":"))
+
+
+def auto_side(roi: str) -> float | None:
+    """The metric side S of ``auto:S`` (None for ``auto``)."""
+    return None if roi == AUTO else float(roi.split(":", 1)[1])
+
+
+def _parse_auto(value: str, where: str) -> str:
+    side = value.split(":", 1)[1].strip()
+    try:
+        metres = float(side)
+    except ValueError:
+        metres = math.nan
+    if not (math.isfinite(metres) and 0 < metres <= MAX_AUTO_SIDE):
+        raise ValueError(f"{where}={value!r}: auto:S takes the side S of the box in metres, a number in "
+                         f"(0, {MAX_AUTO_SIDE:g}]")  # fmt: skip
+    return f"{AUTO}:{metres:g}"
+
+
 def parse_roi(value: Any, where: str = "data.roi") -> Box | str | None:
-    """A config value -> None, ``"auto"`` or an ``(x0, y0, x1, y1)`` box; ValueError (one line,
-    naming ``where``) for anything else."""
+    """A config value -> None, ``"auto"``, ``"auto:S"`` (S in metres, written as ``%g``) or an
+    ``(x0, y0, x1, y1)`` box; ValueError (one line, naming ``where``) for anything else."""
     if value is None or value == "null":
         return None
     if isinstance(value, str):
         if value == AUTO:
             return AUTO
+        if value.startswith(AUTO + ":"):
+            return _parse_auto(value, where)
         parts = value.replace("[", "").replace("]", "").split(",")
         if len(parts) == 4:
             try:
                 return parse_roi([int(p) for p in parts], where)
             except ValueError:
                 pass
-        raise ValueError(f"{where}={value!r}: expected null, auto or [x0, y0, x1, y1] pixels")
+        raise ValueError(f"{where}={value!r}: expected null, auto, auto:<metres> or [x0, y0, x1, y1] pixels")
     if not isinstance(value, Sequence) or len(value) != 4:
-        raise ValueError(f"{where}={value!r}: expected null, auto or [x0, y0, x1, y1] pixels")
+        raise ValueError(f"{where}={value!r}: expected null, auto, auto:<metres> or [x0, y0, x1, y1] pixels")
     if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in value):
         raise ValueError(f"{where}={list(value)!r}: the box needs whole pixel numbers")
     x0, y0, x1, y1 = (int(v) for v in value)
@@ -58,22 +88,19 @@ def parse_roi(value: Any, where: str = "data.roi") -> Box | str | None:
     return (x0, y0, x1, y1)
 
 
-def resolve_box(roi: Box | str | None, depth: np.ndarray | None, camera: Camera, where: str = "data.roi") -> Box:
-    """The box of one image: the given box checked against the image, the automatic one found,
-    the whole image for None."""
+def resolve_box(roi: Box | str | None, depth: np.ndarray | None, camera: Camera, where: str = "data.roi",
+                frame: str | None = None) -> Box:  # fmt: skip
+    """The box of one image: the given box checked against the image, the bin found (``auto``, ``auto:S``;
+    a :class:`opnet.data.bin_finder.NoBinError` naming ``frame`` where there is none), the whole image for None."""
     W, H = camera.width, camera.height
     if roi is None:
         return (0, 0, W, H)
-    if roi == AUTO:
+    if is_auto(roi):
         if depth is None:
-            raise ValueError(f"{where}=auto needs the depth image")
-        ok = np.isfinite(depth) & (depth >= camera.clip_start) & (depth <= camera.clip_end)
-        if not ok.any():
-            return (0, 0, W, H)
-        rows, cols = np.flatnonzero(ok.any(1)), np.flatnonzero(ok.any(0))
-        m = int(round(AUTO_MARGIN * max(W, H)))
-        return (max(int(cols[0]) - m, 0), max(int(rows[0]) - m, 0), min(int(cols[-1]) + 1 + m, W),
-                min(int(rows[-1]) + 1 + m, H))  # fmt: skip
+            raise ValueError(f"{where}={roi} needs the depth image")
+        from opnet.data.bin_finder import find_bin
+
+        return find_bin(depth, camera, auto_side(roi), f"{where}={roi}", frame).box  # type: ignore[arg-type]
     x0, y0, x1, y1 = roi  # type: ignore[misc]
     if x1 > W or y1 > H:
         raise ValueError(f"{where}={[x0, y0, x1, y1]}: outside the {W} x {H} image")
@@ -86,10 +113,10 @@ def crop_camera(camera: Camera, box: Box) -> Camera:
     return dataclasses.replace(camera, cx=camera.cx - x0, cy=camera.cy - y0, width=x1 - x0, height=y1 - y0)
 
 
-def crop_image(depth: np.ndarray, camera: Camera, roi: Box | str | None,
-               where: str = "data.roi") -> tuple[np.ndarray, Camera]:  # fmt: skip
-    """A depth image and its camera cropped to the region of interest."""
-    box = resolve_box(roi, depth, camera, where)
+def crop_image(depth: np.ndarray, camera: Camera, roi: Box | str | None, where: str = "data.roi",
+               frame: str | None = None) -> tuple[np.ndarray, Camera]:  # fmt: skip
+    """A depth image and its camera cropped to the region of interest (``frame`` names the image in errors)."""
+    box = resolve_box(roi, depth, camera, where, frame)
     if box == (0, 0, camera.width, camera.height):
         return depth, camera
     x0, y0, x1, y1 = box
@@ -99,7 +126,7 @@ def crop_image(depth: np.ndarray, camera: Camera, roi: Box | str | None,
 def crop_record(record: Any, roi: Box | str | None) -> Any:
     """A :class:`opnet.datasets.record.SceneRecord` cropped to the region of interest (its depth,
     segmentation and camera; visibilities scaled by the share of each part's pixels inside)."""
-    box = resolve_box(roi, record.depth, record.camera)
+    box = resolve_box(roi, record.depth, record.camera, frame=getattr(record, "name", None))
     if box == (0, 0, record.camera.width, record.camera.height):
         return record
     x0, y0, x1, y1 = box
@@ -122,7 +149,9 @@ def roi_tag(roi: Box | str | None) -> str:
     lives apart from the uncropped one."""
     if roi is None:
         return ""
-    return "_roiauto" if roi == AUTO else "_roi" + "-".join(str(v) for v in roi)  # type: ignore[union-attr]
+    if is_auto(roi):
+        return "_roi" + str(roi).replace(":", "")
+    return "_roi" + "-".join(str(v) for v in roi)  # type: ignore[union-attr]
 
 
 class ROIScenes:
@@ -133,7 +162,7 @@ class ROIScenes:
         self.source, self.roi = source, roi
         camera = getattr(source, "camera", None)
         # one camera for every scene: the cropped one (an automatic box differs per image)
-        self.camera = crop_camera(camera, resolve_box(roi, None, camera)) if isinstance(camera, Camera) and roi != AUTO else None
+        self.camera = crop_camera(camera, resolve_box(roi, None, camera)) if isinstance(camera, Camera) and not is_auto(roi) else None
 
     def __len__(self) -> int:
         return len(self.source)
@@ -147,4 +176,4 @@ class ROIScenes:
         return getattr(self.source, name)
 
 
-__all__ = ["AUTO", "ROIScenes", "crop_camera", "crop_image", "crop_record", "parse_roi", "resolve_box", "roi_tag"]
+__all__ = ["AUTO", "ROIScenes", "auto_side", "is_auto", "crop_camera", "crop_image", "crop_record", "parse_roi", "resolve_box", "roi_tag"]
