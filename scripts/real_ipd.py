@@ -48,7 +48,6 @@ import csv
 import json
 import os
 import shutil
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -60,6 +59,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "src"))
 
 from opnet.paths import best_checkpoint, shared_dir  # noqa: E402
+from opnet.studies import run_logged  # noqa: E402
 
 FRAMES = shared_dir() / "data" / "ipd_real_obj18"
 OBJECT_ID = 18
@@ -93,12 +93,7 @@ ROW_FIELDS = ("visibility", "refine", "frames", "required", "ap", "map", "found"
 
 def run(cmd: list[str], log: Path) -> None:
     """A command of the framework, its console in ``log``; a failure names the log."""
-    log.parent.mkdir(parents=True, exist_ok=True)
-    print(f"$ {' '.join(cmd[1:])}", flush=True)
-    with log.open("w") as f:
-        code = subprocess.run(cmd, cwd=REPO, stdout=f, stderr=subprocess.STDOUT, check=False).returncode
-    if code:
-        raise SystemExit(f"error: exit {code}; see {log}")
+    run_logged(cmd, log, REPO)
 
 
 def roi_camera(roi: list[int], clip: list[float], out: Path) -> Path:

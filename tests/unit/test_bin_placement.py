@@ -143,3 +143,20 @@ def test_a_generated_dataset_writes_each_piles_bin_where_the_area_and_yaw_put_it
         assert yaw[0] - tilt - 1e-6 <= _yaw_deg(T_world_bin) <= yaw[1] + tilt + 1e-6
         centres.append((x, y))
     assert np.ptp(np.array(centres), axis=0).min() > 0.01  # the bin really moves from pile to pile
+
+
+def test_the_cell_experiment_composes_into_moving_bin_scenes_and_a_bin_finder_roi(tmp_path) -> None:
+    from conftest import compose_cfg
+
+    from opnet.data.roi import parse_roi
+
+    camera = tmp_path / "camera.yaml"
+    camera.write_text("fx: 600\nfy: 600\ncx: 319.5\ncy: 239.5\nwidth: 640\nheight: 480\nclip_start: 1.2\nclip_end: 1.8\n")
+    cfg = compose_cfg("train", ["experiment=cell", "object=zbracket", f"scene.camera_file={camera}",
+                                "scene.camera_height=1.5", "data.roi=auto:0.6"])  # fmt: skip
+    scene = SceneConfig.from_dict(dict(cfg.data.generate.scene))
+    assert scene.bin_area == (-0.2, -0.2, 0.2, 0.2) and scene.yaw_range_deg == (-180.0, 180.0)
+    assert scene.camera_file_clip and scene.outside_clip == "clamp"
+    assert parse_roi(cfg.data.roi) == "auto:0.6"
+    rig = make_rig(builtin_object("zbracket"), 10, 2, scene)  # the area is in the camera's view
+    assert (rig.camera.clip_start, rig.camera.clip_end) == (1.2, 1.8)

@@ -42,7 +42,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
-from opnet.geometry.search import SearchSettings, model_axis, pose_agreement, search_pose, turns
+from opnet.geometry.search import (
+    SearchSettings,
+    ambiguity_turns,
+    model_axis,
+    pose_agreement,
+    resolve_mode,
+    search_any,
+    search_pose,
+    turns,
+)
 
 STATUSES = ("refined", "searched", "suppressed", "no_depth", "rejected", "budget")
 
@@ -141,9 +150,11 @@ class SceneCloud:
         depth = np.asarray(depth, np.float64)
         if depth.ndim != 2:
             raise ValueError(f"icp: depth must be an (H, W) image, got shape {depth.shape}")
-        v, u = np.mgrid[0 : depth.shape[0], 0 : depth.shape[1]].astype(np.float64)
-        z = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
-        xyz = np.stack(((u - cx) * z / fx, (v - cy) * z / fy, z), -1)[::stride, ::stride]
+        # the strided grid first: its points, and normals from its own neighbours
+        v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride].astype(np.float64)
+        d = depth[::stride, ::stride]
+        z = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+        xyz = np.stack(((u - cx) * z / fx, (v - cy) * z / fy, z), -1)
         # normals from the neighbouring pixels (central differences where both exist)
         du = np.full_like(xyz, np.nan)
         dv = np.full_like(xyz, np.nan)
@@ -319,15 +330,24 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     search = settings.search
     if search is not None and (depth is None or camera is None):
         raise ValueError("icp: the search needs the depth image and its camera")
-    axis = model_axis(model.points, search.axis) if search is not None else None
+    mode = resolve_mode(search, model.points) if search is not None else None
+    axis = model_axis(model.points, search.axis) if mode == "turn" else None
+    flips = ambiguity_turns(model.points, space) if mode == "flips" else None
     start = time.perf_counter()
     for k in np.argsort(-score_in, kind="stable"):
         if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
             break
+        start_R, start_t = R_out[k].copy(), t_out[k].copy()
         result = refine_pose(R_out[k], t_out[k], model, scene, space, settings)
         R_out[k], t_out[k], status[k] = result.R, result.t, result.status
         if search is not None and result.status != "no_depth":
-            Rs, ts, _ = search_pose(R_out[k], t_out[k], model, depth, camera, axis, search)
+            if mode == "turn":
+                Rs, ts, _ = search_pose(R_out[k], t_out[k], model, depth, camera, axis, search)
+            else:
+                # from the refined pose and from the hypothesis itself: ICP may have pulled a turned
+                # hypothesis further off
+                Rs, ts, _ = search_any(np.stack((R_out[k], start_R)), np.stack((t_out[k], start_t)), model, depth,
+                                       camera, space, search, flips)  # fmt: skip
             polished = refine_pose(Rs, ts, model, scene, space, settings)
             R_out[k], t_out[k], status[k] = polished.R, polished.t, "searched"
     if search is None:

@@ -23,10 +23,21 @@ Per hypothesis (:func:`search_pose`):
 
 The search deliberately visits poses that are *not* symmetric twins of the hypothesis: it is a
 verification against the measured depth, not a local fit (ICP's guard still holds for ICP).
+
+That is ``mode: turn``, for flat parts. Any other part (``mode: flips``; ``auto`` picks ``turn`` for a
+part whose least principal spread is under a quarter of the next, else ``flips``) is searched over the
+ambiguities a network makes with a compact part (:func:`ambiguity_turns`: the 24 turns that map its
+principal axes onto one another, less those its symmetry makes equivalent: end over end, upside
+down, a quarter turn), each about the part's centroid; the ``keep`` best by agreement then go through
+a local search (:func:`local_search`: turns of ``local_deg`` about the camera's axes and shifts of
+``local_shift`` along them, every candidate's 13 moves scored in one batch, the steps halved when no
+move helps, ``local_rounds`` rounds).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,6 +45,10 @@ import numpy as np
 
 SCORES = ("agreement", "network", "product")
 AXES = ("auto", "x", "y", "z")
+MODES = ("auto", "turn", "flips")
+#: ``mode: auto`` searches turns about the normal of a part whose least principal spread is under this
+#: share of the next (a flat part), the ambiguity turns of any other
+FLAT_RATIO = 0.25
 
 
 @dataclass(frozen=True)
@@ -55,6 +70,10 @@ class SearchSettings:
             (0: keep all).
         coarse: 1 searches the whole grid; N > 1 first a grid N times coarser, then the fine grid
             around its three best turns (about N² times fewer candidates).
+        mode: turn (about ``axis``, with shifts: flat parts) | flips (the ambiguity turns and a local
+            search: any part) | auto (turn for a flat part, else flips).
+        keep: ``flips``: how many of the best ambiguity turns go on to the local search.
+        local_deg, local_shift (× diameter), local_rounds: ``flips``' local search (module docstring).
     """
 
     axis: str = "auto"
@@ -66,8 +85,23 @@ class SearchSettings:
     score: str = "agreement"
     suppress: float = 1.0
     coarse: int = 3
+    mode: str = "auto"
+    keep: int = 3
+    local_deg: float = 8.0
+    local_shift: float = 0.04
+    local_rounds: int = 4
 
     def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"search.mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for key in ("keep", "local_rounds"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 100:
+                raise ValueError(f"search.{key} must be an integer in 0..100, got {value!r}")
+        for key in ("local_deg", "local_shift"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or not 0 < value <= 90:
+                raise ValueError(f"search.{key} must be a positive number (at most 90), got {value!r}")
         if self.axis not in AXES:
             raise ValueError(f"search.axis must be one of {', '.join(AXES)}, got {self.axis!r}")
         if self.score not in SCORES:
@@ -197,6 +231,140 @@ def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, cam
     return best[1], best[2], best[0]
 
 
+def is_flat(points: np.ndarray) -> bool:
+    """The least principal spread of ``points`` (P, 3) is under :data:`FLAT_RATIO` of the next."""
+    centred = points - points.mean(0)
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred), 0.0))
+    return bool(spread[0] < FLAT_RATIO * spread[1])
+
+
+def resolve_mode(settings: SearchSettings, points: np.ndarray) -> str:
+    """``turn`` or ``flips`` for a part's model points (``auto``: by :func:`is_flat`)."""
+    if settings.mode != "auto":
+        return settings.mode
+    return "turn" if is_flat(points) else "flips"
+
+
+def _cube_rotations() -> np.ndarray:
+    """The 24 rotations that map the coordinate axes onto one another (signed permutations, det +1),
+    the identity first."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            M = np.zeros((3, 3))
+            M[range(3), perm] = signs
+            if np.linalg.det(M) > 0:
+                out.append(M)
+    out.sort(key=lambda M: -np.trace(M))  # the identity (trace 3) first
+    return np.array(out)
+
+
+def _equivalent(space: Any, A: np.ndarray, B: np.ndarray, tol_deg: float = 10.0) -> bool:
+    """Two model-frame rotations are the same pose of the part (under its symmetry, within ``tol_deg``: the
+    principal axes of sampled points lie a degree or two off a symmetry axis; the turns are 90 apart)."""
+    from opnet.geometry.pose_numpy import closest_equivalent
+
+    B_eq = closest_equivalent(space, A[None], B[None])[0]
+    if space.revolution:
+        cos = float(np.clip(A[:, 2] @ B_eq[:, 2], -1, 1))
+    else:
+        cos = float(np.clip((np.trace(A.T @ B_eq) - 1) / 2, -1, 1))
+    return float(np.degrees(np.arccos(cos))) < tol_deg
+
+
+def ambiguity_turns(points: np.ndarray, space: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The model-frame turns (C, 3, 3) a hypothesis is tried under (module docstring), the identity first,
+    and the centroid (3,) they turn about: the 24 rotations mapping the principal axes of ``points`` onto
+    one another, less those the part's symmetry (``space``: group, revolution) makes equivalent to one
+    kept before."""
+    centre = points.mean(0)
+    _, A = np.linalg.eigh((points - centre).T @ (points - centre))
+    kept: list[np.ndarray] = []
+    for C in _cube_rotations():
+        G = A @ C @ A.T
+        if not any(_equivalent(space, K, G) for K in kept):
+            kept.append(G)
+    return np.array(kept), centre
+
+
+def _moves(step_rad: np.ndarray, step_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The local search's 13 moves per pose: (C, 13, 3, 3) camera-frame turns by ``step_rad`` (C,) and
+    (C, 13, 3) shifts by ``step_m`` (C,); no move first."""
+    C = len(step_rad)
+    R = np.broadcast_to(np.eye(3), (C, 13, 3, 3)).copy()
+    v = np.zeros((C, 13, 3))
+    for k in range(3):
+        axis = np.eye(3)[k]
+        R[:, 1 + 2 * k] = turns(axis, step_rad)
+        R[:, 2 + 2 * k] = turns(axis, -step_rad)
+        v[:, 7 + 2 * k] = step_m[:, None] * axis
+        v[:, 8 + 2 * k] = -step_m[:, None] * axis
+    return R, v
+
+
+def score_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
+                settings: SearchSettings) -> np.ndarray:  # fmt: skip
+    """Agreement of poses (N, 3, 3), (N, 3) (their model points facing the camera), in one batch."""
+    p = np.einsum("nij,pj->npi", R, model.points) + t[:, None]
+    facing = np.einsum("nij,pj,npi->np", R, model.normals, p) < 0
+    return agreement(p, facing, depth, camera, settings.tolerance * model.diameter, settings.see_through_weight)
+
+
+def local_search(R: np.ndarray, t: np.ndarray, centre: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
+                 settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Pattern search from poses (C, 3, 3), (C, 3): per round every pose's 13 moves (turns about the
+    camera axes through the part's centroid ``centre`` (model frame), shifts along them) scored in one
+    batch; each pose takes its best move, the steps halve for a pose whose best is to stay. Returns the
+    poses and their agreements (C,)."""
+    R, t = np.array(R, np.float64), np.array(t, np.float64)
+    C = len(R)
+    step_r = np.full(C, np.radians(settings.local_deg))
+    step_t = np.full(C, settings.local_shift * model.diameter)
+    score = score_poses(R, t, model, depth, camera, settings)
+    rows = np.arange(C)
+    for _ in range(settings.local_rounds):
+        dR, dv = _moves(step_r, step_t)
+        c = R @ centre + t  # the centroid in the camera frame (C, 3)
+        Rn = dR @ R[:, None]
+        tn = np.einsum("cmij,cj->cmi", dR, t - c) + c[:, None] + dv
+        s = score_poses(Rn.reshape(-1, 3, 3), tn.reshape(-1, 3), model, depth, camera, settings).reshape(C, 13)
+        best = s.argmax(1)  # ties: the first, i.e. no move
+        stay = best == 0
+        step_r[stay] /= 2
+        step_t[stay] /= 2
+        R, t, score = Rn[rows, best], tn[rows, best], s[rows, best]
+    return R, t, score
+
+
+def search_any(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, space: Any,
+               settings: SearchSettings, turns_and_centre: tuple[np.ndarray, np.ndarray] | None = None,
+               ) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
+    """``mode: flips`` from one pose (3, 3), (3,) or several starts (S, 3, 3), (S, 3) (module docstring):
+    the ambiguity turns of every start scored in one batch, at twice the tolerance (a turned hypothesis
+    is a few degrees and millimetres out), the ``keep`` best searched locally; the best pose and its
+    agreement (the first start itself unless beaten).
+
+    Args:
+        turns_and_centre: :func:`ambiguity_turns` of the model (made once per object by the caller).
+    """
+    R, t = np.asarray(R, np.float64).reshape(-1, 3, 3), np.asarray(t, np.float64).reshape(-1, 3)
+    G, centre = turns_and_centre if turns_and_centre is not None else ambiguity_turns(model.points, space)
+    Rc = (R[:, None] @ G).reshape(-1, 3, 3)  # (S * C, 3, 3): turned about the centroid, which stays
+    tc = (np.einsum("sij,j->si", R, centre) + t)[:, None].repeat(len(G), 1).reshape(-1, 3) - Rc @ centre
+    loose = dataclasses.replace(settings, tolerance=2.0 * settings.tolerance)
+    score = score_poses(Rc, tc, model, depth, camera, loose)
+    here = float(score_poses(R[:1], t[:1], model, depth, camera, settings)[0])
+    if settings.keep == 0:
+        k = int(np.argmax(score))
+        return Rc[k], tc[k], float(score_poses(Rc[k : k + 1], tc[k : k + 1], model, depth, camera, settings)[0])
+    order = np.argsort(-score, kind="stable")[: settings.keep]
+    Rl, tl, sl = local_search(Rc[order], tc[order], centre, model, depth, camera, settings)
+    k = int(np.argmax(sl))
+    if sl[k] <= here:
+        return R[0], t[0], here
+    return Rl[k], tl[k], float(sl[k])
+
+
 def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
                    settings: SearchSettings) -> float:  # fmt: skip
     """:func:`agreement` of one pose (its model points facing the camera)."""
@@ -205,4 +373,5 @@ def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, 
                            settings.see_through_weight)[0])  # fmt: skip
 
 
-__all__ = ["AXES", "SCORES", "SearchSettings", "agreement", "model_axis", "pose_agreement", "search_pose", "turns"]
+__all__ = ["AXES", "MODES", "SCORES", "SearchSettings", "agreement", "ambiguity_turns", "is_flat", "local_search",
+           "model_axis", "pose_agreement", "resolve_mode", "score_poses", "search_any", "search_pose", "turns"]
