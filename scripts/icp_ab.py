@@ -87,15 +87,34 @@ def key_values(values: list[str], option: str) -> dict[str, Any]:
     return out
 
 
+def search_variant(text: str) -> tuple[str, ICPSettings]:
+    """``LABEL:KEY=VALUE[,KEY=VALUE...]`` -> (label, conf/refine/search.yaml with ``icp.KEY`` / ``search.KEY``
+    overridden); ValueError naming the option for anything else."""
+    label, _, pairs = text.partition(":")
+    conf = OmegaConf.load(REPO / "conf" / "refine" / "search.yaml")
+    try:
+        for pair in filter(None, pairs.split(",")):
+            key, value = pair.split("=", 1)
+            section, name = key.strip().split(".", 1)
+            if section not in ("icp", "search") or name not in conf[section]:
+                raise KeyError(key)
+            conf[section][name] = yaml.safe_load(value)
+        return label.strip(), settings_from_config(conf)
+    except (ValueError, KeyError) as e:
+        raise ValueError(f"--search-variant {text!r}: expected LABEL:icp.KEY=VALUE,search.KEY=VALUE ({e})") from None
+
+
 def run(ckpt: Path, split: str, budget_list: list[float | None], search: bool = False,
-        decoding: dict[str, Any] | None = None, data: dict[str, Any] | None = None) -> list[dict[str, Any]]:  # fmt: skip
+        decoding: dict[str, Any] | None = None, data: dict[str, Any] | None = None,
+        variants: list[tuple[str, ICPSettings]] = ()) -> list[dict[str, Any]]:  # fmt: skip
     """The rows of one checkpoint: its decoding as trained, then (``decoding``) as overridden."""
-    rows = run_decoding(ckpt, split, budget_list, search, None, data)
-    return rows + (run_decoding(ckpt, split, budget_list, search, decoding, data) if decoding else [])
+    rows = run_decoding(ckpt, split, budget_list, search, None, data, variants)
+    return rows + (run_decoding(ckpt, split, budget_list, search, decoding, data, variants) if decoding else [])
 
 
 def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search: bool,
-                 decoding: dict[str, Any] | None, data: dict[str, Any] | None) -> list[dict[str, Any]]:  # fmt: skip
+                 decoding: dict[str, Any] | None, data: dict[str, Any] | None,
+                 variants: list[tuple[str, ICPSettings]] = ()) -> list[dict[str, Any]]:  # fmt: skip
     system, cfg = load_checkpoint(str(ckpt))
     system.parameterization = with_decoding_overrides(system.parameterization, decoding)
     if data:
@@ -115,6 +134,7 @@ def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search
         for b in budget_list]  # fmt: skip
     if search:
         arms.append(("icp + search", settings_from_config(OmegaConf.load(REPO / "conf" / "refine" / "search.yaml"))))
+    arms += [(f"icp + search, {label}", settings) for label, settings in variants]
     for label, settings in arms:
         refined = copy.deepcopy(scenes)
         start = time.perf_counter()
@@ -149,18 +169,21 @@ def main(argv: list[str] | None = None) -> int:
                         help="decoding override (eval.py decoding=), e.g. averaging=false")
     parser.add_argument("--data", action="append", default=[], metavar="KEY=VALUE",
                         help="data-section override, e.g. test_root=<dataset> or cache=false")
+    parser.add_argument("--search-variant", action="append", default=[], metavar="LABEL:KEY=VALUE,...",
+                        help="also the search with conf/refine/search.yaml's icp.KEY / search.KEY overridden")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "icp")
     args = parser.parse_args(argv)
     try:
         budget_list = budgets(args.budget_ms)
         decoding, data = key_values(args.decoding, "--decoding"), key_values(args.data, "--data")
+        variants = [search_variant(v) for v in args.search_variant]
     except ValueError as e:
         parser.error(str(e))
     for ckpt in args.ckpt:
         if not ckpt.is_file():
             parser.error(f"--ckpt {ckpt}: no such file")
     torch.set_grad_enabled(False)
-    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list, args.search, decoding, data)]
+    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list, args.search, decoding, data, variants)]
     text = markdown(rows)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)

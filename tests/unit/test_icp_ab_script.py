@@ -22,3 +22,15 @@ def test_key_values_are_yaml_values() -> None:
 def test_a_value_without_key_or_equals_is_an_error(bad: str) -> None:
     with pytest.raises(ValueError, match=f"--decoding '{bad}': expected KEY=VALUE"):
         icp_ab.key_values([bad], "--decoding")
+
+
+def test_a_search_variant_overrides_the_search_config() -> None:
+    label, settings = icp_ab.search_variant("earlier:search.merge=0,icp.stride=1")
+    assert label == "earlier" and settings.stride == 1 and settings.search.merge == 0
+    assert settings.search.turn_step_deg == 5.0  # the rest as conf/refine/search.yaml
+
+
+@pytest.mark.parametrize("bad", ["x:search.mrge=0", "x:solver.merge=0", "x:search.merge"])
+def test_a_bad_search_variant_names_the_option(bad: str) -> None:
+    with pytest.raises(ValueError, match=r"^--search-variant .*: expected LABEL:icp.KEY=VALUE"):
+        icp_ab.search_variant(bad)

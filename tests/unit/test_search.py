@@ -150,8 +150,8 @@ def test_searches_that_end_on_one_pose_leave_one_hypothesis(plate_scene) -> None
     assert sorted(status) == ["searched", "suppressed", "suppressed"] and len(out.t) == 1
     assert np.linalg.norm(out.t[0] - T_GT) * 1000 < 2.0 and out.score[0] > 0.9
     kept, status = refine_image(hyps, depth, CAM, model, space,
-                                ICPSettings(budget_ms=None, search=SearchSettings(suppress=0.0)))
-    assert status == ["searched"] * 3 and len(kept.t) == 3  # suppress 0: every hypothesis kept
+                                ICPSettings(budget_ms=None, search=SearchSettings(suppress=0.0, merge=0.0)))
+    assert status == ["searched"] * 3 and len(kept.t) == 3  # suppress 0 and merge 0: every hypothesis kept
 
 
 def test_the_runtimes_search_settings_are_the_configs() -> None:
@@ -172,3 +172,13 @@ def test_the_whole_grid_and_coarse_to_fine_find_the_same_pose(plate_scene, coars
     R, t, score = search_pose(R0, t0, model, depth, CAM, model_axis(model.points), settings)
     assert _angle(R_gt, R) < settings.turn_step_deg and np.linalg.norm(t - T_GT) < settings.shift_step * model.diameter
     assert score > 0.9
+
+
+def test_hypotheses_near_a_better_ones_origin_are_merged_before_the_search() -> None:
+    from opnet.geometry.icp import _merged
+
+    t = np.array([[0.0, 0.0, 1.0], [0.005, 0.0, 1.0], [0.05, 0.0, 1.0], [0.004, 0.006, 1.0]])
+    score = np.array([0.2, 0.9, 0.5, 0.1])
+    # best first: 1 kept; 0 (5 mm from 1) and 3 (6 mm from 1) merged; 2 (45 mm away) kept
+    assert _merged(t, score, 0.01).tolist() == [True, False, False, True]
+    assert not _merged(t, score, 0.0).any()

@@ -333,8 +333,12 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     mode = resolve_mode(search, model.points) if search is not None else None
     axis = model_axis(model.points, search.axis) if mode == "turn" else None
     flips = ambiguity_turns(model.points, space) if mode == "flips" else None
+    merged = _merged(t_out, score_in, search.merge * model.diameter) if search is not None else np.zeros(len(t_out), bool)
     start = time.perf_counter()
     for k in np.argsort(-score_in, kind="stable"):
+        if merged[k]:
+            status[k] = "suppressed"
+            continue
         if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
             break
         start_R, start_t = R_out[k].copy(), t_out[k].copy()
@@ -352,17 +356,35 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
             R_out[k], t_out[k], status[k] = polished.R, polished.t, "searched"
     if search is None:
         return R_out, t_out, status, score_in.copy()
-    agree = np.array([pose_agreement(Rk, tk, model, depth, camera, search) for Rk, tk in zip(R_out, t_out, strict=True)])
+    agree = np.array([pose_agreement(Rk, tk, model, depth, camera, search) if not m else -np.inf
+                      for Rk, tk, m in zip(R_out, t_out, merged, strict=True)])
     final = {"agreement": agree, "network": score_in.copy(), "product": score_in * np.maximum(agree, 0.0)}[search.score]
     if search.suppress > 0:  # duplicates: searches from nearby hypotheses that ended on one pose
         kept: list[int] = []
         for k in np.argsort(-final, kind="stable"):
+            if merged[k]:
+                continue
             if kept and (pose_distance(space, R_out[k], t_out[k], R_out[kept], t_out[kept])
                          < search.suppress * space.delta).any():  # fmt: skip
                 status[k] = "suppressed"
             else:
                 kept.append(int(k))
     return R_out, t_out, status, final
+
+
+def _merged(t: np.ndarray, score: np.ndarray, radius: float) -> np.ndarray:
+    """(N,) bool: the hypotheses whose origin (N, 3) lies within ``radius`` metres of a better-scored kept
+    one's (greedy, best score first; ties: the earlier); none for ``radius`` 0."""
+    out = np.zeros(len(t), bool)
+    if radius <= 0 or len(t) < 2:
+        return out
+    kept: list[int] = []
+    for k in np.argsort(-np.asarray(score, np.float64), kind="stable"):
+        if kept and (np.linalg.norm(t[kept] - t[k], axis=1) < radius).any():
+            out[k] = True
+        else:
+            kept.append(int(k))
+    return out
 
 
 def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCloud, space: Any,
@@ -405,7 +427,7 @@ class Refiner:
 def search_settings(budget_ms: float | None = None) -> ICPSettings:
     """The settings of ``conf/refine/search.yaml`` (ICP with a wider reach and a looser guard, then
     the search; a test keeps the two equal), for the runtime, which reads no config."""
-    return ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, search=SearchSettings())
+    return ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, stride=2, search=SearchSettings())
 
 
 def settings_from_config(refine: Any) -> ICPSettings | None:

@@ -70,6 +70,9 @@ class SearchSettings:
             (0: keep all).
         coarse: 1 searches the whole grid; N > 1 first a grid N times coarser, then the fine grid
             around its three best turns (about N² times fewer candidates).
+        merge: before the refinement, a hypothesis whose origin lies within this many diameters of a
+            better-scored one's is dropped (status ``suppressed``): the search from the better one reaches
+            its pose (0: search from every hypothesis).
         mode: turn (about ``axis``, with shifts: flat parts) | flips (the ambiguity turns and a local
             search: any part) | auto (turn for a flat part, else flips).
         keep: ``flips``: how many of the best ambiguity turns go on to the local search.
@@ -85,6 +88,7 @@ class SearchSettings:
     score: str = "agreement"
     suppress: float = 1.0
     coarse: int = 3
+    merge: float = 0.1
     mode: str = "auto"
     keep: int = 3
     local_deg: float = 8.0
@@ -110,7 +114,7 @@ class SearchSettings:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value <= 0:
                 raise ValueError(f"search.{key} must be a positive number, got {value!r}")
-        for key in ("shift", "see_through_weight", "suppress"):
+        for key in ("shift", "see_through_weight", "suppress", "merge"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"search.{key} must be a number >= 0, got {value!r}")

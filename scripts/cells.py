@@ -1,0 +1,299 @@
+"""A real cell whose bin moves: one model per cell, scored where the bin stood in training and where it did not.
+
+The IPD cell of ``../shared/data/ipd_real_obj18`` (its Photoneo at the pose measured from the frames' ground
+truth, the wire basket, IPD object 18): training piles whose basket stands anywhere on a working area of
+the floor (``scene.bin_area``) in any yaw, the network's input cropped around the basket found in each image
+(``data.roi=auto:S``, S metres); scored on generated piles of another seed with the basket where the earlier
+recipe always put it (``trained``: within 4 cm of the camera's aim point) and moved beyond that (``moved``:
+the four corners of the working area), each as decoded and with the depth-agreement search, beside the
+earlier fixed-box recipe's shipped model on the same piles.
+
+    python scripts/cells.py                       # generate, train, evaluate: results/cells/
+    python scripts/cells.py --stage report        # re-make results/cells/ from the evaluations
+
+Every setting here is chosen without the real frames: the cell (camera, its pose, the basket's size) is what
+a user measures; S is 1.1 x the basket's outer diagonal (the basket in any yaw with the finder's error to
+spare); the training recipe is the earlier one's (its generated-pile A/B: results/real_ipd/ab.md). The
+real frames are scored once, by ``--stage real``, with the recipe fixed before.
+
+Training piles are rendered at half the camera's resolution (the same field of view and pose; the sensor
+model's pixel-unit settings halved), four times faster than full frames; the test piles and the real frames
+are full frames, as the camera gives them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "src"))
+
+from opnet.paths import best_checkpoint, shared_dir  # noqa: E402
+from opnet.studies import run_logged  # noqa: E402
+
+FRAMES = shared_dir() / "data" / "ipd_real_obj18"
+OBJECT_ID = 18
+#: the working volume (metres): the basket's height range seen by the camera, as the earlier recipe
+CLIP = (1.55, 2.05)
+#: the camera over the floor, measured from the frames' ground truth (python -m opnet.synthesis.camera_pose)
+CAMERA_POSE = {"camera_height": 1.7748, "camera_tilt_deg": 19.86, "camera_azimuth_deg": -30.26}
+#: the basket (measured sizes), standing 0.6 m above the ground, in any yaw
+BASKET = {"bin_inner": 0.3, "bin_inner_y": 0.65, "bin_wall_height": 0.1, "bin_wall_thickness": 0.002,
+          "bin_clearance": 0.6, "bin_jitter_deg": 180.0, "camera_jitter_deg": 3.0, "camera_jitter_m": 0.03,
+          "outside_clip": "clamp", "clutter": 8}  # fmt: skip
+#: the basket perforations (SIZE, PITCH metres): the training cycles shared out among them
+HOLES = ((0.012, 0.018), (0.016, 0.021), (0.02, 0.026))
+#: where the basket may stand: [x0, y0, x1, y1] metres of the ground around the camera's aim point
+AREA = (-0.2, -0.2, 0.2, 0.2)
+#: the earlier recipe's placement (its bin_jitter_m) and the moved test piles: the area's four corners
+TRAINED_JITTER = 0.04
+CORNERS = ((0.1, 0.1, 0.2, 0.2), (-0.2, 0.1, -0.1, 0.2), (-0.2, -0.2, -0.1, -0.1), (0.1, -0.2, 0.2, -0.1))
+#: the earlier recipe's fixed box (pixels of the full frames) and its shipped model
+OLD_ROI = (560, 230, 1250, 1160)
+OLD_MODEL = REPO / "models" / "real_ipd_plate.ckpt"
+#: the sensor model's settings in pixels (halved with the resolution)
+PIXEL_SENSOR_KEYS = {"lateral_px": 0.5, "edge_missing_px": 2, "blob_scale_px": 15.0}
+FIELDS = ("policy", "model", "placement", "refine", "scenes", "required", "ap", "found", "t_err_mm_p50",
+          "r_err_deg_p50", "ms_per_frame")  # fmt: skip
+
+
+def roi_side() -> float:
+    """S of ``auto:S``: 1.1 x the basket's outer diagonal, rounded up to 5 cm."""
+    t = BASKET["bin_wall_thickness"]
+    diagonal = math.hypot(BASKET["bin_inner"] + 2 * t, BASKET["bin_inner_y"] + 2 * t)
+    return math.ceil(1.1 * diagonal * 20) / 20
+
+
+def run(cmd: list[str], log: Path) -> None:
+    """A command of the framework, its console in ``log``; a failure names the log."""
+    run_logged(cmd, log, REPO)
+
+
+def camera_file(scale: float, out: Path) -> Path:
+    """The cell's camera (the frames' Photoneo) with the working clip planes, its pixels scaled by ``scale``."""
+    from opnet.datasets.camera_file import read_camera_file
+
+    cam = read_camera_file(FRAMES / "camera_photoneo.yaml")
+    W, H = round(cam.width * scale), round(cam.height * scale)
+    cx, cy = (cam.cx + 0.5) * W / cam.width - 0.5, (cam.cy + 0.5) * H / cam.height - 0.5
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(f"# the Photoneo of the IPD frames at {scale:g} x its pixels, clip planes {CLIP} (scripts/cells.py)\n"
+                   f"fx: {cam.fx * W / cam.width!r}\nfy: {cam.fy * H / cam.height!r}\ncx: {cx!r}\ncy: {cy!r}\n"
+                   f"width: {W}\nheight: {H}\nclip_start: {CLIP[0]!r}\nclip_end: {CLIP[1]!r}\n")  # fmt: skip
+    return out
+
+
+def generate(camera: Path, out: Path, cycles: int, views: int, seed: int, scale: float, logs: Path,
+             **scene: Any) -> None:  # fmt: skip
+    settings = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
+                **scene}  # fmt: skip
+    sensor = [f"sensor.{k}={v * scale if isinstance(v, float) else max(1, round(v * scale))}"
+              for k, v in PIXEL_SENSOR_KEYS.items()]  # fmt: skip
+    value = lambda v: "[" + ",".join(map(str, v)) + "]" if isinstance(v, (list, tuple)) else v  # noqa: E731
+    run([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", *sensor, f"cycles={cycles}",
+         "drops=10", "workers=2", f"seed={seed}", f"out={out}", "progress=false", "previews=2",
+         *(f"scene.{k}={value(v)}" for k, v in settings.items())], logs / f"generate_{out.name}.log")  # fmt: skip
+
+
+def datasets(data: Path, cycles: int, test_cycles: int) -> tuple[list[tuple[Path, int, dict]], dict[str, list[tuple[Path, dict]]]]:
+    """(training sets: (root, cycles, scene settings)), {placement: test sets (root, scene settings)}."""
+    train = []
+    for k, (size, pitch) in enumerate(HOLES):
+        n = cycles // len(HOLES) + (k < cycles % len(HOLES))
+        train.append((data / f"train_c{n}_h{size * 1000:g}", n,
+                      {"bin_area": AREA, "bin_hole_size": size, "bin_hole_pitch": pitch, "seed": k}))
+    size, pitch = HOLES[0]
+    holes = {"bin_hole_size": size, "bin_hole_pitch": pitch}
+    tests = {"trained": [(data / f"test_trained_c{test_cycles}", {"bin_jitter_m": TRAINED_JITTER, **holes,
+                                                                   "cycles": test_cycles})],
+             "moved": [(data / f"test_moved{k}_c{test_cycles // 4}", {"bin_area": area, **holes, "cycles": test_cycles // 4})
+                       for k, area in enumerate(CORNERS)]}  # fmt: skip
+    return train, tests
+
+
+def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str]) -> dict[str, Any]:
+    """``eval.py`` of ``ckpt`` on the datasets ``roots`` (one test split) with ``overrides``; its summary."""
+    listed = "[" + ",".join(str(r) for r in roots) + "]"
+    run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={listed}", f"data.test_root={listed}",
+         f"+data.clip=[{CLIP[0]},{CLIP[1]}]", "+data.cache=false", f"out={out}", "examples=2", *overrides],
+        out.with_suffix(".log"))  # the depth at the camera's resolution, for the network's crop and the search
+    return json.loads((out / "summary.json").read_text())
+
+
+REFINE = {"none": [], "search": ["refine=search", "+decoding.averaging=false"]}
+
+
+def row(summary: dict[str, Any], **keys: Any) -> dict[str, Any]:
+    d = summary["diagnostics"]
+    n = max(d["to_find"], 1)
+    return {**keys, "scenes": summary["num_scenes"], "required": d["to_find"], "ap": round(summary["ap"], 4),
+            "found": round(d["matched"] / n, 4), "t_err_mm_p50": d["t_err_mm_p50"], "r_err_deg_p50": d["r_err_deg_p50"],
+            "ms_per_frame": (summary.get("icp") or {}).get("ms_per_image", "")}  # fmt: skip
+
+
+def write_table(csv_path: Path, rows: list[dict[str, Any]], head: list[str], columns: tuple[str, ...]) -> None:
+    """``rows`` as ``csv_path`` and as a markdown table of ``columns`` after ``head`` beside it (README.md for
+    cells.csv, else the CSV's name with .md)."""
+    csv_path.parent.mkdir(parents=True, exist_ok=True)
+    with csv_path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+    titles = {"policy": "policy", "model": "model", "placement": "placement", "refine": "refine", "scenes": "scenes",
+              "required": "required", "ap": "**AP**", "found": "found %", "t_err_mm_p50": "t p50 mm",
+              "r_err_deg_p50": "r p50 °", "ms_per_frame": "ms/frame"}  # fmt: skip
+    cell = {"ap": lambda v: f"**{float(v):.3f}**", "found": lambda v: f"{100 * float(v):.1f}",
+            "t_err_mm_p50": lambda v: f"{float(v):.1f}", "r_err_deg_p50": lambda v: f"{float(v):.1f}",
+            "ms_per_frame": lambda v: "" if v in ("", None) else f"{float(v):.0f}"}  # fmt: skip
+    lines = [*head, "| " + " | ".join(titles[c] for c in columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(cell.get(c, str)(r[c]) for c in columns) + " |" for r in rows]
+    md = csv_path.with_name("README.md") if csv_path.name == "cells.csv" else csv_path.with_suffix(".md")
+    md.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def report(rows: list[dict[str, Any]], out: Path, command: str, notes: list[str]) -> None:
+    head = ["# A cell whose bin moves: generated piles where the basket stood in training and where it did not", "",
+            f"Made by `{command}`. IPD object 18 in the IPD cell (its Photoneo at the measured pose, the wire basket "
+            f"standing 0.6 m above the ground, up to 10 plates and 8 foreign pieces); test piles of another seed "
+            f"at the camera's full resolution: `trained` = the basket within {TRAINED_JITTER * 100:g} cm of the "
+            f"camera's aim point (where the earlier recipe always put it), `moved` = in the four corners of the "
+            f"working area {list(AREA)} m (0.14-0.28 m from the aim point), any yaw. AP: Brégier, max occlusion "
+            "0.5, over every scene of the split (piles of 0-10 plates).", ""]  # fmt: skip
+    write_table(out / "cells.csv", rows, head, FIELDS)
+    with (out / "README.md").open("a") as f:
+        f.write("\n" + "\n\n".join(notes) + "\n")
+
+
+def score_real_frames(run_dir: Path) -> int:
+    """The three real frames scored once by the trained recipe as it stands (the checkpoint's ROI policy and
+    clip planes), as decoded and with the search: ``results/real_ipd/cell.md`` and ``cell.csv``."""
+    ckpt = best_checkpoint(run_dir)
+    if ckpt is None:
+        print(f"error: {run_dir}: no checkpoint; train first (--stage train)", file=sys.stderr)
+        return 2
+    rows = []
+    for refine, overrides in REFINE.items():
+        out = run_dir / "eval_real" / refine
+        split = (FRAMES / "test").resolve()
+        run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
+             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{CLIP[0]},{CLIP[1]}]", "+data.cache=false", f"out={out}",
+             "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
+        rows.append(row(json.loads((out / "summary.json").read_text()), policy=str(ARMS[run_dir.name]["roi"]),
+                        model=os.path.relpath(ckpt, REPO), placement="real frames", refine=refine))
+    head = ["# The real frames, scored once by the cell recipe", "",
+            f"`python scripts/cells.py --stage real --real-arm {run_dir.name}` (every setting fixed on "
+            "generated piles before this ran: results/cells/README.md). The three Photoneo frames of IPD object 18, "
+            "official `visib_fract`, the whole frame given: the ROI is the checkpoint's "
+            f"(`{ARMS[run_dir.name]['roi']}`), the clip planes too.", ""]  # fmt: skip
+    write_table(REPO / "results" / "real_ipd" / "cell.csv", rows, head,
+                ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
+    return 0
+
+
+#: the arms: the network's input policy (``data.roi``; None: the whole frame, which here is the working
+#: area), its input size and training seed
+ARMS = {
+    "auto": {"roi": f"auto:{roi_side():g}", "input": 128, "seed": 0},
+    "auto_s1": {"roi": f"auto:{roi_side():g}", "input": 128, "seed": 1},
+    "auto_s2": {"roi": f"auto:{roi_side():g}", "input": 128, "seed": 2},
+    "frame128": {"roi": None, "input": 128, "seed": 0},
+    "frame256": {"roi": None, "input": 256, "seed": 0},
+}
+OLD_ARM = "fixed_box"
+
+
+def arm_policy(arm: str) -> str:
+    if arm == OLD_ARM:
+        return f"fixed box {list(OLD_ROI)}"
+    roi = ARMS[arm]["roi"]
+    return roi if roi else "working area (whole frame)"
+
+
+def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
+    a = ARMS[arm]
+    roots = "[" + ",".join(str(r) for r, *_ in train_sets) + "]"
+    run([sys.executable, "train.py", "object=ipd_plate", "data=ipa", f"data.root={roots}", "data.generate=null",
+         f"data.roi={a['roi'] or 'null'}", f"data.input_size={a['input']}", f"seed={a['seed']}", "parameterization=eve",
+         "augmentation.p_rotate=0.5", "test=false", f"trainer.max_steps={steps}", "trainer.max_epochs=100000",
+         "trainer.enable_progress_bar=false", f"hydra.run.dir={runs / arm}"], runs / arm / "console.log")  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--stage", choices=("all", "generate", "train", "eval", "report", "real"), default="all",
+                    help="real: score the real frames once with --real-arm (results/real_ipd/cell.md)")
+    ap.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
+    ap.add_argument("--real-arm", default="auto", choices=list(ARMS))
+    ap.add_argument("--cycles", type=int, default=200)
+    ap.add_argument("--views", type=int, default=2)
+    ap.add_argument("--test-cycles", type=int, default=12)
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--scale", type=float, default=0.5, help="the training piles' resolution, x the camera's")
+    ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "cells")
+    ap.add_argument("--runs", type=Path, default=REPO / "outputs" / "cells")
+    ap.add_argument("--out", type=Path, default=REPO / "results" / "cells")
+    args = ap.parse_args(argv)
+    if not (FRAMES / "camera_photoneo.yaml").is_file():
+        print(f"error: {FRAMES}: the cell's camera is not there (../shared, or OPNET_SHARED)", file=sys.stderr)
+        return 2
+    logs = args.runs / "logs"
+    train_sets, tests = datasets(args.data_dir, args.cycles, args.test_cycles)
+    if args.stage == "real":
+        return score_real_frames(args.runs / args.real_arm)
+    if args.stage in ("all", "generate"):
+        started = time.perf_counter()
+        half = camera_file(args.scale, args.data_dir / f"camera_x{args.scale:g}.yaml")
+        full = camera_file(1.0, args.data_dir / "camera_x1.yaml")
+        for root, cycles, scene in train_sets:
+            scene = dict(scene)
+            generate(half, root, cycles, args.views, scene.pop("seed"), args.scale, logs, **scene)
+        for k, sets in enumerate(tests.values()):
+            for j, (root, scene) in enumerate(sets):
+                scene = dict(scene)
+                generate(full, root, scene.pop("cycles"), 1, 100 + 10 * k + j, 1.0, logs, **scene)
+        print(f"generated in {(time.perf_counter() - started) / 60:.1f} min", flush=True)
+    if args.stage in ("all", "train"):
+        for arm in args.arms:
+            train_arm(arm, train_sets, args.runs, args.steps)
+    if args.stage in ("all", "eval"):
+        for arm in [*args.arms, OLD_ARM]:
+            ckpt = OLD_MODEL if arm == OLD_ARM else best_checkpoint(args.runs / arm)
+            extra = [f"+data.roi=[{','.join(map(str, OLD_ROI))}]"] if arm == OLD_ARM else []
+            for placement, sets in tests.items():
+                for refine, overrides in REFINE.items():
+                    folder = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}"
+                    evaluate(ckpt, [r for r, _ in sets], folder, [*extra, *overrides])
+    rows = []
+    for arm in [OLD_ARM, *ARMS]:
+        for placement in tests:
+            for refine in REFINE:
+                summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}" / "summary.json"
+                if summary.is_file():
+                    model = "models/real_ipd_plate.ckpt" if arm == OLD_ARM else \
+                        f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
+                    rows.append(row(json.loads(summary.read_text()), policy=arm_policy(arm), model=model,
+                                    placement=placement, refine=refine))
+    notes = ["Models: trained on piles whose basket stands anywhere in the working area (" f"{args.cycles} cycles, "
+             f"{args.views} views per pile, three perforations, rendered at {args.scale:g} x the camera's pixels; EVE, "
+             f"small preset, {args.steps} steps). `auto:S`: the network's input is a square of S m at the basket's "
+             "depth centred on the basket found in each image (`data.roi`, opnet.data.bin_finder); `working area`: "
+             "the whole frame (here the working area is most of it) at the input size given. "
+             f"`models/real_ipd_plate.ckpt`: the earlier recipe's model (the basket within 4 cm of the aim point in "
+             f"training) with its fixed box {list(OLD_ROI)}. `search`: `refine=search +decoding.averaging=false`."]
+    report(rows, args.out, "python scripts/cells.py" + "".join(" " + a for a in (sys.argv[1:] if argv is None else argv)), notes)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
