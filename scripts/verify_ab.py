@@ -33,7 +33,8 @@ DENSE_SCENE = {"camera_file": str(REPO / "conf" / "cameras" / "sileane_bunny.yam
                "camera_height": 1.5, "views": 2, "camera_jitter_m": 0.03, "camera_jitter_deg": 3.0,
                "bin_jitter_m": 0.03, "bin_jitter_deg": 15.0}  # fmt: skip
 PLATE_TEST = REPO / "outputs" / "data" / "cells" / "test_trained_c12"
-EARLIER = "earlier settings (merge 0, stride 1):search.merge=0,icp.stride=1"
+EARLIER = "earlier settings (merge 0, stride 1, all local points):search.merge=0,icp.stride=1,icp.local_points=0"
+FINE_LOCAL = "fine local:search.fine=local"
 
 
 def arms(data: Path) -> dict[str, list[str]]:
@@ -45,7 +46,8 @@ def arms(data: Path) -> dict[str, list[str]]:
             "ipd_plate": ["--ckpt=models/real_ipd_plate.ckpt", "--search", "--budget-ms", "none",
                           f"--data=root={PLATE_TEST}", f"--data=test_root={PLATE_TEST}", "--data=cache=false",
                           "--data=test_min_objects=6", "--data=roi=[560,230,1250,1160]", "--data=clip=[1.55,2.05]",
-                          "--decoding", "averaging=false", f"--search-variant={EARLIER}"]}  # fmt: skip
+                          "--decoding", "averaging=false", f"--search-variant={EARLIER}",
+                          f"--search-variant={FINE_LOCAL}"]}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -71,6 +71,8 @@ class ICPSettings:
         budget_ms: time for all hypotheses of one image (None: no limit).
         model_points: points sampled on the mesh surface.
         stride: use every stride-th pixel of the depth image in each direction.
+        local_points: at most about this many of the scene points near a hypothesis are fitted (every k-th
+            of them; 0: all): on a megapixel frame the neighbourhood of a part holds tens of thousands.
         search: None (ICP only), or the depth-agreement search (:mod:`opnet.geometry.search`) run
             after ICP on each hypothesis within the budget, its best pose polished by ICP again.
     """
@@ -85,6 +87,7 @@ class ICPSettings:
     budget_ms: float | None = 100.0
     model_points: int = 600
     stride: int = 1
+    local_points: int = 0
     search: SearchSettings | None = None
 
     def __post_init__(self) -> None:
@@ -97,6 +100,8 @@ class ICPSettings:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"icp.{key} must be a positive integer, got {value!r}")
+        if isinstance(self.local_points, bool) or not isinstance(self.local_points, int) or self.local_points < 0:
+            raise ValueError(f"icp.local_points must be an integer >= 0 (0: all), got {self.local_points!r}")
         if self.budget_ms is not None and not (np.isfinite(self.budget_ms) and self.budget_ms >= 0):
             raise ValueError(f"icp.budget_ms must be >= 0 or null, got {self.budget_ms!r}")
 
@@ -278,6 +283,8 @@ def refine_pose(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneClo
     idx = np.asarray(scene.tree.query_ball_point(t0, settings.radius * D), dtype=np.int64)
     if len(idx) < settings.min_points:
         return ICPResult(R0, t0, "no_depth", len(idx))
+    if settings.local_points and len(idx) > settings.local_points:  # every k-th: a small tree, the same surface
+        idx = np.sort(idx)[:: -(-len(idx) // settings.local_points)]
     local = (cKDTree(scene.points[idx]), scene.points[idx], scene.normals[idx])
     max_d, huber = settings.max_distance * D, settings.huber * D
     Rc, tc = R0.copy(), t0.copy()

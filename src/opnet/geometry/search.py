@@ -70,6 +70,8 @@ class SearchSettings:
             (0: keep all).
         coarse: 1 searches the whole grid; N > 1 first a grid N times coarser, then the fine grid
             around its three best turns (about N² times fewer candidates).
+        fine: after the coarse grid (``coarse`` > 1): grid (the fine grid around its three best turns) | local
+            (a pattern search of turns and shifts from them, a few dozen poses instead of a thousand).
         merge: before the refinement, a hypothesis whose origin lies within this many diameters of a
             better-scored one's is dropped (status ``suppressed``): the search from the better one reaches
             its pose (0: search from every hypothesis).
@@ -89,6 +91,7 @@ class SearchSettings:
     suppress: float = 1.0
     coarse: int = 3
     merge: float = 0.1
+    fine: str = "grid"
     mode: str = "auto"
     keep: int = 3
     local_deg: float = 8.0
@@ -96,6 +99,8 @@ class SearchSettings:
     local_rounds: int = 4
 
     def __post_init__(self) -> None:
+        if self.fine not in ("grid", "local"):
+            raise ValueError(f"search.fine must be grid or local, got {self.fine!r}")
         if self.mode not in MODES:
             raise ValueError(f"search.mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for key in ("keep", "local_rounds"):
@@ -225,6 +230,8 @@ def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, cam
     turn, step = s.turn_step_deg * s.coarse, s.shift_step * s.coarse
     angles = np.radians(np.arange(0.0, 360.0 - 1e-9, turn))
     coarse = _best_of(R, t, model, depth, camera, n, angles, offsets(step * D, s.shift * D), frame, s, keep=3)
+    if s.fine == "local":
+        return _refine_turns(coarse, model, depth, camera, n, frame, np.radians(turn) / 2, step * D / 2, s)
     best = None
     for _, _, t_c, angle in coarse:
         fine = np.radians(np.arange(-turn, turn + 1e-9, s.turn_step_deg)) + angle
@@ -233,6 +240,39 @@ def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, cam
         if best is None or found[0] > best[0]:
             best = found
     return best[1], best[2], best[0]
+
+
+def _refine_turns(starts: list[tuple[float, np.ndarray, np.ndarray, float]], model: Any, depth: np.ndarray, camera: Any,
+                  n: np.ndarray, frame: tuple[np.ndarray, np.ndarray], turn: float, shift: float,
+                  settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
+    """``fine: local``: from the coarse grid's best poses a pattern search of six moves (a turn of ``turn``
+    radians about ``n`` either way, a shift of ``shift`` metres either way along each of ``frame``), every
+    start's moves scored in one batch; a start whose best is to stay halves its steps, until they are below
+    half the grid's own steps. The best pose and its agreement (the first start of equals)."""
+    R = np.array([f[1] for f in starts])
+    t = np.array([f[2] for f in starts])
+    score = np.array([f[0] for f in starts])
+    C, rows = len(R), np.arange(len(R))
+    steps_r, steps_t = np.full(C, turn), np.full(C, shift)
+    stop_r, stop_t = np.radians(settings.turn_step_deg) / 2, settings.shift_step * model.diameter / 2
+    e1, e2 = frame
+    while (steps_r >= stop_r).any() or (steps_t >= stop_t).any():
+        dR = np.repeat(np.eye(3)[None, None], C, 0).repeat(7, 1)  # (C, 7, 3, 3): stay, turn +-, shifts +- e1, e2
+        dR[:, 1], dR[:, 2] = turns(n, steps_r), turns(n, -steps_r)
+        dv = np.zeros((C, 7, 3))
+        for j, e in enumerate((e1, -e1, e2, -e2)):
+            dv[:, 3 + j] = steps_t[:, None] * e
+        Rn = dR @ R[:, None]
+        tn = t[:, None] + dv  # turns about the axis through the pose's origin, as the grid's
+        s = score_poses(Rn.reshape(-1, 3, 3), tn.reshape(-1, 3), model, depth, camera, settings).reshape(C, 7)
+        s[:, 0] = score
+        best = s.argmax(1)
+        stay = best == 0
+        steps_r[stay] /= 2
+        steps_t[stay] /= 2
+        R, t, score = Rn[rows, best], tn[rows, best], s[rows, best]
+    k = int(np.argmax(score))
+    return R[k], t[k], float(score[k])
 
 
 def is_flat(points: np.ndarray) -> bool:
