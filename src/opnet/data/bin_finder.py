@@ -40,8 +40,9 @@ GRID_PIXELS = 320
 WINDOW_CELLS = 60
 #: windows holding at least this share of the best window's surface are on the plateau
 PLATEAU = 0.97
-#: a window holding less than this share of its area in surface is no bin
-MIN_FILL = 0.03
+#: a window holding less than this share of its area in surface is no bin (an empty wire basket under a
+#: structured-light sensor fills 2-3 % of a square of its diagonal)
+MIN_FILL = 0.005
 #: gaps the bin's region is closed over (holes of a wire basket, dropouts), metres
 CLOSE_M = 0.03
 #: what is thinner than this is opened away from the bin's region (bars, cables), metres
