@@ -289,7 +289,7 @@ def resolve_mode(settings: SearchSettings, points: np.ndarray) -> str:
     return "turn" if is_flat(points) else "flips"
 
 
-def _cube_rotations() -> np.ndarray:
+def axis_permutations() -> np.ndarray:
     """The 24 rotations that map the coordinate axes onto one another (signed permutations, det +1),
     the identity first."""
     out = []
@@ -324,7 +324,7 @@ def ambiguity_turns(points: np.ndarray, space: Any) -> tuple[np.ndarray, np.ndar
     centre = points.mean(0)
     _, A = np.linalg.eigh((points - centre).T @ (points - centre))
     kept: list[np.ndarray] = []
-    for C in _cube_rotations():
+    for C in axis_permutations():
         G = A @ C @ A.T
         if not any(_equivalent(space, K, G) for K in kept):
             kept.append(G)
@@ -417,5 +417,5 @@ def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, 
                            settings.see_through_weight)[0])  # fmt: skip
 
 
-__all__ = ["AXES", "MODES", "SCORES", "SearchSettings", "agreement", "ambiguity_turns", "is_flat", "local_search",
+__all__ = ["AXES", "MODES", "SCORES", "SearchSettings", "agreement", "ambiguity_turns", "axis_permutations", "is_flat", "local_search",
            "model_axis", "pose_agreement", "resolve_mode", "score_poses", "search_any", "search_pose", "turns"]

@@ -12,7 +12,8 @@ from opnet.objects.bop import bop_id, bop_object
 from opnet.objects.io import load_object
 from opnet.objects.model import ObjectModel
 
-_KEYS = {"name", "builtin", "mesh", "mesh_scale", "symmetry", "model_rotation", "poseutils", "bop_models", "bop_obj_id"}
+_KEYS = {"name", "builtin", "mesh", "mesh_scale", "symmetry", "model_rotation", "model_origin", "poseutils",
+         "bop_models", "bop_obj_id"}
 
 
 def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
@@ -46,6 +47,7 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
         symmetry=symmetry,
         mesh_scale=_mesh_scale(cfg.get("mesh_scale", 1.0), cfg["name"]),
         model_rotation=cfg.get("model_rotation"),
+        model_origin=cfg["model_origin"] if isinstance(cfg.get("model_origin"), str | type(None)) else list(cfg["model_origin"]),
         builtin=cfg.get("builtin"),
         poseutils=cfg.get("poseutils"),
     )

@@ -22,14 +22,17 @@ log = logging.getLogger(__name__)
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 
 
-def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) -> trimesh.Trimesh:
+def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None,
+              model_origin: Any = None) -> trimesh.Trimesh:  # fmt: skip
     """Read a triangle mesh file and bring it to metres in the model frame.
 
     Args:
         path: .obj, .stl, .ply, ... (anything trimesh reads as one mesh; scenes are merged).
         scale: multiply coordinates by this (0.001 for a mesh in millimetres).
         model_rotation: optional fixed correction so that the symmetry axis becomes z: a 3x3
-            matrix, or three Z-Y-Z Euler angles in degrees, applied as ``x_model = R x_file``.
+            matrix, or three Z-Y-Z Euler angles in degrees, applied as ``x_model = R (x_file - origin)``.
+        model_origin: optional point of the scaled file frame (metres) that becomes the model origin
+            (the symmetry centre, which every symmetry axis must pass through: ``opnet-object`` writes it).
     """
     path = require_regular_file(path)  # a FIFO or a device is named as such, not "not found"
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -52,6 +55,11 @@ def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None) 
     mesh = outward_faces(loaded.copy(), path)
     if scale != 1.0:
         mesh.apply_scale(scale)
+    if model_origin is not None:
+        origin = np.asarray(model_origin, dtype=np.float64) if not isinstance(model_origin, str) else np.full(1, np.nan)
+        if origin.shape != (3,) or not np.isfinite(origin).all():
+            raise ValueError(f"{path}: model_origin must be three numbers (metres), got {short_repr(model_origin)}")
+        mesh.apply_translation(-origin)
     if model_rotation is not None:
         R = np.asarray(model_rotation, dtype=np.float64)
         if R.shape == (3,):
@@ -122,6 +130,7 @@ def load_object(
     model_rotation: Any = None,
     builtin: str | None = None,
     poseutils: str | Path | None = None,
+    model_origin: Any = None,
 ) -> ObjectModel:
     """Build an object model from whichever source is given.
 
@@ -140,7 +149,7 @@ def load_object(
             raise ValueError(f"object {name!r}: give either builtin or mesh/poseutils, not both")
         obj = builtin_object(builtin)
         return obj if obj.name == name else ObjectModel.from_mesh(name, obj.mesh, obj.symmetry, f"built-in {builtin!r}")
-    mesh_obj = None if mesh is None else load_mesh(mesh, mesh_scale, model_rotation)
+    mesh_obj = None if mesh is None else load_mesh(mesh, mesh_scale, model_rotation, model_origin)
     if poseutils is not None:
         return ObjectModel.from_poseutils(poseutils, name, mesh_obj)
     assert mesh_obj is not None

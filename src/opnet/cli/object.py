@@ -1,0 +1,197 @@
+"""``opnet-object``: inspect a part's CAD mesh and write its object config.
+
+    opnet-object <mesh> [--name N] [--out conf/object/N.yaml] [--units auto|m|cm|mm|in] [--tolerance-mm T]
+
+Reads the mesh (any shells, watertight or not), states its units (``auto``: a largest extent up to 3 in file
+units is metres, above it millimetres; say so otherwise), measures it (extent, diameter D as the metric
+defines it, δ = 0.1 D, Λ), finds its proper symmetry group (:mod:`opnet.objects.symmetry_finder`; tolerance
+1 % of D unless ``--tolerance-mm``, printed with every candidate's deviation), turns the main symmetry axis
+onto z (``model_rotation``) about the symmetry centre (``model_origin``), and writes the YAML and a preview
+PNG beside it (the part from three sides with its axes). Bad input is one line naming the file, exit 2,
+nothing written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+#: a bin-picking part is this big (metres, largest extent) or the units are wrong
+PART_SIZE = (0.003, 3.0)
+
+
+def _fail(message: str) -> int:
+    print(f"error: {message}", file=sys.stderr)
+    return 2
+
+
+def read_part(path: Path, units: str) -> tuple[Any, float, str]:
+    """(mesh in metres, the scale applied, what was assumed); ValueError naming the file."""
+    import trimesh
+
+    from opnet.objects.io import load_mesh
+
+    try:
+        raw = load_mesh(path)
+    except ValueError as e:
+        raise ValueError(str(e) if str(path) in str(e) else f"{path}: {e}") from None
+    except Exception as e:  # noqa: BLE001  (a file trimesh cannot parse)
+        raise ValueError(f"{path}: not a mesh trimesh can read ({type(e).__name__}: {e})") from None
+    if not isinstance(raw, trimesh.Trimesh) or len(raw.faces) == 0:
+        raise ValueError(f"{path}: not a mesh: no triangles in the file")
+    largest = float(raw.extents.max())
+    if units == "auto":
+        units = "m" if largest <= PART_SIZE[1] else "mm"
+        assumed = f"units: {units} (assumed from its largest extent, {largest:g} file units; give --units otherwise)"
+    else:
+        assumed = f"units: {units} (given)"
+    scale = UNITS[units]
+    size = largest * scale
+    if not PART_SIZE[0] <= size <= PART_SIZE[1]:
+        likely = min(UNITS, key=lambda u: abs(math.log(largest * UNITS[u] / 0.1)))
+        raise ValueError(f"{path}: in {units} the part would be {size * 1000:g} mm across, not a part to pick "
+                         f"({PART_SIZE[0] * 1000:g} mm to {PART_SIZE[1]:g} m); the file is probably in {likely}: "
+                         f"--units {likely}")  # fmt: skip
+    raw.apply_scale(scale)
+    _check_shape(raw, path)
+    return raw, scale, assumed
+
+
+def _check_shape(mesh: Any, path: Path) -> None:
+    """Refuse two far-apart shells and a flat sheet; ValueError naming the file."""
+    shells = mesh.split(only_watertight=False)
+    if len(shells) > 1:
+        boxes = [s.bounds for s in shells]
+        size = float(mesh.extents.max())
+        big = max(range(len(shells)), key=lambda i: shells[i].area)
+        for i, b in enumerate(boxes):
+            gap = np.maximum(np.maximum(boxes[big][0] - b[1], b[0] - boxes[big][1]), 0.0)
+            if i != big and float(np.linalg.norm(gap)) > 0.25 * size:
+                raise ValueError(f"{path}: {len(shells)} shells, one {float(np.linalg.norm(gap)) * 1000:.0f} mm away from the "
+                                 "largest: several parts in one file? give one part per mesh")  # fmt: skip
+    thin = float(np.sort(mesh.extents)[0])
+    if thin < 1e-3 * float(mesh.extents.max()) or thin < 1e-5:
+        raise ValueError(f"{path}: a flat sheet ({thin * 1000:.3g} mm thick across {mesh.extents.max() * 1000:.0f} mm): "
+                         "a part needs a thickness a depth camera can see")
+
+
+def describe(mesh: Any, report: Any, path: Path, assumed: str) -> list[str]:
+    from opnet.objects.surface import sqrtm_psd, surface_moments
+
+    m = surface_moments(mesh.vertices, mesh.faces)
+    _, sqrt_w, _ = sqrtm_psd(m.covariance)
+    shells = len(mesh.split(only_watertight=False))
+    lines = [f"{path}", f"  {assumed}",
+             f"  extent {' x '.join(f'{e * 1000:.1f}' for e in mesh.extents)} mm; {shells} shell(s); "
+             f"{'watertight' if mesh.is_watertight else 'not watertight (open edges: read as a surface)'}",
+             f"  diameter D {report.diameter * 1000:.2f} mm (2 x the farthest vertex from the surface centroid); "
+             f"delta {report.diameter * 100:.2f} mm; Lambda (principal sqrt) "
+             f"{', '.join(f'{w * 1000:.2f}' for w in np.sort(sqrt_w))} mm",
+             f"  tolerance {report.tolerance * 1000:.2f} mm: a turn is a symmetry when 98 % of the surface lands within it",
+             f"  symmetry: {report.name} -> {_spec_text(report.spec)}"]  # fmt: skip
+    for c in report.found:
+        lines.append(f"    holds:  {c.angle_deg:6.1f} deg about [{', '.join(f'{v:+.3f}' for v in c.axis)}]: "
+                     f"deviation {c.deviation * 1000:.2f} mm")
+    for c in sorted(report.rejected, key=lambda c: c.deviation)[:4]:
+        lines.append(f"    fails:  {c.angle_deg:6.1f} deg about [{', '.join(f'{v:+.3f}' for v in c.axis)}]: "
+                     f"deviation {c.deviation * 1000:.2f} mm")
+    return lines
+
+
+def _spec_text(spec: dict) -> str:
+    if spec["kind"] == "finite":
+        return f"finite, {len(spec['rotations'])} rotations"
+    return ", ".join(f"{k} {v}" for k, v in spec.items())
+
+
+def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: Any, assumed: str) -> str:
+    import yaml
+
+    spec = dict(report.spec)
+    lines = [f"# {name}: written by opnet-object from {mesh_path} ({assumed}; symmetry {report.name}, tolerance "
+             f"{report.tolerance * 1000:.2f} mm).", "# model_origin: the symmetry centre (the surface centroid) in the "
+             "file's frame, metres; model_rotation: x_model = R (x_file - origin), the main axis onto z."]  # fmt: skip
+    body = {"name": name, "mesh": str(mesh_path), "mesh_scale": scale,
+            "model_origin": [round(float(v), 9) for v in report.origin],
+            "model_rotation": [[round(float(v), 9) for v in row] for row in report.model_rotation], "symmetry": spec}
+    text = "\n".join(lines) + "\n" + yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120)
+    return text
+
+
+def preview(mesh: Any, report: Any, out: Path) -> None:
+    """The part in its model frame from three sides (xy, xz, yz), its axes, the main axis (z) marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import trimesh
+
+    pts, _ = trimesh.sample.sample_surface(mesh, 6000, seed=0)
+    p = (np.asarray(pts) - report.origin) @ report.model_rotation.T
+    r = float(np.abs(p).max()) * 1000 * 1.15
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
+    for ax, (i, j, title) in zip(axes, ((0, 1, "from +z (down the main axis)"), (0, 2, "from -y"), (1, 2, "from +x")), strict=True):
+        ax.scatter(p[:, i] * 1000, p[:, j] * 1000, s=0.5, c=p[:, 3 - i - j] * 1000, cmap="viridis")
+        for k, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
+            e = np.eye(3)[k]
+            if e[i] or e[j]:
+                ax.annotate("", xy=(e[i] * r * 0.8, e[j] * r * 0.8), xytext=(0, 0),
+                            arrowprops={"arrowstyle": "->", "color": colour, "lw": 2 if k == 2 else 1})
+                ax.text(e[i] * r * 0.85, e[j] * r * 0.85, "xyz"[k], color=colour)
+        ax.set_xlim(-r, r)
+        ax.set_ylim(-r, r)
+        ax.set_aspect("equal")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel(f"{'xyz'[i]} mm")
+        ax.set_ylabel(f"{'xyz'[j]} mm")
+    fig.suptitle(f"{out.stem}: symmetry {report.name} ({_spec_text(report.spec)}); D {report.diameter * 1000:.1f} mm")
+    fig.tight_layout()
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="opnet-object", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("mesh", type=Path)
+    ap.add_argument("--name", default=None, help="the object's name (default: the file's stem, lower case)")
+    ap.add_argument("--out", type=Path, default=None, help="the YAML to write (default conf/object/<name>.yaml)")
+    ap.add_argument("--units", choices=("auto", *UNITS), default="auto")
+    ap.add_argument("--tolerance-mm", type=float, default=None, help="default: 1 %% of the part's diameter")
+    ap.add_argument("--force", action="store_true", help="overwrite an existing --out")
+    args = ap.parse_args(argv)
+    name = args.name or args.mesh.stem.lower()
+    if args.tolerance_mm is not None and not (math.isfinite(args.tolerance_mm) and args.tolerance_mm > 0):
+        return _fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
+    from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
+    from opnet.objects.symmetry_finder import find_symmetry
+    from opnet.paths import config_dir
+
+    out = args.out or config_dir() / "object" / f"{name}.yaml"
+    if out.exists() and not args.force:
+        return _fail(f"{out}: exists; give --force to overwrite it or another --out")
+    try:
+        mesh, scale, assumed = read_part(args.mesh, args.units)
+        centroid_d = 2.0 * float(np.linalg.norm(mesh.vertices - mesh.centroid, axis=1).max())
+        tol = args.tolerance_mm / 1000 if args.tolerance_mm is not None else 0.01 * centroid_d
+        report = find_symmetry(mesh, tol)
+    except ValueError as e:
+        msg = str(e)
+        return _fail(msg if msg.startswith(str(args.mesh)) else f"{args.mesh}: {msg}")
+    print("\n".join(describe(mesh, report, args.mesh, assumed)))
+    text = write_config(out, name, args.mesh.resolve(), scale, report, assumed)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out, text)
+    png = out.with_suffix(".png")
+    preview(mesh, report, png)
+    print(f"wrote {out} and {png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
