@@ -5,7 +5,7 @@ search, on held-out generated piles of three parts (milliseconds per frame besid
   seed made with a depth-sensor model (``sensor=structured_light``; the models trained on ideal depth),
   the scenes with at least 70 parts;
 - IPD plates (auto: turn): the shipped plate model on the cell study's full-resolution test piles with the
-  basket where its training put it (``scripts/cells.py``), the scenes with at least 6 plates, its box.
+  basket where its training put it (``scripts/cells.py``), the scenes with at least 8 plates, its box.
 
     python scripts/verify_ab.py            # generate the dense piles, run the arms: results/verification/
 
@@ -33,6 +33,7 @@ DENSE_SCENE = {"camera_file": str(REPO / "conf" / "cameras" / "sileane_bunny.yam
                "camera_height": 1.5, "views": 2, "camera_jitter_m": 0.03, "camera_jitter_deg": 3.0,
                "bin_jitter_m": 0.03, "bin_jitter_deg": 15.0}  # fmt: skip
 PLATE_TEST = REPO / "outputs" / "data" / "cells" / "test_trained_c12"
+PARTS = ("bunny", "ring_screw", "ipd_plate")
 EARLIER = "earlier settings (merge 0, stride 1, all local points):search.merge=0,icp.stride=1,icp.local_points=0"
 FINE_LOCAL = "fine local:search.fine=local"
 
@@ -45,14 +46,14 @@ def arms(data: Path) -> dict[str, list[str]]:
     return {"bunny": dense("bunny"), "ring_screw": dense("ring_screw"),
             "ipd_plate": ["--ckpt=models/real_ipd_plate.ckpt", "--search", "--budget-ms", "none",
                           f"--data=root={PLATE_TEST}", f"--data=test_root={PLATE_TEST}", "--data=cache=false",
-                          "--data=test_min_objects=6", "--data=roi=[560,230,1250,1160]", "--data=clip=[1.55,2.05]",
+                          "--data=test_min_objects=8", "--data=roi=[560,230,1250,1160]", "--data=clip=[1.55,2.05]",
                           "--decoding", "averaging=false", f"--search-variant={EARLIER}",
                           f"--search-variant={FINE_LOCAL}"]}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--parts", nargs="+", default=["bunny", "ring_screw", "ipd_plate"])
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS)
     ap.add_argument("--piles", type=int, default=3)
     ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "verify")
     ap.add_argument("--runs", type=Path, default=REPO / "outputs" / "verify")
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         run_logged([sys.executable, "scripts/icp_ab.py", *arms(args.data_dir)[part], f"--out={args.runs / part}"],
                    args.runs / f"ab_{part}.log")
     rows = []
-    for part in args.parts:
+    for part in PARTS:  # every part run so far, whichever --parts this call ran
         table = args.runs / part / "ab.csv"
         if table.is_file():
             command = (args.runs / part / "command.txt").read_text().strip()
@@ -89,12 +90,12 @@ def main(argv: list[str] | None = None) -> int:
         w.writerows(rows)
     num = lambda v, f="{:.3f}": "" if v in ("", None) else f.format(float(v))  # noqa: E731
     lines = ["# Verification A/B: decoded, ICP, depth-agreement search", "",
-             f"Made by `python scripts/verify_ab.py{''.join(' ' + a for a in (sys.argv[1:] if argv is None else argv))}`"
+             "Made by `python scripts/verify_ab.py` (one part at a time: `--parts <part>`; `--report` re-makes this page)"
              " on this 2-core CPU (other jobs may have shared it: the milliseconds are an upper bound). Held-out "
              f"generated piles: bunny and ring screw {args.piles} piles x 2 views of 75 parts made with "
              "`sensor=structured_light` (the shipped dense models trained on ideal depth), scenes with >= 70 parts; "
              "IPD plates: the cell study's test piles with the basket where the plate model's training put it, at the "
-             "Photoneo's full resolution, scenes with >= 6 plates. AP: Brégier, max occlusion 0.5. ms/frame: the "
+             "Photoneo's full resolution, scenes with >= 8 plates. AP: Brégier, max occlusion 0.5. ms/frame: the "
              "refinement's time per image.", "",
              "| object | decoding | refine | scenes | **AP** | found % | t p50 mm | r p50 ° | ms/frame | searched | dropped as duplicates |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

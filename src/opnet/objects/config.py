@@ -47,7 +47,7 @@ def object_from_config(cfg: Mapping[str, Any]) -> ObjectModel:
         symmetry=symmetry,
         mesh_scale=_mesh_scale(cfg.get("mesh_scale", 1.0), cfg["name"]),
         model_rotation=cfg.get("model_rotation"),
-        model_origin=cfg["model_origin"] if isinstance(cfg.get("model_origin"), str | type(None)) else list(cfg["model_origin"]),
+        model_origin=cfg.get("model_origin") if isinstance(cfg.get("model_origin"), str | type(None)) else list(cfg["model_origin"]),
         builtin=cfg.get("builtin"),
         poseutils=cfg.get("poseutils"),
     )
