@@ -201,6 +201,29 @@ def score_real_frames(run_dir: Path) -> int:
     return 0
 
 
+#: the recipe's settings and the evidence that chose each (results/cells/README.md)
+SETTINGS = [
+    "- the cell: camera intrinsics (the frames' camera file), its pose over the floor (height 1.775 m, tilt 19.9 deg, "
+    "azimuth -30.3 deg: `python -m opnet.synthesis.camera_pose` on the frames' ground truth, as a user would take it "
+    "from a calibration), the basket's sizes and the working volume 1.55-2.05 m (from the frames' depth): geometry "
+    "a user measures, no score involved;",
+    "- where the basket may stand (`scene.bin_area` +-0.2 m, any yaw): the floor the camera sees with the basket "
+    "whole in the image (the area's corners are checked to be in view);",
+    f"- the network's input (`data.roi=auto:{roi_side():g}`): 1.1 x the basket's outer diagonal (any yaw, the "
+    "finder's error to spare); the policy by the generated table above (the basket moved against where training "
+    "mostly put it);",
+    "- three perforations, 8 foreign pieces, the wire basket 0.6 m above the ground: generated-pile AP of the "
+    "earlier recipe's arms (results/real_ipd/ab.md: foreign pieces 0.098 -> 0.242, three perforations "
+    "0.242 -> 0.320); EVE, the small preset, 3000 steps: that recipe's (its arm with loss.lambda_z=10 and 6000 "
+    "steps scored higher on generated piles, 0.388, and is not in this budget: open);",
+    "- the sensor model (`sensor=photoneo`): made earlier to match the frames' missing-depth statistics, the one "
+    "setting no generated data can choose; its pixel settings halved with the training piles' resolution;",
+    "- the refinement (`refine=search +decoding.averaging=false`): generated piles (results/real_ipd/search_ab.md, "
+    "240 held-out scenes; results/verification/README.md), and its speed settings (merge 0.1, every 2nd pixel) by "
+    "the plate rows there.",
+]
+
+
 #: the arms: the network's input policy (``data.roi``; None: the whole frame, which here is the working
 #: area), its input size and training seed
 ARMS = {
@@ -293,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
              "the whole frame (here the working area is most of it) at the input size given. "
              f"`models/real_ipd_plate.ckpt`: the earlier recipe's model (the basket within 4 cm of the aim point in "
              f"training) with its fixed box {list(OLD_ROI)}. `search`: `refine=search +decoding.averaging=false`."]
+    notes += ["Every setting of the recipe, and what chose it (no setting was chosen by a score on the real frames):", "",
+              *SETTINGS]
     report(rows, args.out, "python scripts/cells.py" + "".join(" " + a for a in (sys.argv[1:] if argv is None else argv)), notes)
     return 0
 

@@ -1,0 +1,44 @@
+"""scripts/cells.py: the cell's camera at another resolution sees the same rays, and S of auto:S holds the
+basket in any yaw."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from opnet.paths import REPO_ROOT
+
+spec = importlib.util.spec_from_file_location("cells", REPO_ROOT / "scripts" / "cells.py")
+cells = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(cells)
+
+
+def test_the_half_resolution_camera_sees_the_same_rays(shared: Path, tmp_path: Path) -> None:
+    from opnet.datasets.camera_file import read_camera_file
+
+    full = read_camera_file(cells.camera_file(1.0, tmp_path / "x1.yaml"))
+    half = read_camera_file(cells.camera_file(0.5, tmp_path / "x05.yaml"))
+    assert (half.width, half.height) == (full.width // 2, full.height // 2)
+    assert (half.clip_start, half.clip_end) == cells.CLIP
+    # a pixel corner of the half image and the same corner of the full one: one ray
+    for u, v in ((-0.5, -0.5), (half.width - 0.5, half.height - 0.5)):
+        ray_half = ((u - half.cx) / half.fx, (v - half.cy) / half.fy)
+        U, V = 2 * (u + 0.5) - 0.5, 2 * (v + 0.5) - 0.5
+        ray_full = ((U - full.cx) / full.fx, (V - full.cy) / full.fy)
+        assert np.allclose(ray_half, ray_full, atol=1e-9)
+
+
+def test_the_roi_side_holds_the_basket_in_any_yaw() -> None:
+    t = cells.BASKET["bin_wall_thickness"]
+    diagonal = math.hypot(cells.BASKET["bin_inner"] + 2 * t, cells.BASKET["bin_inner_y"] + 2 * t)
+    assert diagonal * 1.1 <= cells.roi_side() < diagonal * 1.1 + 0.05
+    assert cells.ARMS["auto"]["roi"] == f"auto:{cells.roi_side():g}"
+
+
+@pytest.mark.parametrize("arm", ["auto", "frame128"])
+def test_each_arm_is_a_policy_of_the_table(arm: str) -> None:
+    assert cells.arm_policy(arm) in (cells.ARMS[arm]["roi"], "working area (whole frame)")
