@@ -24,9 +24,32 @@ def test_decoding_overrides_replace_the_checkpoints_settings() -> None:
 
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"treshold": 0.05}, r"decoding=\{'treshold': 0.05\}: with_decoding: unknown setting 'treshold'"),
-    ({"score": "q"}, "parameterization score must be one of"),
+    ({"score": "q"}, "decoding.score=.q.: expected one of"),
     ({"averaging": {"radius": 2}}, r"unknown averaging settings \['radius'\]"),
 ])
 def test_a_wrong_decoding_override_is_one_error(overrides: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         with_decoding_overrides(EVEParameterization(builtin_object("bracket")), overrides)
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ({"threshold": 2}, "decoding.threshold=2: expected a number in [0, 1)"),
+    ({"threshold": -0.5}, "decoding.threshold=-0.5: expected a number in [0, 1)"),
+    ({"threshold": float("nan")}, "decoding.threshold=nan: expected a number in [0, 1)"),
+    ({"threshold": True}, "decoding.threshold=True: expected a number in [0, 1)"),
+    ({"threshold": "abc"}, "decoding.threshold='abc': expected a number in [0, 1)"),
+    ({"min_visibility": 5}, "decoding.min_visibility=5: expected a number in [0, 1)"),
+    ({"averaging": "maybe"}, "decoding.averaging='maybe': expected true, false or a mapping"),
+    ({"score": "best"}, "decoding.score='best': expected one of"),
+])  # fmt: skip
+def test_command_line_decoding_overrides_are_checked_like_a_checkpoints(override: dict, message: str) -> None:
+    """The values a checkpoint's decoding is refused for are refused from the command line too, one line each."""
+    from opnet.cli.eval import with_decoding_overrides
+    from opnet.objects import builtin_object
+    from opnet.parameterizations.vanilla import VanillaParameterization
+
+    param = VanillaParameterization(builtin_object("zbracket"), grid=8)
+    with pytest.raises(ValueError) as e:
+        with_decoding_overrides(param, override)
+    assert message in str(e.value) and "\n" not in str(e.value)
+    assert with_decoding_overrides(param, {"averaging": True}).averaging is not None  # true: averaging on

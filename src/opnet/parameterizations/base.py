@@ -14,7 +14,8 @@ from __future__ import annotations
 import abc
 import copy
 import dataclasses
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -359,11 +360,21 @@ class Parameterization(abc.ABC):
         for key, value in settings.items():
             if key not in ("threshold", "score", "min_visibility"):
                 raise ValueError(f"with_decoding: unknown setting {key!r}")
+            if key != "score":  # checked as the same value from a checkpoint is: a number in [0, 1), never a boolean
+                ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+                if not (ok and 0 <= value < 1):
+                    raise ValueError(f"decoding.{key}={value!r}: expected a number in [0, 1)")
+                value = float(value)
             setattr(new, key, value)
         if new.score not in SCORES:
-            raise ValueError(f"parameterization score must be one of {SCORES}, got {new.score!r}")
+            raise ValueError(f"decoding.score={new.score!r}: expected one of {', '.join(SCORES)}")
+        if averaging is not None and not isinstance(averaging, bool | Mapping):
+            raise ValueError(f"decoding.averaging={averaging!r}: expected true, false or a mapping of eps, "
+                             "min_samples, cluster_score")  # fmt: skip
         if averaging is False:
             new.averaging = None
+        elif averaging is True:
+            new.averaging = self.averaging or PoseAveraging(self.obj.pose_space)
         elif averaging is not None:
             unknown = set(averaging) - {"eps", "min_samples", "cluster_score"}
             if unknown:
