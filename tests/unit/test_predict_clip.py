@@ -65,3 +65,29 @@ def test_training_scenes_clip_planes_are_one_pair_or_none() -> None:
     mixed = SceneSamples(_Scenes(40, lambda i: (0.5, 1.5) if i < 30 else (1.0, 2.0)), range(40))
     assert mixed.clip_planes() is None  # two camera set-ups: no one normalization
     assert SceneSamples(_Scenes(3, lambda i: (0.5, 1.5)), []).clip_planes() is None
+
+
+@pytest.mark.parametrize("value", [[True, 2], [1, False], ["1.5", "2"], [1.5, 2.0, 3.0], list(range(200_000))])
+def test_clip_planes_are_two_numbers_never_booleans_or_text_and_the_message_stays_short(value: list) -> None:
+    """A checkpoint's or an ONNX export's trained_clip of [true, 2] was read as [1, 2] m; a 200,000-number one
+    was echoed whole in the message."""
+    with pytest.raises(ValueError, match=r"^trained_clip=.*: expected \[near, far\] in metres$") as e:
+        parse_clip(value, "trained_clip")
+    assert len(str(e.value)) < 160
+
+
+def test_onnx_metadata_refuses_a_boolean_trained_clip() -> None:
+    import importlib.util
+
+    from opnet.deploy.metadata import validate_metadata
+    from opnet.paths import REPO_ROOT
+
+    spec = importlib.util.spec_from_file_location("onnx_meta_tests", REPO_ROOT / "tests" / "unit" / "test_onnx_metadata.py")
+    helpers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(helpers)
+    meta = helpers._meta()
+    meta["trained_clip"] = [1.55, 2.05]
+    assert validate_metadata(meta, "m.onnx")["trained_clip"] == (1.55, 2.05)
+    meta["trained_clip"] = [True, 2]
+    with pytest.raises(ValueError, match=r"trained_clip=\[True, 2\]: expected \[near, far\] in metres"):
+        validate_metadata(meta, "m.onnx")

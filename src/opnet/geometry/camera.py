@@ -33,11 +33,14 @@ def parse_clip(value: object, option: str = "clip") -> tuple[float, float] | Non
     if value is None:
         return None
     try:
-        if isinstance(value, str | bytes) or not isinstance(value, Sequence):
+        if isinstance(value, str | bytes) or not isinstance(value, Sequence) or len(value) != 2:
+            raise TypeError
+        if any(isinstance(v, bool | str | bytes) for v in value):  # true is no distance; "1.5" is no number
             raise TypeError
         near, far = (float(v) for v in value)
     except (TypeError, ValueError):
-        raise ValueError(f"{option}={value!r}: expected [near, far] in metres") from None
+        shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
+        raise ValueError(f"{option}={shown}: expected [near, far] in metres") from None
     if not (0 < near < far <= MAX_CLIP_END_M):
         raise ValueError(f"{option}=[{near:g}, {far:g}]: expected 0 < near < far <= {MAX_CLIP_END_M:g} metres")
     return near, far
