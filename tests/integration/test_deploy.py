@@ -120,6 +120,11 @@ def test_export_entry_point_and_bad_input(checkpoint: Path, tmp_path: Path) -> N
         export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", "format=tflite"]))
     with pytest.raises(ValueError, match=r"last\.ckpt: a checkpoint of the 'vanilla' parameterization, not 'eve'"):
         export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", f"out={tmp_path / 'x.onnx'}", "expect_parameterization=eve"]))
+    other = tmp_path / "other.ckpt"  # another checkpoint, overwrite=true: never replaced by ONNX bytes
+    other.write_bytes(checkpoint.read_bytes())
+    with pytest.raises(ValueError, match=r"other\.ckpt: an ONNX export is written to a \.onnx file, not \.ckpt"):
+        export_cli.run(compose_cfg("export", [f"ckpt={checkpoint}", f"out={other}", "overwrite=true"]))
+    assert other.read_bytes() == checkpoint.read_bytes()
     not_ckpt = tmp_path / "notes.ckpt"
     not_ckpt.write_text("not a checkpoint")
     with pytest.raises(ValueError, match=r"notes\.ckpt: cannot read checkpoint"):

@@ -60,6 +60,10 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         raise ValueError(f"out={out}: the checkpoint itself; the export would replace it, choose another out=")
     if out.exists() and not out.is_file():  # /dev/null, a folder, a FIFO: never replaced
         raise ValueError(f"out={out}: exists and is not a regular file; choose another out=")
+    if out.suffix.lower() != f".{fmt}":
+        what = out.suffix or "a file without suffix"
+        raise ValueError(f"out={out}: an {fmt.upper()} export is written to a .{fmt} file, not {what} (a checkpoint or "
+                         "another file it would replace); choose another out=")
     if out.exists() and not cfg.get("overwrite", False):
         raise ValueError(f"{out}: exists already; pass overwrite=true to replace it, or choose another out=")
     system, run_cfg = load_checkpoint(ckpt)
