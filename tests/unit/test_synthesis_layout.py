@@ -126,7 +126,12 @@ def test_random_rotations_are_uniform_enough() -> None:
     ("values", "match"),
     [({"resolution": 4}, "resolution"), ({"collision": "mesh"}, "collision"), ({"fov_deg": 0}, "fov_deg"),
      ({"clip_start": 2.0, "clip_end": 1.0}, "clip_end"), ({"settle_checks": 0}, "settle_checks"),
-     ({"bin_inner": -1.0}, "bin_inner"), ({"height": 511}, "height")],
+     ({"bin_inner": -1.0}, "bin_inner"), ({"height": 511}, "height"),
+     # bounds before anything is made: a micrometre perforation hung the generator, a 1000 km clearance passed,
+     # a 100 m bin side was refused naming the written parameter.json instead of the key
+     ({"bin_hole_size": 5e-7, "bin_hole_pitch": 1e-6}, "^scene config: bin_hole_size=5e-07, expected 0 .solid. or at least"),
+     ({"bin_clearance": 1e6}, "^scene config: bin_clearance=1000000.0, expected at most 20 metres"),
+     ({"bin_inner_y": 100.0}, "^scene config: bin_inner_y=100.0, expected at most 20 metres")],
 )
 def test_bad_scene_settings_name_the_key(values: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):

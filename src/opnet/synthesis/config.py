@@ -15,6 +15,9 @@ from typing import Any
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
+#: the smallest perforation of a generated bin (metres) and the largest length of a scene setting (metres)
+MIN_HOLE_M = 0.0005
+MAX_SCENE_M = 20.0
 #: physics engines of the generator (opnet.synthesis.physics)
 PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
@@ -243,6 +246,15 @@ class SceneConfig:
              "degrees in [0, 90) off vertical (90 looks along the floor)")
         need(self.bin_hole_size == 0 or (math.isfinite(self.bin_hole_pitch) and self.bin_hole_pitch > self.bin_hole_size),
              "bin_hole_pitch", f"metres > bin_hole_size={self.bin_hole_size} (holes with bars between them)")
+        # bounds before anything is made: a micrometre pitch meant millions of bars (memory without end)
+        need(self.bin_hole_size == 0 or self.bin_hole_size >= MIN_HOLE_M, "bin_hole_size",
+             f"0 (solid) or at least {MIN_HOLE_M} m (a perforation a camera resolves)")
+        need(self.bin_hole_size == 0 or self.bin_hole_pitch >= 2 * MIN_HOLE_M, "bin_hole_pitch",
+             f"at least {2 * MIN_HOLE_M} m")
+        for key in ("camera_height", "clip_start", "clip_end", "bin_inner", "bin_inner_y", "bin_wall_height",
+                    "bin_clearance", "bin_wall_thickness"):  # fmt: skip
+            value = getattr(self, key)
+            need(value is None or value <= MAX_SCENE_M, key, f"at most {MAX_SCENE_M:g} metres (a bin-picking cell)")
         need(isinstance(self.clutter, int) and not isinstance(self.clutter, bool) and 0 <= self.clutter <= 200,
              "clutter", "an integer in 0..200 (foreign pieces per pile)")
         need(self.clutter == 0 or self.physics == "mujoco", "clutter",
