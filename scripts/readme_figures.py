@@ -21,6 +21,8 @@ in the README, ``../results/...`` in a docs page):
 | framing | ``results/framing/framing.csv`` (``scripts/framing_table.py``) |
 | real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/real_ipd.py``) |
 | real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/real_ipd.py --seeds``) |
+| cells | ``results/cells/cells.csv`` (``scripts/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
+| verification | ``results/verification/verification.csv`` (``scripts/verify_ab.py``) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
 | pictures_method | the ceiling chart |
@@ -318,6 +320,28 @@ def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
                    "**real AP, search**", "found %, search"], rows) + "\n"
 
 
+def block_cells(results: Path, prefix: str = "") -> str:
+    """A cell whose bin moves: generated piles where the bin stood in training and where it did not
+    (scripts/cells.py), and the real frames scored once by the recipe (results/real_ipd/cell.csv)."""
+    rows = [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
+             f"{100 * float(r['found']):.1f}", f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
+            for r in _csv(results / "cells" / "cells.csv")]
+    real = results / "real_ipd" / "cell.csv"
+    rows += [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
+              f"{100 * float(r['found']):.1f}", f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
+             for r in (_csv(real) if real.is_file() else [])]
+    return _table(["input (data.roi)", "model", "basket", "refine", "frames", "**AP**", "found %", "refine ms / frame"],
+                  rows) + "\n"
+
+
+def block_verification(results: Path, prefix: str = "") -> str:
+    """Decoded, ICP and the depth-agreement search on held-out generated piles (scripts/verify_ab.py)."""
+    rows = [[r["object"].replace("_", " "), r["decoding"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
+             f"{100 * float(r['found']):.1f}", f"{float(r['icp_ms_per_image']):.0f}" if r.get("icp_ms_per_image") else "–"]
+            for r in _csv(results / "verification" / "verification.csv")]
+    return _table(["part", "decoding", "refine", "frames", "**AP**", "found %", "refine ms / frame"], rows) + "\n"
+
+
 PICTURES = [
     ("quickstart/overlay.png", "Quickstart: the densest held-out scene, each estimated part's model drawn on the depth image"),
     ("quickstart/pr_curve.png", "Quickstart: the test split's precision-recall curve (Brégier protocol)"),
@@ -358,7 +382,8 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
           "real_frame": block_real_frame, "pictures_data": block_pictures_data,
           "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense,
-          "real_ipd": block_real_ipd, "real_ipd_seeds": block_real_ipd_seeds}
+          "real_ipd": block_real_ipd, "real_ipd_seeds": block_real_ipd_seeds, "cells": block_cells,
+          "verification": block_verification}
 
 
 def docs_pages(docs: Path = DOCS) -> dict[Path, str]:

@@ -96,10 +96,14 @@ def test_the_search_brings_back_a_turned_and_slid_plate_that_icp_keeps(plate_sce
     assert score > 0.9
 
 
-def test_the_search_never_leaves_the_right_pose(plate_scene) -> None:
+@pytest.mark.parametrize("fine", ["grid", "local"])
+def test_the_search_never_leaves_the_right_pose(plate_scene, fine: str) -> None:
+    """The grid keeps the right pose exactly (no turn, no shift wins ties); the local search may settle a
+    fraction of a millimetre away, where the depth's pixels agree as well."""
     obj, R_gt, depth, model, _ = plate_scene
-    R, t, _ = search_pose(R_gt, T_GT, model, depth, CAM, model_axis(model.points), SearchSettings())
-    assert _angle(R_gt, R) < 1e-9 and np.linalg.norm(t - T_GT) < 1e-12
+    R, t, _ = search_pose(R_gt, T_GT, model, depth, CAM, model_axis(model.points), SearchSettings(fine=fine))
+    exact = fine == "grid"
+    assert _angle(R_gt, R) < (1e-9 if exact else 0.5) and np.linalg.norm(t - T_GT) < (1e-12 if exact else 1e-3)
 
 
 def test_refine_with_search_ranks_hypotheses_by_their_agreement(plate_scene) -> None:

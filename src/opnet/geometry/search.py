@@ -91,7 +91,7 @@ class SearchSettings:
     suppress: float = 1.0
     coarse: int = 3
     merge: float = 0.1
-    fine: str = "grid"
+    fine: str = "local"
     mode: str = "auto"
     keep: int = 3
     local_deg: float = 8.0
