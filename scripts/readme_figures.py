@@ -323,15 +323,13 @@ def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
 def block_cells(results: Path, prefix: str = "") -> str:
     """A cell whose bin moves: generated piles where the bin stood in training and where it did not
     (scripts/cells.py), and the real frames scored once by the recipe (results/real_ipd/cell.csv)."""
-    rows = [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
-             f"{100 * float(r['found']):.1f}", f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
-            for r in _csv(results / "cells" / "cells.csv")]
     real = results / "real_ipd" / "cell.csv"
-    rows += [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
-              f"{100 * float(r['found']):.1f}", f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
-             for r in (_csv(real) if real.is_file() else [])]
-    return _table(["input (data.roi)", "model", "basket", "refine", "frames", "**AP**", "found %", "refine ms / frame"],
-                  rows) + "\n"
+    rows = [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
+             f"{100 * float(r['found']):.1f}", f"{100 * float(r['found_of_all']):.1f}" if r.get("found_of_all") else "–",
+             f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
+            for r in [*_csv(results / "cells" / "cells.csv"), *(_csv(real) if real.is_file() else [])]]
+    return _table(["input (data.roi)", "model", "basket", "refine", "frames", "**AP**", "found %",
+                   "found % of the frame's parts", "refine ms / frame"], rows) + "\n"
 
 
 def block_verification(results: Path, prefix: str = "") -> str:

@@ -80,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         table = args.runs / part / "ab.csv"
         if table.is_file():
             command = (args.runs / part / "command.txt").read_text().strip()
+            command = command.replace(str(REPO) + "/", "")
             rows += [{**r, "command": command} for r in csv.DictReader(table.open())]
     fields = ["object", "decoding", "refine", "scenes", "ap", "found", "t_mm_p50", "r_deg_p50", "icp_ms_per_image",
               "searched", "suppressed"]  # fmt: skip
@@ -96,7 +97,10 @@ def main(argv: list[str] | None = None) -> int:
              "`sensor=structured_light` (the shipped dense models trained on ideal depth), scenes with >= 70 parts; "
              "IPD plates: the cell study's test piles with the basket where the plate model's training put it, at the "
              "Photoneo's full resolution, scenes with >= 8 plates. AP: Brégier, max occlusion 0.5. ms/frame: the "
-             "refinement's time per image.", "",
+             "refinement's time per image. `icp + search`: the settings of `conf/refine/search.yaml` when these ran (the "
+             "fine grid, merge 0.1, every 2nd depth pixel); `earlier settings`: the search as it was before (every "
+             "decoded hypothesis searched, every pixel); `fine local`: the local pattern search in place of the fine "
+             "grid, the default since these rows (better in both decodings).", "",
              "| object | decoding | refine | scenes | **AP** | found % | t p50 mm | r p50 ° | ms/frame | searched | dropped as duplicates |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
