@@ -229,8 +229,8 @@ SETTINGS = [
     "- where the basket may stand (`scene.bin_area` +-0.2 m, any yaw): the floor the camera sees with the basket "
     "whole in the image (the area's corners are checked to be in view);",
     f"- the network's input (`data.roi=auto:{roi_side():g}`): 1.1 x the basket's outer diagonal (any yaw, the "
-    "finder's error to spare); the policy by the generated table above (the basket moved against where training "
-    "mostly put it);",
+    "finder's error to spare); the policy as built for a basket that moves, the generated table above showing what "
+    "it holds where the basket moved, beside a fixed box and the whole frame;",
     "- three perforations, 8 foreign pieces, the wire basket 0.6 m above the ground: generated-pile AP of the "
     "earlier recipe's arms (results/real_ipd/ab.md: foreign pieces 0.098 -> 0.242, three perforations "
     "0.242 -> 0.320); EVE, the small preset, 3000 steps: that recipe's (its arm with loss.lambda_z=10 and 6000 "
@@ -238,8 +238,9 @@ SETTINGS = [
     "- the sensor model (`sensor=photoneo`): made earlier to match the frames' missing-depth statistics, the one "
     "setting no generated data can choose; its pixel settings halved with the training piles' resolution;",
     "- the refinement (`refine=search +decoding.averaging=false`): generated piles (results/real_ipd/search_ab.md, "
-    "240 held-out scenes; results/verification/README.md), and its speed settings (merge 0.1, every 2nd pixel) by "
-    "the plate rows there.",
+    "240 held-out scenes; results/verification/README.md), and its speed settings (merge 0.1, every 2nd pixel, the "
+    "local fine stage) by the plate rows there. The generated piles' `search` rows above ran with the fine grid (the "
+    "default then); the real frames, scored after, with the local fine stage (chosen on those plate rows before).",
 ]
 
 
