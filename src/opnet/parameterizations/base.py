@@ -15,6 +15,7 @@ import abc
 import copy
 import dataclasses
 import math
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -361,7 +362,7 @@ class Parameterization(abc.ABC):
             if key not in ("threshold", "score", "min_visibility"):
                 raise ValueError(f"with_decoding: unknown setting {key!r}")
             if key != "score":  # checked as the same value from a checkpoint is: a number in [0, 1), never a boolean
-                ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+                ok = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_) and math.isfinite(value)
                 if not (ok and 0 <= value < 1):
                     raise ValueError(f"decoding.{key}={value!r}: expected a number in [0, 1)")
                 value = float(value)
