@@ -240,7 +240,8 @@ SETTINGS = [
     "- the refinement (`refine=search +decoding.averaging=false`): generated piles (results/real_ipd/search_ab.md, "
     "240 held-out scenes; results/verification/README.md), and its speed settings (merge 0.1, every 2nd pixel, the "
     "local fine stage) by the plate rows there. The generated piles' `search` rows above ran with the fine grid (the "
-    "default then); the real frames, scored after, with the local fine stage (chosen on those plate rows before).",
+    "default then), except the whole-frame arm's (run after the switch, with the local fine stage); the real frames, "
+    "scored after, with the local fine stage (chosen on those plate rows before).",
 ]
 
 
