@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
+from opnet.geometry.pose_numpy import pose_distance, rotation_change_deg
 from opnet.geometry.search import (
     SearchSettings,
     ambiguity_turns,
@@ -258,17 +258,6 @@ def _step(p: np.ndarray, q: np.ndarray, n: np.ndarray, huber: float) -> np.ndarr
     x = np.linalg.solve(A, b)
     angle = np.linalg.norm(x[:3])
     return x * (MAX_STEP_RAD / angle) if angle > MAX_STEP_RAD else x
-
-
-def rotation_change_deg(R_from: np.ndarray, R_to: np.ndarray, space: Any) -> float:
-    """The symmetry-aware angle (degrees) between two rotations: the axis angle for revolution
-    objects, else the angle to the closest symmetric equivalent."""
-    R_eq = closest_equivalent(space, R_from[None], R_to[None])[0]
-    if space.revolution:
-        cos = float(np.clip(R_eq[:, 2] @ R_from[:, 2], -1, 1))
-    else:
-        cos = float(np.clip((np.trace(R_from.T @ R_eq) - 1) / 2, -1, 1))
-    return float(np.degrees(np.arccos(cos)))
 
 
 def refine_pose(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneCloud, space: Any,

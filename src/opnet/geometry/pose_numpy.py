@@ -73,6 +73,17 @@ def closest_equivalent(space: Any, R_ref: np.ndarray, R: np.ndarray) -> np.ndarr
     return np.take_along_axis(cand, best[..., None, None, None], axis=-3)[..., 0, :, :]
 
 
+def rotation_change_deg(R_from: np.ndarray, R_to: np.ndarray, space: Any) -> float:
+    """The symmetry-aware angle (degrees) between two rotations: the axis angle for revolution
+    objects, else the angle to the closest symmetric equivalent."""
+    R_eq = closest_equivalent(space, R_from[None], R_to[None])[0]
+    if space.revolution:
+        cos = float(np.clip(R_eq[:, 2] @ R_from[:, 2], -1, 1))
+    else:
+        cos = float(np.clip((np.trace(R_from.T @ R_eq) - 1) / 2, -1, 1))
+    return float(np.degrees(np.arccos(cos)))
+
+
 def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
     """Quaternions (..., 4) as (w, x, y, z), normalized first, to rotations (..., 3, 3) float64
     (the torch :func:`opnet.geometry.rotations.quaternion_to_matrix` in numpy)."""

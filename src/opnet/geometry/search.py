@@ -306,14 +306,9 @@ def axis_permutations() -> np.ndarray:
 def _equivalent(space: Any, A: np.ndarray, B: np.ndarray, tol_deg: float = 10.0) -> bool:
     """Two model-frame rotations are the same pose of the part (under its symmetry, within ``tol_deg``: the
     principal axes of sampled points lie a degree or two off a symmetry axis; the turns are 90 apart)."""
-    from opnet.geometry.pose_numpy import closest_equivalent
+    from opnet.geometry.pose_numpy import rotation_change_deg
 
-    B_eq = closest_equivalent(space, A[None], B[None])[0]
-    if space.revolution:
-        cos = float(np.clip(A[:, 2] @ B_eq[:, 2], -1, 1))
-    else:
-        cos = float(np.clip((np.trace(A.T @ B_eq) - 1) / 2, -1, 1))
-    return float(np.degrees(np.arccos(cos))) < tol_deg
+    return rotation_change_deg(A, B, space) < tol_deg
 
 
 def ambiguity_turns(points: np.ndarray, space: Any) -> tuple[np.ndarray, np.ndarray]:

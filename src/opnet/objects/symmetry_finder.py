@@ -34,7 +34,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from opnet.geometry.search import axis_permutations
+from opnet.geometry.search import axis_permutations, turns
 from opnet.objects.surface import surface_moments
 
 #: the turns that must all hold for a revolution axis (degrees, unrelated to one another and to 360/k)
@@ -83,9 +83,8 @@ class SymmetryReport:
 
 
 def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    x, y, z = axis / np.linalg.norm(axis)
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+    """The turn by ``angle`` radians about ``axis`` (any length)."""
+    return turns(_unit(axis), np.array([angle]))[0]
 
 
 class _Surface:
@@ -189,7 +188,7 @@ def _close_group(generators: list[np.ndarray], surface: _Surface, tol: float) ->
                     if len(group) > MAX_GROUP:
                         raise ValueError(f"the symmetric turns found generate more than {MAX_GROUP} rotations")
         frontier = new
-    bad = [surface.deviation(G) for G in group if surface.deviation(G) > 2.5 * tol]  # products add the axes' errors
+    bad = [dev for dev in map(surface.deviation, group) if dev > 2.5 * tol]  # products add the axes' errors
     if bad:
         raise ValueError(f"the symmetric turns found compose into turns that are not (deviation {max(bad) * 1000:.2f} mm)")
     return np.array(group)
