@@ -149,7 +149,11 @@ def frame_required(roots: list[Path]) -> int:
     ``found`` and AP are not over the same parts as a crop that holds the whole basket."""
     from opnet.datasets.ipa import IPADataset
 
-    return int(sum((np.asarray(IPADataset(r)[i].visibility) >= 0.5).sum() for r in roots for i in range(len(IPADataset(r)))))
+    total = 0
+    for root in roots:
+        dataset = IPADataset(root)
+        total += sum(int((np.asarray(dataset[i].visibility) >= 0.5).sum()) for i in range(len(dataset)))
+    return total
 
 
 def write_table(csv_path: Path, rows: list[dict[str, Any]], head: list[str], columns: tuple[str, ...]) -> None:
