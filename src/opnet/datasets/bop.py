@@ -11,17 +11,25 @@ Layout of a BOP dataset (what is read; units are millimetres in BOP, metres insi
         scene_gt.json                     per image id: [{obj_id, cam_R_m2c (row-wise), cam_t_m2c (mm)}]
         scene_gt_info.json                per image id, same order: [{visib_fract, bbox_obj, ...}]
         depth/XXXXXX.png                  uint16, depth (mm) = value x depth_scale, 0 = no depth
-        mask_visib/XXXXXX_YYYYYY.png      visible silhouette of GT instance YYYYYY (optional)
+        mask_visib/XXXXXX_YYYYYY.png      visible silhouette of GT instance YYYYYY (optional, see below)
 
 One object id per model, as the paper trains one network per object: instances of the chosen
 ``obj_id`` are the ground truth, other objects are clutter (background in the segmentation).
 Poses go to opnet's model frame, which puts a symmetry axis on z (``R_align``, see
 :func:`symmetry_from_bop`); every reader error names the file.
+
+Visible masks: the BOP format makes the ``mask_visib`` folder optional, so a scene folder without
+one is read without segmentation (``SceneRecord.segmentation`` None; every instance kept with its
+``visib_fract``; opening the split logs how many scenes lack it). A scene folder *with* one must hold
+the mask of every instance of the chosen object: a missing file is an error naming it, never an
+instance dropped (with an empty silhouette, cropping to a region of interest would zero its
+visibility and take it out of the parts to find).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 from collections.abc import Iterable
@@ -48,6 +56,8 @@ from opnet.objects.bop import (
     models_dir_of,
     symmetry_from_bop,
 )
+
+log = logging.getLogger(__name__)
 
 SCENE_FILES = ("scene_camera.json", "scene_gt.json", "scene_gt_info.json")
 #: a ground-truth translation must lie within these factors of the image's depth range (nearest,
@@ -98,13 +108,15 @@ class BOPDataset:
             if bad:
                 raise ValueError(f"{gt_path}: image id {short_repr(bad[0])} is not a whole number")
             for key in sorted(meta["scene_gt.json"], key=int):
-                where = f"{gt_path}: image {key}"
-                entries = bop_list(meta["scene_gt.json"][key], "instances", where)
-                n = sum(1 for k, e in enumerate(entries) if self._obj_id_of(e, f"{where}, instance {k}") == self.obj_id)
-                self._scenes.append((sid, int(key), n))
+                self._scenes.append((sid, int(key), len(self.instances(sid, int(key)))))
         if not self._scenes:
             raise ValueError(f"{self.root}: no images: every scene_gt.json of its {len(scene_dirs)} scene folder(s) "
                              "is empty")
+        unmasked = [sid for sid in self._meta if not self.has_masks(sid)]
+        if unmasked:
+            log.warning("%s: %d of %d scene folder(s) have no mask_visib folder (optional in BOP; first %06d): their "
+                        "images are read without segmentation, visibilities from scene_gt_info.json", self.root,
+                        len(unmasked), len(self._meta), unmasked[0])
         self.clip = tuple(clip) if clip is not None else self._default_clip()
 
     @staticmethod
@@ -128,6 +140,24 @@ class BOPDataset:
 
     def scene_dir(self, sid: int) -> Path:
         return self.root / f"{sid:06d}"
+
+    def scene_file(self, sid: int, name: str) -> dict[str, Any]:
+        """The parsed scene JSON ``name`` (one of :data:`SCENE_FILES`) of scene ``sid``."""
+        return self._meta[sid][name]
+
+    def has_masks(self, sid: int) -> bool:
+        """Scene ``sid`` has a ``mask_visib`` folder (then every instance of the object needs its mask)."""
+        return (self.scene_dir(sid) / "mask_visib").is_dir()
+
+    def mask_path(self, sid: int, im: int, k: int) -> Path:
+        """The visible mask of instance ``k`` (its index in ``scene_gt.json``) of image ``im``."""
+        return self.scene_dir(sid) / "mask_visib" / f"{im:06d}_{k:06d}.png"
+
+    def instances(self, sid: int, im: int) -> list[int]:
+        """The indices in ``scene_gt.json`` of the instances of ``obj_id`` in image ``im``."""
+        where = f"{self.scene_dir(sid) / 'scene_gt.json'}: image {im}"
+        entries = bop_list(self._meta[sid]["scene_gt.json"].get(str(im), []), "instances", where)
+        return [k for k, e in enumerate(entries) if self._obj_id_of(e, f"{where}, instance {k}") == self.obj_id]
 
     def source_files(self) -> list[str]:
         """Every file the images are read from, present or not, relative to ``root``:
@@ -198,7 +228,14 @@ class BOPDataset:
 
     def read(self, sid: int, im: int) -> SceneRecord:
         """The record of image ``im`` of scene ``sid``: depth (m), camera, the chosen object's
-        instances (poses in opnet's model frame, visibility) and their visible masks."""
+        instances (poses in opnet's model frame, visibility) and their visible masks (None for a
+        scene without a ``mask_visib`` folder).
+
+        Raises:
+            FileNotFoundError: the depth PNG, or the mask of an instance of the object in a scene
+                with a ``mask_visib`` folder, is missing (the message names the file).
+            ValueError: a malformed entry or file, naming it.
+        """
         depth_mm, depth_path = self._depth_mm(sid, im)
         h, w = depth_mm.shape
         valid = depth_mm[np.isfinite(depth_mm)]
@@ -211,11 +248,9 @@ class BOPDataset:
             raise ValueError(f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im} needs one entry per "
                              f"ground-truth instance ({len(entries)} in scene_gt.json)")
         Rs, ts, vis, ids = [], [], [], []
-        seg = np.zeros((h, w), np.int32)
-        for k, e in enumerate(entries):
-            where = f"{gt_path}: image {im}, instance {k}"
-            if self._obj_id_of(e, where) != self.obj_id:
-                continue
+        seg = np.zeros((h, w), np.int32) if self.has_masks(sid) else None
+        for k in self.instances(sid, im):
+            e, where = entries[k], f"{gt_path}: image {im}, instance {k}"
             R = bop_numbers(bop_key(e, "cam_R_m2c", where), 9, "cam_R_m2c", where).reshape(3, 3)
             t = bop_numbers(bop_key(e, "cam_t_m2c", where), 3, "cam_t_m2c", where) / 1000.0
             self._check_translation(t, depth_range, where)
@@ -224,13 +259,17 @@ class BOPDataset:
             info_where = f"{self.scene_dir(sid) / 'scene_gt_info.json'}: image {im}, instance {k}"
             vis.append(float(bop_numbers(bop_key(infos[k], "visib_fract", info_where), 1, "visib_fract", info_where)[0]))
             ids.append(k + 1)
-            mask_path = self.scene_dir(sid) / "mask_visib" / f"{im:06d}_{k:06d}.png"
-            if mask_path.is_file():
-                mask = read_png(mask_path, np.uint8)
-                if mask.shape != (h, w):
-                    raise ValueError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, the depth image "
-                                     f"{depth_path.name} is {w}x{h}")
-                seg[mask > 0] = k + 1
+            if seg is None:  # no mask_visib folder: BOP's optional masks (module docstring)
+                continue
+            mask_path = self.mask_path(sid, im, k)
+            if not mask_path.is_file():
+                raise FileNotFoundError(f"{mask_path}: file not found: the visible mask of instance {k} of image {im} "
+                                        "in scene_gt.json (the scene's mask_visib folder needs one per instance)")
+            mask = read_png(mask_path, np.uint8)
+            if mask.shape != (h, w):
+                raise ValueError(f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]}, the depth image "
+                                 f"{depth_path.name} is {w}x{h}")
+            seg[mask > 0] = k + 1
         R_arr = np.array(Rs).reshape(-1, 3, 3)
         t_arr = np.array(ts).reshape(-1, 3)
         check_poses(R_arr, t_arr, lambda i: f"{gt_path}: image {im}, instance {ids[i] - 1}")

@@ -13,6 +13,11 @@ the first), and reports each with its file name.
 - both: a dataset made by :mod:`opnet.synthesis` (``generation.json``) must hold every scene it
   declares (``number_cycles`` of ``parameter.json`` x ``drops`` + 1 of ``generation.json``), each
   with its three files, none empty: a generation cut short by a full disk fails the check.
+- both, BOP splits: the visible mask of every instance of the object in a scene with a
+  ``mask_visib`` folder exists (the full check finds a missing one by reading the image); no image
+  of ``scene_gt.json`` lists the same instance twice (same ``obj_id``, same pose: one part counted
+  twice among those to find); every ``cam_R_w2c`` of ``scene_camera.json`` is a rotation
+  (orthonormal to :data:`~opnet.datasets.validate.ORTHONORMAL_TOL`, det +1).
 
 Exit status: 0 no problem, 1 problems found, 2 not a dataset.
 """
@@ -27,6 +32,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,7 +42,9 @@ from opnet.datasets.ipa import MAX_INSTANCE_ID, IPADataset, scene_paths
 from opnet.datasets.ipa_csv import CSV_HEADER, read_ipa_csv
 from opnet.datasets.sileane import SileaneDataset
 from opnet.datasets.sileane_json import read_gt_json
+from opnet.datasets.validate import not_rotations
 from opnet.fileio.files import read_json
+from opnet.objects.bop import bop_numbers
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_GREY = 0  # IHDR colour type of a single-channel image
@@ -182,7 +190,8 @@ def _depth_samples(ds: IPADataset | SileaneDataset | BOPDataset, bad: set[Path])
             record = (ds.read(*scene[:2]) if isinstance(ds, BOPDataset) else
                       ds.read(*scene) if isinstance(ds, IPADataset) else ds.read(scene))
         except (ValueError, FileNotFoundError) as e:
-            problems.append(_as_problem(e, path))
+            if (problem := _as_problem(e, path)).path not in bad:  # a file reported already (a missing mask)
+                problems.append(problem)
             continue
         if not np.isfinite(record.depth).any():
             problems.append(Problem(path, "no valid depth in the whole image (all pixels missing or outside the clip planes)"))
@@ -219,17 +228,61 @@ def _fast_sileane(ds: SileaneDataset) -> list[Problem]:
 
 
 def _fast_bop(ds: BOPDataset) -> list[Problem]:
-    """Depth PNG headers of every image and the visible masks' headers (scene JSONs were parsed
-    when the dataset was opened), the records of a few images read."""
+    """Depth PNG headers of every image and the visible masks' headers, the masks of the object's
+    instances present where the scene has a ``mask_visib`` folder (scene JSONs were parsed when the
+    dataset was opened), the records of a few images read."""
     problems = []
     for sid, im, _ in ds.scenes():
         depth = ds.scene_dir(sid) / "depth" / f"{im:06d}.png"
         if (problem := png_header_problem(depth, None, 16)) is not None:
             problems.append(Problem(depth, problem))
-        for mask in sorted((ds.scene_dir(sid) / "mask_visib").glob(f"{im:06d}_*.png")):
+        masks = set((ds.scene_dir(sid) / "mask_visib").glob(f"{im:06d}_*.png"))
+        if ds.has_masks(sid):
+            masks.update(ds.mask_path(sid, im, k) for k in ds.instances(sid, im))
+        for mask in sorted(masks):
             if (problem := png_header_problem(mask, None, 8)) is not None:
                 problems.append(Problem(mask, problem))
     return problems + _depth_samples(ds, {p.path for p in problems})
+
+
+def _exact_instance(entry: Any) -> tuple[Any, ...] | None:
+    """An instance of ``scene_gt.json`` as (obj_id, R, t) numbers to compare exactly; None for a
+    malformed entry (the reader names those)."""
+    try:
+        return (entry["obj_id"], *(tuple(float(v) for v in entry[key]) for key in ("cam_R_m2c", "cam_t_m2c")))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _bop_annotation_problems(ds: BOPDataset) -> list[Problem]:
+    """What the reader takes from the scene JSONs as it is: the same instance listed twice in one
+    image of ``scene_gt.json`` (any object), a ``cam_R_w2c`` of ``scene_camera.json`` that is no
+    rotation."""
+    problems = []
+    for sid in sorted({sid for sid, _, _ in ds.scenes()}):
+        gt_path = ds.scene_dir(sid) / "scene_gt.json"
+        for key, entries in ds.scene_file(sid, "scene_gt.json").items():
+            seen: dict[tuple[Any, ...], int] = {}
+            for k, entry in enumerate(entries if isinstance(entries, list) else []):
+                if (instance := _exact_instance(entry)) is None:
+                    continue
+                if instance in seen:
+                    problems.append(Problem(gt_path, f"image {key}: instance {k} duplicates instance {seen[instance]} "
+                                                     f"(obj_id {instance[0]}, the same pose): one part listed twice"))
+                else:
+                    seen[instance] = k
+        cam_path = ds.scene_dir(sid) / "scene_camera.json"
+        for key, entry in ds.scene_file(sid, "scene_camera.json").items():
+            if not isinstance(entry, dict) or "cam_R_w2c" not in entry:
+                continue
+            try:
+                R = bop_numbers(entry["cam_R_w2c"], 9, "cam_R_w2c", f"{cam_path}: image {key}")
+            except ValueError as e:
+                problems.append(_as_problem(e, cam_path))
+                continue
+            problems += [Problem(cam_path, f"image {key}: 'cam_R_w2c' is not a rotation matrix ({why})")
+                         for _, why in not_rotations(R.reshape(1, 3, 3))]
+    return problems
 
 
 def _generated_drops(root: Path) -> int | Problem | None:
@@ -306,7 +359,7 @@ def check_dataset(root: str | Path, fast: bool = False, object_id: int | None = 
     start = time.perf_counter()
     ds = open_dataset(root, object_id=object_id, clip=clip)
     if isinstance(ds, BOPDataset):
-        problems = _fast_bop(ds) if fast else _full(ds)
+        problems = (_fast_bop(ds) if fast else _full(ds)) + _bop_annotation_problems(ds)
     elif fast:
         problems = _fast_ipa(ds) if isinstance(ds, IPADataset) else _fast_sileane(ds)
     else:

@@ -35,19 +35,32 @@ def check_poses(R: np.ndarray, t: np.ndarray, where: Callable[[int], str]) -> No
     if not (np.isfinite(R).all() and np.isfinite(t).all()):
         i = int(np.flatnonzero(~(np.isfinite(R).reshape(len(R), -1).all(1) & np.isfinite(t).all(1)))[0])
         raise ValueError(f"{where(i)}: the pose holds NaN or inf")
-    err = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).reshape(len(R), -1).max(1)
-    det = np.linalg.det(R)
-    bad = np.flatnonzero((err > ORTHONORMAL_TOL) | (det < 0))
-    if len(bad):
-        i = int(bad[0])
-        what = (f"|R^T R - I| = {err[i]:.3g} > {ORTHONORMAL_TOL:g}, not orthonormal" if err[i] > ORTHONORMAL_TOL
-                else "det(R) = -1, a reflection")
+    bad = not_rotations(R)
+    if bad:
+        i, what = bad[0]
         raise ValueError(f"{where(i)}: the rotation is not a rotation matrix ({what}; {len(bad)} such entries)")
     far = np.flatnonzero(np.linalg.norm(t, axis=1) > MAX_TRANSLATION_M)
     if len(far):
         i = int(far[0])
         raise ValueError(f"{where(i)}: translation {np.array2string(t[i], precision=4)} m is implausible "
                          f"(more than {MAX_TRANSLATION_M:g} m away; millimetres instead of metres?)")
+
+
+def not_rotations(R: np.ndarray) -> list[tuple[int, str]]:
+    """The matrices of ``R`` (N, 3, 3) that are no rotation, as (index, why) pairs: NaN or inf, not
+    orthonormal to ``ORTHONORMAL_TOL``, or a reflection (det(R) = -1)."""
+    R = np.asarray(R, np.float64).reshape(-1, 3, 3)
+    finite = np.isfinite(R).reshape(len(R), -1).all(1)
+    safe = np.where(finite[:, None, None], R, np.eye(3))
+    err = np.abs(np.swapaxes(safe, 1, 2) @ safe - np.eye(3)).reshape(len(R), -1).max(1)
+    det = np.linalg.det(safe)
+    bad = []
+    for i in np.flatnonzero(~finite | (err > ORTHONORMAL_TOL) | (det < 0)):
+        why = ("holds NaN or inf" if not finite[i] else
+               f"|R^T R - I| = {err[i]:.3g} > {ORTHONORMAL_TOL:g}, not orthonormal" if err[i] > ORTHONORMAL_TOL
+               else "det(R) = -1, a reflection")
+        bad.append((int(i), why))
+    return bad
 
 
 def check_range(values: np.ndarray, low: float, high: float, name: str, where: Callable[[int], str]) -> None:
