@@ -24,6 +24,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from opnet._deps import MissingDependencyError
 from opnet.fileio.atomic import DiskFullError
+from opnet.metrics.report import nothing_to_find_note
 
 #: exceptions that mean "the input (or the disk) is wrong", not "the program is wrong"
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, NotADirectoryError,
@@ -82,17 +83,23 @@ def format_duration(seconds: float) -> str:
 
 def result_summary(result: dict[str, Any], table: str, seconds: float, verbose: bool) -> list[str]:
     """The lines that end a test or an evaluation: AP, MAP, F1, recall, found, run time (and the
-    per-scene table only when ``verbose``; it is always in ``table``'s file)."""
+    per-scene table only when ``verbose``; it is always in ``table``'s file). A split with nothing
+    to find gets a note in place of the scores (they are 1.0 by convention), one with some such
+    scenes a note under them (:func:`opnet.metrics.report.nothing_to_find_note`)."""
     lines = []
     if verbose:
         lines += [(Path(table).read_text() if Path(table).is_file() else ""), ""]
     diag = result.get("diagnostics") or {}
     found = f", found {diag['matched']} of {diag['to_find']} ({diag['matched'] / max(diag['to_find'], 1):.1%})" if diag else ""
-    lines += [
-        f"{result.get('split', 'test')} {result.get('scenes', 0)} scenes{found}",
-        f"  AP {result['ap']:.4f}   MAP {result['map']:.4f}   F1 {result['f1']:.4f}   "
-        f"R@P50 {result['recall_at_p50']:.4f}   R@P99 {result['recall_at_p99']:.4f}",
-    ]
+    scores = (f"  AP {result['ap']:.4f}   MAP {result['map']:.4f}   F1 {result['f1']:.4f}   "
+              f"R@P50 {result['recall_at_p50']:.4f}   R@P99 {result['recall_at_p99']:.4f}")
+    scenes, empty = int(result.get("num_scenes", result.get("scenes", 0))), int(result.get("scenes_nothing_to_find", 0))
+    note = nothing_to_find_note(scenes, empty, int(result.get("false_positives_nothing_to_find", 0)), result["ap"])
+    lines.append(f"{result.get('split', 'test')} {result.get('scenes', 0)} scenes{found}")
+    if note is None:
+        lines.append(scores)
+    else:  # every scene empty: the note instead of the scores; some: the note under them
+        lines += [f"  {note}"] if empty >= scenes else [scores, f"  {note}"]
     if diag and diag.get("matched"):
         lines.append(f"  errors of the matched: translation p50 {diag['t_err_mm_p50']:.1f} mm, "
                      f"rotation p50 {diag['r_err_deg_p50']:.1f} deg")

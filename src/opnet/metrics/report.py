@@ -1,4 +1,11 @@
-"""The result of an evaluation: headline metrics, mean curve, per-scene figures; printing and JSON."""
+"""The result of an evaluation: headline metrics, mean curve, per-scene figures; printing and JSON.
+
+A scene with nothing to find has recall 1 at every threshold, as in the official tool (recall is
+1 when there is nothing to find); a split made only of such scenes has AP, MAP and F1 of 1.0 whatever
+its false positives. The numbers are kept for fidelity, and every report says it: the count of scenes
+with nothing to find and of their false positives (``to_dict``), and a note in place of a score
+(:func:`nothing_to_find_note`).
+"""
 
 from __future__ import annotations
 
@@ -59,6 +66,21 @@ class EvaluationSummary:
     def num_scenes(self) -> int:
         return len(self.per_scene)
 
+    @property
+    def to_find(self) -> int:
+        """Instances to find over every scene (0 when no scene counts are known)."""
+        return sum(int(c.get("to_find", 0)) for c in self.scene_counts.values())
+
+    @property
+    def scenes_nothing_to_find(self) -> int:
+        """Scenes whose ground truth holds no instance to find (their recall is 1 by convention)."""
+        return sum(1 for c in self.scene_counts.values() if c.get("to_find") == 0)
+
+    @property
+    def false_positives_nothing_to_find(self) -> int:
+        """False positives of the scenes with nothing to find (every hypothesis in)."""
+        return sum(int(c.get("fp", 0)) for c in self.scene_counts.values() if c.get("to_find") == 0)
+
     def to_dict(self, curve: bool = False) -> dict[str, Any]:
         """JSON-ready summary; ``curve=True`` adds the mean curve (the +inf threshold as null)."""
         out: dict[str, Any] = {
@@ -68,6 +90,9 @@ class EvaluationSummary:
             "recall_at_p50": self.recall_at_p50,
             "recall_at_p99": self.recall_at_p99,
             "num_scenes": self.num_scenes,
+            "to_find": self.to_find,
+            "scenes_nothing_to_find": self.scenes_nothing_to_find,
+            "false_positives_nothing_to_find": self.false_positives_nothing_to_find,
             "max_occlusion": self.max_occlusion,
             "delta": None if math.isnan(self.delta) else self.delta,
             "per_scene": dict(self.per_scene),
@@ -92,6 +117,10 @@ class EvaluationSummary:
             f"  R@P50  {self.recall_at_p50:.6f}",
             f"  R@P99  {self.recall_at_p99:.6f}",
         ]
+        note = nothing_to_find_note(self.num_scenes, self.scenes_nothing_to_find,
+                                    self.false_positives_nothing_to_find, self.ap)
+        if note is not None:
+            lines.insert(1, f"  {note}")
         if per_scene and self.per_scene:
             width = max(12, *(len(n) for n in self.per_scene))
             header = "  ".join(f"{h:>4}" for h in ("gt", "find", "hyps", "tp", "fp", "ign"))
@@ -102,6 +131,24 @@ class EvaluationSummary:
                 lines.append(f"  {name:<{width}}  {ap:6.4f}  {counts}")
             lines.append("  (find: instances to find; tp / fp / ign: hypotheses with every score in)")
         return "\n".join(lines)
+
+
+def nothing_to_find_note(scenes: int, empty: int, false_positives: int, ap: float) -> str | None:
+    """What an AP over scenes with nothing to find is: for a split of only such scenes, a convention
+    and not a score; for some of them, how many and their false positives. None when every scene
+    has something to find.
+
+    Args:
+        scenes: scenes evaluated; empty: of those, with nothing to find; false_positives: theirs.
+        ap: the AP reported for the split.
+    """
+    if empty <= 0:
+        return None
+    if empty >= scenes:
+        return (f"nothing to find in this split: AP is reported as {ap:.1f} by convention, "
+                f"{false_positives} false positives")
+    return (f"{empty} of {scenes} scenes had nothing to find (recall 1 there by convention), "
+            f"{false_positives} false positives in them")
 
 
 def warn_non_monotone(scene_recalls: Mapping[str, np.ndarray], mean_recall: np.ndarray) -> None:
