@@ -59,6 +59,8 @@ HOLES = ((0.012, 0.018), (0.016, 0.021), (0.02, 0.026))
 AREA = (-0.2, -0.2, 0.2, 0.2)
 #: the earlier recipe's placement (its bin_jitter_m) and the moved test piles: the area's four corners
 TRAINED_JITTER = 0.04
+#: the validation piles' seed (the training piles use 0-2, the test piles 100-113)
+VALIDATION_SEED = 200
 CORNERS = ((0.1, 0.1, 0.2, 0.2), (-0.2, 0.1, -0.1, 0.2), (-0.2, -0.2, -0.1, -0.1), (0.1, -0.2, 0.2, -0.1))
 #: the earlier recipe's fixed box (pixels of the full frames) and its shipped model
 OLD_ROI = (560, 230, 1250, 1160)
@@ -121,6 +123,13 @@ def datasets(data: Path, cycles: int, test_cycles: int) -> tuple[list[tuple[Path
              "moved": [(data / f"test_moved{k}_c{test_cycles // 4}", {"bin_area": area, **holes, "cycles": test_cycles // 4})
                        for k, area in enumerate(CORNERS)]}  # fmt: skip
     return train, tests
+
+
+def validation_set(data: Path, cycles: int) -> tuple[Path, dict]:
+    """The validation piles the refinement's settings are chosen on (``scripts/search_speed.py``): the basket
+    anywhere in the working area, any yaw, full resolution, a seed neither training nor the test piles use."""
+    size, pitch = HOLES[0]
+    return data / f"val_c{cycles}", {"bin_area": AREA, "bin_hole_size": size, "bin_hole_pitch": pitch, "cycles": cycles}
 
 
 def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str]) -> dict[str, Any]:
@@ -272,7 +281,8 @@ def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
     a = ARMS[arm]
     roots = "[" + ",".join(str(r) for r, *_ in train_sets) + "]"
     run([sys.executable, "train.py", "object=ipd_plate", "data=ipa", f"data.root={roots}", "data.generate=null",
-         f"data.roi={a['roi'] or 'null'}", f"data.input_size={a['input']}", f"seed={a['seed']}", "parameterization=eve",
+         f"data.roi={a['roi'] or 'null'}", f"data.input_size={a['input']}", f"model.in_size={a['input']}",
+         f"parameterization.grid={16 * a['input'] // 128}", f"seed={a['seed']}", "parameterization=eve",
          "augmentation.p_rotate=0.5", "test=false", f"trainer.max_steps={steps}", "trainer.max_epochs=100000",
          "trainer.enable_progress_bar=false", f"hydra.run.dir={runs / arm}"], runs / arm / "console.log")  # fmt: skip
 
@@ -286,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cycles", type=int, default=200)
     ap.add_argument("--views", type=int, default=2)
     ap.add_argument("--test-cycles", type=int, default=12)
+    ap.add_argument("--val-cycles", type=int, default=6, help="validation piles (the refinement's settings)")
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--scale", type=float, default=0.5, help="the training piles' resolution, x the camera's")
     ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "cells")
@@ -310,6 +321,9 @@ def main(argv: list[str] | None = None) -> int:
             for j, (root, scene) in enumerate(sets):
                 scene = dict(scene)
                 generate(full, root, scene.pop("cycles"), 1, 100 + 10 * k + j, 1.0, logs, **scene)
+        root, scene = validation_set(args.data_dir, args.val_cycles)
+        scene = dict(scene)
+        generate(full, root, scene.pop("cycles"), 1, VALIDATION_SEED, 1.0, logs, **scene)
         print(f"generated in {(time.perf_counter() - started) / 60:.1f} min", flush=True)
     if args.stage in ("all", "train"):
         for arm in args.arms:

@@ -106,9 +106,10 @@ def search_variant(text: str) -> tuple[str, ICPSettings]:
 
 def run(ckpt: Path, split: str, budget_list: list[float | None], search: bool = False,
         decoding: dict[str, Any] | None = None, data: dict[str, Any] | None = None,
-        variants: list[tuple[str, ICPSettings]] = ()) -> list[dict[str, Any]]:  # fmt: skip
-    """The rows of one checkpoint: its decoding as trained, then (``decoding``) as overridden."""
-    rows = run_decoding(ckpt, split, budget_list, search, None, data, variants)
+        variants: list[tuple[str, ICPSettings]] = (), as_trained: bool = True) -> list[dict[str, Any]]:  # fmt: skip
+    """The rows of one checkpoint: its decoding as trained (unless not ``as_trained``), then (``decoding``) as
+    overridden."""
+    rows = run_decoding(ckpt, split, budget_list, search, None, data, variants) if as_trained or not decoding else []
     return rows + (run_decoding(ckpt, split, budget_list, search, decoding, data, variants) if decoding else [])
 
 
@@ -171,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="data-section override, e.g. test_root=<dataset> or cache=false")
     parser.add_argument("--search-variant", action="append", default=[], metavar="LABEL:KEY=VALUE,...",
                         help="also the search with conf/refine/search.yaml's icp.KEY / search.KEY overridden")
+    parser.add_argument("--overridden-only", action="store_true",
+                        help="with --decoding: only the rows of the overridden decoding")
     parser.add_argument("--out", type=Path, default=REPO / "results" / "icp")
     args = parser.parse_args(argv)
     try:
@@ -183,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
         if not ckpt.is_file():
             parser.error(f"--ckpt {ckpt}: no such file")
     torch.set_grad_enabled(False)
-    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list, args.search, decoding, data, variants)]
+    rows = [row for ckpt in args.ckpt for row in run(ckpt, args.split, budget_list, args.search, decoding, data, variants,
+                                                       not args.overridden_only)]
     text = markdown(rows)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)

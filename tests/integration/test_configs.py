@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
@@ -34,6 +34,20 @@ def test_train_config_builds_every_parameterization(parameterization: str) -> No
     assert p.grid_size == cfg.parameterization.grid
     head_out = [m for m in comps.system.backbone.modules() if hasattr(m, "out_channels")][-1].out_channels
     assert head_out == p.out_channels
+
+
+def test_a_larger_input_needs_the_network_built_for_it() -> None:
+    # fed 256 pixels, a network built for 128 puts out a 32 x 32 grid against the parameterization's 16: refused
+    # before training, naming the keys and both ways out
+    with pytest.raises(ValueError, match=r"data.input_size=256 but model.in_size=128: .* set model.in_size=256 with "
+                                         r"parameterization.grid=32 .*or alone"):  # fmt: skip
+        build_components(_compose("train", ["parameterization=eve", "data.input_size=256", "paths.root_dir=/tmp/opnet"]))
+    for extra in (["parameterization.grid=32"], []):  # the same network at twice the input, or one halving more
+        cfg = _compose("train", ["parameterization=eve", "data.input_size=256", "model.in_size=256", *extra,
+                                 "paths.root_dir=/tmp/opnet"])  # fmt: skip
+        system = build_components(cfg).system
+        out = system.backbone(torch.zeros(1, 1, 256, 256))
+        assert out.shape[-1] == cfg.parameterization.grid
 
 
 @pytest.mark.parametrize("obj", BUILTIN_OBJECTS)

@@ -62,6 +62,23 @@ def config_group(group: str) -> Iterator[None]:
         raise ValueError(f"config group '{group}': its keys do not fit its component ({short(text.splitlines()[0], 200)})") from e
 
 
+def check_input_grid(cfg: DictConfig) -> None:
+    """The network is built for ``model.in_size``; a fully convolutional network fed ``data.input_size`` pixels
+    instead would put out another grid than the parameterization's ``grid`` (the loss would fail at the first
+    step). Raises ValueError naming the keys and the two ways to a larger input."""
+    size = (cfg.get("data") or {}).get("input_size")
+    in_size = (cfg.get("model") or {}).get("in_size")
+    if size is None or in_size is None or size == in_size:
+        return
+    message = (f"data.input_size={size} but model.in_size={in_size}: the network is built for the input it is fed; "
+               f"set model.in_size={size}")
+    grid = (cfg.get("parameterization") or {}).get("grid")
+    if isinstance(grid, int) and grid * size % in_size == 0:
+        message += (f" with parameterization.grid={grid * size // in_size} (the same network, each output cell as many "
+                    "input pixels), or alone (one halving more, the grid kept)")
+    raise ValueError(message)
+
+
 def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
     if not isinstance(cfg, DictConfig):
@@ -74,6 +91,7 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
             rotation = instantiate(cfg.rotation, _partial_=True)(symmetry=obj.symmetry)
     with config_group("parameterization"):
         parameterization = instantiate(cfg.parameterization, _partial_=True)(obj=obj, rotation=rotation)
+    check_input_grid(cfg)
     with config_group("model"):
         backbone = instantiate(cfg.model, out_channels=parameterization.out_channels, out_grid=parameterization.grid_size)
     presence_prior = cfg.get("presence_prior_logit")

@@ -19,7 +19,7 @@ from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.geometry.camera import trained_clip
-from opnet.geometry.icp import STATUSES, ICPSettings, Refiner, settings_from_config
+from opnet.geometry.icp import STAGES, STATUSES, ICPSettings, Refiner, settings_from_config
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import diagnose
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
@@ -67,24 +67,26 @@ def refine_scenes(scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], sampl
                   settings: ICPSettings) -> dict[str, Any]:  # fmt: skip
     """Refine the hypotheses of every scene in place against the scene's own depth image as the
     data module reads it (with the scene cache: the cached canvas, twice the network input by
-    default; without: the dataset's image), with its camera; returns the milliseconds per image and
-    the count of each status."""
+    default; without: the dataset's image), with its camera; returns the milliseconds per image (and
+    per stage of the refinement) and the count of each status."""
     refiner = Refiner.for_object(obj, settings)
     counts = dict.fromkeys(STATUSES, 0)
     seconds = 0.0
+    stages: dict[str, float] = {}
     for i in range(len(samples)):
         record = samples.record(i)
         if record.name not in scenes:
             continue
         gt, hyps = scenes[record.name]
         start = time.perf_counter()
-        refined, status = refiner(hyps, record.depth, record.camera)
+        refined, status = refiner(hyps, record.depth, record.camera, stages)
         seconds += time.perf_counter() - start
         scenes[record.name] = (gt, refined)
         for s in status:
             counts[s] += 1
-    return {"ms_per_image": 1000 * seconds / max(len(scenes), 1), "statuses": counts,
-            "settings": dataclasses.asdict(settings)}
+    n = max(len(scenes), 1)
+    return {"ms_per_image": 1000 * seconds / n, "statuses": counts, "settings": dataclasses.asdict(settings),
+            "ms_per_image_by_stage": {k: round(1000 * stages[k] / n, 2) for k in STAGES if k in stages}}
 
 
 def _write_bop_results(datamodule: Any, split: str, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]],

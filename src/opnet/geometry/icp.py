@@ -45,14 +45,18 @@ from opnet.geometry.pose_numpy import pose_distance, rotation_change_deg
 from opnet.geometry.search import (
     SearchSettings,
     ambiguity_turns,
+    facing_points,
     model_axis,
-    pose_agreement,
     resolve_mode,
+    score_poses,
     search_any,
-    search_pose,
+    search_poses,
     turns,
 )
 
+#: how ICP pairs a model point with the scene: its nearest scene point (a k-d tree per hypothesis) | the
+#: scene point of the pixel it projects onto (every hypothesis in one batch, several times faster)
+ASSOCIATIONS = ("nearest", "projective")
 STATUSES = ("refined", "searched", "suppressed", "no_depth", "rejected", "budget")
 
 
@@ -73,6 +77,10 @@ class ICPSettings:
         stride: use every stride-th pixel of the depth image in each direction.
         local_points: at most about this many of the scene points near a hypothesis are fitted (every k-th
             of them; 0: all): on a megapixel frame the neighbourhood of a part holds tens of thousands.
+        association: nearest (each model point's nearest scene point near the hypothesis) | projective
+            (the scene point of the pixel it projects onto: every hypothesis in one batch; no pull
+            along a surface, so a flat part's in-plane fit is left to the search).
+        polish_association: the association of the ICP that polishes the search's poses (null: ``association``).
         search: None (ICP only), or the depth-agreement search (:mod:`opnet.geometry.search`) run
             after ICP on each hypothesis within the budget, its best pose polished by ICP again.
     """
@@ -88,6 +96,8 @@ class ICPSettings:
     model_points: int = 600
     stride: int = 1
     local_points: int = 0
+    association: str = "nearest"
+    polish_association: str | None = None
     search: SearchSettings | None = None
 
     def __post_init__(self) -> None:
@@ -102,6 +112,11 @@ class ICPSettings:
                 raise ValueError(f"icp.{key} must be a positive integer, got {value!r}")
         if isinstance(self.local_points, bool) or not isinstance(self.local_points, int) or self.local_points < 0:
             raise ValueError(f"icp.local_points must be an integer >= 0 (0: all), got {self.local_points!r}")
+        for key in ("association", "polish_association"):
+            value = getattr(self, key)
+            if not (value in ASSOCIATIONS or (key == "polish_association" and value is None)):
+                raise ValueError(f"icp.{key} must be one of {', '.join(ASSOCIATIONS)}"
+                                 f"{' or null' if key == 'polish_association' else ''}, got {value!r}")
         if self.budget_ms is not None and not (np.isfinite(self.budget_ms) and self.budget_ms >= 0):
             raise ValueError(f"icp.budget_ms must be >= 0 or null, got {self.budget_ms!r}")
 
@@ -141,13 +156,25 @@ class ModelCloud:
         return p, np.sum((self.normals @ R.T) * p, -1) < 0
 
 
-@dataclass
 class SceneCloud:
-    """The depth image as camera-frame points (N, 3) with unit normals (N, 3) and a k-d tree."""
+    """The depth image as camera-frame points (N, 3) with unit normals (N, 3).
 
-    points: np.ndarray
-    normals: np.ndarray
-    tree: cKDTree
+    Made from a depth image (:meth:`from_depth`), it keeps the strided pixel grid, and
+    :meth:`neighbourhood` takes the points near a hypothesis from the pixels the ball projects onto:
+    no k-d tree over the whole image (on a megapixel frame building one costs more than refining a
+    hypothesis). ``tree``, a k-d tree over all the points, is made when first asked for.
+    """
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray, grid: tuple[np.ndarray, ...] | None = None) -> None:
+        self.points, self.normals = points, normals
+        self._grid = grid  # (xyz (h, w, 3), normals (h, w, 3), ok (h, w), u (w,), v (h,), fx, fy, cx, cy)
+        self._tree: cKDTree | None = None
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.points if len(self.points) else np.full((1, 3), 1e9))  # empty: one far point
+        return self._tree
 
     @classmethod
     def from_depth(cls, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int = 1) -> SceneCloud:
@@ -156,22 +183,44 @@ class SceneCloud:
         if depth.ndim != 2:
             raise ValueError(f"icp: depth must be an (H, W) image, got shape {depth.shape}")
         # the strided grid first: its points, and normals from its own neighbours
-        v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride].astype(np.float64)
+        u = np.arange(0, depth.shape[1], stride, dtype=np.float64)
+        v = np.arange(0, depth.shape[0], stride, dtype=np.float64)
         d = depth[::stride, ::stride]
         z = np.where(np.isfinite(d) & (d > 0), d, np.nan)
-        xyz = np.stack(((u - cx) * z / fx, (v - cy) * z / fy, z), -1)
-        # normals from the neighbouring pixels (central differences where both exist)
-        du = np.full_like(xyz, np.nan)
-        dv = np.full_like(xyz, np.nan)
-        du[:, 1:-1] = xyz[:, 2:] - xyz[:, :-2]
-        dv[1:-1] = xyz[2:] - xyz[:-2]
-        n = np.cross(du, dv)
-        norm = np.linalg.norm(n, axis=-1, keepdims=True)
-        n = n / np.where(norm > 0, norm, np.nan)
-        n = np.where((np.sum(n * xyz, -1, keepdims=True) > 0), -n, n)  # facing the camera
-        ok = np.isfinite(xyz).all(-1) & np.isfinite(n).all(-1)
-        points, normals = xyz[ok], n[ok]
-        return cls(points, normals, cKDTree(points if len(points) else np.full((1, 3), 1e9)))  # empty: one far point
+        xyz = np.stack((z * ((u - cx) / fx), z * ((v - cy) / fy)[:, None], z), -1)
+        # normals from the neighbouring pixels (central differences; the border has none)
+        n = np.full_like(xyz, np.nan)
+        if xyz.shape[0] > 2 and xyz.shape[1] > 2:
+            a = xyz[1:-1, 2:] - xyz[1:-1, :-2]  # along u
+            b = xyz[2:, 1:-1] - xyz[:-2, 1:-1]  # along v
+            c = n[1:-1, 1:-1]
+            c[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+            c[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+            c[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+            norm = np.sqrt(np.sum(c * c, -1, keepdims=True))
+            c /= np.where(norm > 0, norm, np.nan)
+            c *= np.where(np.sum(c * xyz[1:-1, 1:-1], -1, keepdims=True) > 0, -1.0, 1.0)  # facing the camera
+        ok = np.isfinite(n).all(-1)  # a finite normal needs the point and both neighbours each way
+        return cls(xyz[ok], n[ok], (xyz, n, ok, u, v, fx, fy, cx, cy))
+
+    def neighbourhood(self, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """The points within ``radius`` metres of ``centre`` (3,) and their normals, in pixel order."""
+        if self._grid is None:
+            idx = np.sort(np.asarray(self.tree.query_ball_point(centre, radius), dtype=np.int64))
+            return self.points[idx], self.normals[idx]
+        xyz, normals, ok, u, v, fx, fy, cx, cy = self._grid
+        x, y, z = (float(c) for c in centre)
+        rows, cols = slice(None), slice(None)
+        if z - radius > 1e-9:  # the ball lies in front of the camera: its pixels lie in the box of its corners
+            near, far = z - radius, z + radius
+            us = [fx * xx / zz + cx for xx in (x - radius, x + radius) for zz in (near, far)]
+            vs = [fy * yy / zz + cy for yy in (y - radius, y + radius) for zz in (near, far)]
+            cols = slice(*np.searchsorted(u, [min(us) - 1, max(us) + 1]))
+            rows = slice(*np.searchsorted(v, [min(vs) - 1, max(vs) + 1]))
+        window = xyz[rows, cols]
+        d2 = np.sum((window - centre) ** 2, -1)
+        near = ok[rows, cols] & (d2 <= radius * radius)
+        return window[near], normals[rows, cols][near]
 
 
 @dataclass(frozen=True)
@@ -269,12 +318,14 @@ def refine_pose(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneClo
     """
     R0, t0 = np.asarray(R, np.float64), np.asarray(t, np.float64)
     D = model.diameter
-    idx = np.asarray(scene.tree.query_ball_point(t0, settings.radius * D), dtype=np.int64)
-    if len(idx) < settings.min_points:
-        return ICPResult(R0, t0, "no_depth", len(idx))
-    if settings.local_points and len(idx) > settings.local_points:  # every k-th: a small tree, the same surface
-        idx = np.sort(idx)[:: -(-len(idx) // settings.local_points)]
-    local = (cKDTree(scene.points[idx]), scene.points[idx], scene.normals[idx])
+    points, normals = scene.neighbourhood(t0, settings.radius * D)
+    if len(points) < settings.min_points:
+        return ICPResult(R0, t0, "no_depth", len(points))
+    if settings.local_points and len(points) > settings.local_points:  # every k-th: a small tree, the same surface
+        every = -(-len(points) // settings.local_points)
+        points, normals = points[::every], normals[::every]
+    # exact nearest points either way; a flat tree of larger leaves builds and answers several times faster here
+    local = (cKDTree(points, leafsize=32, balanced_tree=False, compact_nodes=False), points, normals)
     max_d, huber = settings.max_distance * D, settings.huber * D
     Rc, tc = R0.copy(), t0.copy()
     p, q, n = _residuals(Rc, tc, model, local, max_d)
@@ -305,15 +356,145 @@ def refine_pose(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneClo
     return ICPResult(Rc, tc, "refined", len(p), before, after)
 
 
+def _project(scene: SceneCloud, p: np.ndarray, use: np.ndarray, max_distance: float) -> tuple[np.ndarray, ...]:
+    """Projective correspondences of model points (H, P, 3) marked ``use`` (H, P): the scene point and normal
+    of the strided pixel each projects onto, kept where it is measured and within ``max_distance``:
+    (q (H, P, 3), n_q (H, P, 3), kept (H, P))."""
+    xyz, normals, ok, u, v, fx, fy, cx, cy = scene._grid
+    h, w = ok.shape
+    stride = (u[1] - u[0]) if len(u) > 1 else (v[1] - v[0]) if len(v) > 1 else 1.0
+    z = p[..., 2]
+    inv = np.divide(1.0, z, out=np.zeros_like(z), where=z > 0)
+    j = (p[..., 0] * (fx * inv) + cx) / stride + 0.5  # the nearest strided pixel is floor(j)
+    i = (p[..., 1] * (fy * inv) + cy) / stride + 0.5
+    inside = use & (z > 0) & (j >= 0) & (j < w) & (i >= 0) & (i < h)
+    flat = np.where(inside, i, 0).astype(np.intp) * w + np.where(inside, j, 0).astype(np.intp)
+    q = xyz.reshape(-1, 3)[flat]
+    n = normals.reshape(-1, 3)[flat]
+    kept = inside & ok.reshape(-1)[flat]
+    kept &= np.sum((np.where(kept[..., None], q, p) - p) ** 2, -1) <= max_distance**2
+    return q, n, kept
+
+
+def _batched_cost_and_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, kept: np.ndarray,
+                           huber: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Per hypothesis the robust cost of :func:`_cost` and the damped Gauss-Newton step of :func:`_step`
+    over its kept correspondences (``p``, ``q``, ``n`` (H, P, 3), ``kept`` (H, P)): (cost (H,), step (H, 6))."""
+    m = kept.astype(np.float64)
+    count = np.maximum(m.sum(1), 1.0)
+    e = np.where(kept[..., None], p - q, 0.0)
+    nn = np.where(kept[..., None], n, 0.0)
+    r = np.sum(e * nn, -1)
+    a = np.abs(r)
+    wgt = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-15)) * m
+    plane = np.where(a <= huber, 0.5 * r**2, huber * (a - 0.5 * huber)) * m
+    cost = np.sqrt(2 * (plane + 0.5 * POINT_WEIGHT * np.sum(e * e, -1)).sum(1) / count)
+    pm = np.where(kept[..., None], p, 0.0)
+    c = np.cross(pm, nn)
+    J = np.concatenate((c, nn), -1)  # (H, P, 6)
+    Jw = J * wgt[..., None]
+    A = np.swapaxes(Jw, 1, 2) @ J
+    b = -np.sum(Jw * r[..., None], 1)
+    PP = np.swapaxes(pm, 1, 2) @ pm  # sum of p p^T
+    S = np.zeros_like(A)
+    S[:, :3, :3] = np.trace(PP, axis1=1, axis2=2)[:, None, None] * np.eye(3) - PP
+    ps = pm.sum(1)
+    skew = np.zeros((len(p), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -ps[:, 2], ps[:, 1], -ps[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = ps[:, 2], -ps[:, 1], ps[:, 0]
+    S[:, :3, 3:], S[:, 3:, :3] = skew, np.swapaxes(skew, 1, 2)
+    S[:, 3:, 3:] = m.sum(1)[:, None, None] * np.eye(3)
+    g = np.concatenate((np.cross(pm, e).sum(1), e.sum(1)), -1)
+    A = A + POINT_WEIGHT * S
+    b = b - POINT_WEIGHT * g
+    A += (1e-6 * np.trace(A, axis1=1, axis2=2) / 6 + 1e-30)[:, None, None] * np.eye(6)
+    x = np.linalg.solve(A, b[..., None])[..., 0]
+    angle = np.linalg.norm(x[:, :3], axis=1)
+    x *= np.where(angle > MAX_STEP_RAD, MAX_STEP_RAD / np.maximum(angle, 1e-300), 1.0)[:, None]
+    return cost, x
+
+
+def _rotations(w: np.ndarray) -> np.ndarray:
+    """exp of rotation vectors (H, 3) (Rodrigues)."""
+    angle = np.linalg.norm(w, axis=1)
+    k = w / np.where(angle > 1e-12, angle, 1.0)[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def refine_poses_projective(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneCloud, space: Any,
+                            settings: ICPSettings = ICPSettings()) -> list[ICPResult]:  # fmt: skip
+    """:func:`refine_pose` of many poses (H, 3, 3), (H, 3) at once, with projective correspondences
+    (``association: projective``): each model point facing the camera is paired with the scene point of
+    the pixel it projects onto, not its nearest (no k-d tree; every hypothesis's step in one batch).
+    Same cost, step and guard as :func:`refine_pose`; every step is taken."""
+    if scene._grid is None:
+        raise ValueError("icp: association projective needs a scene made from a depth image")
+    R0, t0 = np.array(R, np.float64).reshape(-1, 3, 3), np.array(t, np.float64).reshape(-1, 3)
+    H, D = len(R0), model.diameter
+    max_d, huber = settings.max_distance * D, settings.huber * D
+
+    def correspond(Rs: np.ndarray, ts: np.ndarray) -> tuple[np.ndarray, ...]:
+        p, facing = facing_points(Rs, ts, model)
+        q, n, kept = _project(scene, p, facing, max_d)
+        return p, q, n, kept
+
+    Rc, tc = R0.copy(), t0.copy()
+    p, q, n, kept = correspond(Rc, tc)
+    count = kept.sum(1)
+    usable = count >= settings.min_points
+    active = usable.copy()
+    cost, x = _batched_cost_and_step(p, q, n, kept, huber)
+    before = cost.copy()
+    for _ in range(settings.iterations):
+        # every step is taken (no halving: the pairs change with the pose, so the mean cost over them is no
+        # fair judge of a step, and a halving rule stalls); a pose stops when its step is negligible or when
+        # too few of its points find a pair
+        idx = np.flatnonzero(active)
+        if not len(idx):
+            break
+        dR = _rotations(x[idx, :3])
+        R_new = dR @ Rc[idx]
+        t_new = np.einsum("hij,hj->hi", dR, tc[idx]) + x[idx, 3:]
+        pn, qn, nn, kn = correspond(R_new, t_new)
+        cn, xn = _batched_cost_and_step(pn, qn, nn, kn, huber)
+        enough = kn.sum(1) >= settings.min_points
+        take = idx[enough]
+        small = (np.linalg.norm(x[take, :3], axis=1) < BATCH_CONVERGED[0]) & \
+            (np.linalg.norm(x[take, 3:], axis=1) < BATCH_CONVERGED[1])  # fmt: skip
+        Rc[take], tc[take], cost[take], count[take], x[take] = R_new[enough], t_new[enough], cn[enough], \
+            kn[enough].sum(1), xn[enough]  # fmt: skip
+        active[idx[~enough]] = False
+        active[take[small]] = False
+    U, _, Vt = np.linalg.svd(Rc)
+    Rc = U @ Vt
+    out = []
+    for h in range(H):
+        if not usable[h]:
+            out.append(ICPResult(R0[h], t0[h], "no_depth", int(kept[h].sum())))
+            continue
+        moved = np.linalg.norm(tc[h] - t0[h]) > settings.max_translation * D
+        turned = rotation_change_deg(R0[h], Rc[h], space) > settings.max_rotation_deg
+        status = "rejected" if moved or turned else "refined"
+        Rh, th = (R0[h], t0[h]) if status == "rejected" else (Rc[h], tc[h])
+        out.append(ICPResult(Rh, th, status, int(count[h]), float(before[h]), float(cost[h])))
+    return out
+
+
 def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: ModelCloud, scene: SceneCloud,
                       space: Any, settings: ICPSettings = ICPSettings(), depth: np.ndarray | None = None,
-                      camera: Any = None) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:  # fmt: skip
+                      camera: Any = None, timings: dict[str, float] | None = None,
+                      ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:  # fmt: skip
     """Refine the hypotheses of one image, best score first, within ``settings.budget_ms``.
 
     Args:
         R: (N, 3, 3), t: (N, 3) metres, camera frame; score: (N,).
         depth, camera: the depth image (H, W) and its camera (fx, fy, cx, cy) the scene was made
             from; needed with ``settings.search``.
+        timings: if given, the seconds of each stage are added to it (:data:`STAGES`).
     Returns:
         refined R (N, 3, 3), t (N, 3) in the input order, each one's status, and its score: the
         input's, or with ``settings.search`` the one its ``score`` setting names (a hypothesis the
@@ -330,30 +511,46 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     axis = model_axis(model.points, search.axis) if mode == "turn" else None
     flips = ambiguity_turns(model.points, space) if mode == "flips" else None
     merged = _merged(t_out, score_in, search.merge * model.diameter) if search is not None else np.zeros(len(t_out), bool)
+    order = [int(k) for k in np.argsort(-score_in, kind="stable") if not merged[k]]
+    for k in np.flatnonzero(merged):
+        status[k] = "suppressed"
+    # hypotheses go in chunks, best first, each chunk's ICP and search in batches: all in one without a time
+    # budget; under one, a chunk at a time (nearest-point ICP: one hypothesis, as the budget always counted)
+    chunk = len(order) if settings.budget_ms is None else PROJECTIVE_CHUNK if settings.association == "projective" else 1
+    clock = _Stages(timings)
     start = time.perf_counter()
-    for k in np.argsort(-score_in, kind="stable"):
-        if merged[k]:
-            status[k] = "suppressed"
-            continue
+    for c0 in range(0, len(order), max(chunk, 1)):
         if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
             break
-        start_R, start_t = R_out[k].copy(), t_out[k].copy()
-        result = refine_pose(R_out[k], t_out[k], model, scene, space, settings)
-        R_out[k], t_out[k], status[k] = result.R, result.t, result.status
-        if search is not None and result.status != "no_depth":
-            if mode == "turn":
-                Rs, ts, _ = search_pose(R_out[k], t_out[k], model, depth, camera, axis, search)
-            else:
-                # from the refined pose and from the hypothesis itself: ICP may have pulled a turned
-                # hypothesis further off
-                Rs, ts, _ = search_any(np.stack((R_out[k], start_R)), np.stack((t_out[k], start_t)), model, depth,
-                                       camera, space, search, flips)  # fmt: skip
-            polished = refine_pose(Rs, ts, model, scene, space, settings)
-            R_out[k], t_out[k], status[k] = polished.R, polished.t, "searched"
+        ks = order[c0 : c0 + chunk]
+        first = clock("icp", _refine_many, R_out[ks], t_out[ks], model, scene, space, settings)
+        starts = [(R_out[k].copy(), t_out[k].copy()) for k in ks]
+        for k, result in zip(ks, first, strict=True):
+            R_out[k], t_out[k], status[k] = result.R, result.t, result.status
+        todo = [j for j, result in enumerate(first) if search is not None and result.status != "no_depth"]
+        if not todo:
+            continue
+        found = [ks[j] for j in todo]
+        clock.start()
+        if mode == "turn":
+            Rs, ts, _ = search_poses(R_out[found], t_out[found], model, depth, camera, axis, search)
+        else:
+            # from the refined pose and from the hypothesis itself: ICP may have pulled a turned hypothesis
+            # further off
+            pairs = [search_any(np.stack((R_out[ks[j]], starts[j][0])), np.stack((t_out[ks[j]], starts[j][1])), model,
+                                depth, camera, space, search, flips) for j in todo]  # fmt: skip
+            Rs, ts = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+        clock.stop("search")
+        polish = settings if settings.polish_association is None else \
+            dataclasses.replace(settings, association=settings.polish_association)  # fmt: skip
+        for k, result in zip(found, clock("polish", _refine_many, Rs, ts, model, scene, space, polish), strict=True):
+            R_out[k], t_out[k], status[k] = result.R, result.t, "searched"
     if search is None:
         return R_out, t_out, status, score_in.copy()
-    agree = np.array([pose_agreement(Rk, tk, model, depth, camera, search) if not m else -np.inf
-                      for Rk, tk, m in zip(R_out, t_out, merged, strict=True)])
+    clock.start()
+    agree = np.full(len(R_out), -np.inf)
+    if (~merged).any():
+        agree[~merged] = score_poses(R_out[~merged], t_out[~merged], model, depth, camera, search)
     final = {"agreement": agree, "network": score_in.copy(), "product": score_in * np.maximum(agree, 0.0)}[search.score]
     if search.suppress > 0:  # duplicates: searches from nearby hypotheses that ended on one pose
         kept: list[int] = []
@@ -365,7 +562,48 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
                 status[k] = "suppressed"
             else:
                 kept.append(int(k))
+    clock.stop("rank")
     return R_out, t_out, status, final
+
+
+#: the stages of a refinement whose seconds :func:`refine_image` can report: the scene cloud from the depth
+#: image, ICP, the search, ICP of the search's poses, scoring and ranking
+STAGES = ("scene", "icp", "search", "polish", "rank")
+
+
+class _Stages:
+    """Adds the seconds of each stage to a dict (nothing when it is None)."""
+
+    def __init__(self, timings: dict[str, float] | None) -> None:
+        self.timings, self.t0 = timings, 0.0
+
+    def start(self) -> None:
+        self.t0 = time.perf_counter()
+
+    def stop(self, stage: str) -> None:
+        if self.timings is not None:
+            self.timings[stage] = self.timings.get(stage, 0.0) + time.perf_counter() - self.t0
+
+    def __call__(self, stage: str, fn: Any, *args: Any) -> Any:
+        self.start()
+        out = fn(*args)
+        self.stop(stage)
+        return out
+
+
+#: projective ICP stops a pose whose step turns less than this (radians) and moves less (metres): a
+#: hundredth of a degree and of a millimetre, far below what the metric or a gripper can tell
+BATCH_CONVERGED = (1e-4, 1e-5)
+#: hypotheses per batch of projective ICP under a time budget
+PROJECTIVE_CHUNK = 8
+
+
+def _refine_many(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneCloud, space: Any,
+                 settings: ICPSettings) -> list[ICPResult]:  # fmt: skip
+    """ICP of poses (N, 3, 3), (N, 3): projective in one batch, or nearest-point one by one."""
+    if settings.association == "projective":
+        return refine_poses_projective(R, t, model, scene, space, settings)
+    return [refine_pose(Rk, tk, model, scene, space, settings) for Rk, tk in zip(R, t, strict=True)]
 
 
 def _merged(t: np.ndarray, score: np.ndarray, radius: float) -> np.ndarray:
@@ -384,14 +622,17 @@ def _merged(t: np.ndarray, score: np.ndarray, radius: float) -> np.ndarray:
 
 
 def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCloud, space: Any,
-                 settings: ICPSettings = ICPSettings()) -> tuple[Any, list[str]]:  # fmt: skip
+                 settings: ICPSettings = ICPSettings(), timings: dict[str, float] | None = None,
+                 ) -> tuple[Any, list[str]]:  # fmt: skip
     """The hypotheses of one image (a :class:`opnet.metrics.records.HypothesisSet`) refined against
-    its depth image (metres, (H, W)) seen by ``camera`` (fx, fy, cx, cy): (a new set, statuses)."""
+    its depth image (metres, (H, W)) seen by ``camera`` (fx, fy, cx, cy): (a new set, statuses);
+    ``timings``: the seconds of each of :data:`STAGES` added to it."""
     if depth.shape != (camera.height, camera.width):
         raise ValueError(f"icp: depth of shape {depth.shape} does not match the camera ({camera.height}, {camera.width})")
-    scene = SceneCloud.from_depth(depth, camera.fx, camera.fy, camera.cx, camera.cy, settings.stride)
+    scene = _Stages(timings)("scene", SceneCloud.from_depth, depth, camera.fx, camera.fy, camera.cx, camera.cy,
+                             settings.stride)  # fmt: skip
     R, t, status, score = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space,
-                                            settings, np.asarray(depth, np.float64), camera)  # fmt: skip
+                                            settings, np.asarray(depth, np.float64), camera, timings)  # fmt: skip
     keep = np.array([s != "suppressed" for s in status], bool)
     visibility = None if hypotheses.visibility is None else np.asarray(hypotheses.visibility)[keep]
     return type(hypotheses)(R[keep], t[keep], score[keep], visibility), status
@@ -415,9 +656,10 @@ class Refiner:
         return cls(ModelCloud.from_mesh(obj.mesh, settings.model_points, obj.diameter),
                    PoseSpaceArrays.of(obj.pose_space), settings)  # fmt: skip
 
-    def __call__(self, hypotheses: Any, depth: np.ndarray, camera: Any) -> tuple[Any, list[str]]:
+    def __call__(self, hypotheses: Any, depth: np.ndarray, camera: Any,
+                 timings: dict[str, float] | None = None) -> tuple[Any, list[str]]:  # fmt: skip
         """:func:`refine_image` with this object's model."""
-        return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings)
+        return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings, timings)
 
 
 def search_settings(budget_ms: float | None = None) -> ICPSettings:
@@ -443,5 +685,5 @@ def settings_from_config(refine: Any) -> ICPSettings | None:
     return settings
 
 
-__all__ = ["STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "Refiner", "SceneCloud", "refine_hypotheses",
-           "refine_image", "refine_pose", "rotation_change_deg", "search_settings", "settings_from_config"]
+__all__ = ["ASSOCIATIONS", "STAGES", "STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "Refiner", "SceneCloud", "refine_hypotheses",
+           "refine_image", "refine_pose", "refine_poses_projective", "rotation_change_deg", "search_settings", "settings_from_config"]

@@ -157,122 +157,173 @@ def agreement(points: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: 
     those that count, e.g. facing the camera) with a z-depth image (H, W) (NaN: missing): per pose,
     (points measured within ``tolerance`` - ``see_through_weight`` x points measured behind the model
     by more) / valid points."""
-    z = points[..., 2]
-    safe = np.where(z > 0, z, np.inf)
-    u = np.floor(points[..., 0] * camera.fx / safe + camera.cx + 0.5)
-    v = np.floor(points[..., 1] * camera.fy / safe + camera.cy + 0.5)
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    inv = np.divide(1.0, z, out=np.zeros_like(z), where=z > 0)  # behind the camera: never inside
+    u = x * (camera.fx * inv) + (camera.cx + 0.5)  # the pixel is floor(u); u >= 0 makes the cast a floor
+    v = y * (camera.fy * inv) + (camera.cy + 0.5)
     h, w = depth.shape
     inside = valid & (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    measured = depth[np.where(inside, v, 0).astype(np.intp), np.where(inside, u, 0).astype(np.intp)]
-    r = np.where(inside, measured - z, np.nan)
-    agree = np.sum(np.abs(r) <= tolerance, -1)  # NaN compares False: missing depth counts neither way
-    through = np.sum(r > tolerance, -1)
-    return (agree - see_through_weight * through) / np.maximum(np.sum(valid, -1), 1)
+    index = np.where(inside, v, 0).astype(np.intp) * w + np.where(inside, u, 0).astype(np.intp)  # no cast of inf
+    r = depth.ravel()[index] - z
+    r[~inside] = np.nan
+    agree = np.count_nonzero(np.abs(r) <= tolerance, -1)  # NaN compares False: missing depth counts neither way
+    through = np.count_nonzero(r > tolerance, -1)
+    return (agree - see_through_weight * through) / np.maximum(np.count_nonzero(valid, -1), 1)
 
 
 def turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotations (T, 3, 3) by ``angles`` (T,) radians about the unit ``axis`` (Rodrigues)."""
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    s, c = np.sin(angles)[:, None, None], np.cos(angles)[:, None, None]
+    """Rotations (T, 3, 3) by ``angles`` (T,) radians about the unit ``axis`` (3,) (Rodrigues)."""
+    return rodrigues(axis, angles)
+
+
+def rodrigues(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) by ``angles`` (...) radians about unit ``axes`` (..., 3), broadcast together."""
+    axes, angles = np.broadcast_arrays(np.asarray(axes, np.float64), np.asarray(angles, np.float64)[..., None])
+    K = np.zeros((*axes.shape, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -axes[..., 2], axes[..., 1], -axes[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = axes[..., 2], -axes[..., 1], axes[..., 0]
+    s, c = np.sin(angles[..., :1])[..., None], np.cos(angles[..., :1])[..., None]
     return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def _offsets(step: float, reach: float) -> np.ndarray:
+    """Shifts -k step .. k step (k steps within ``reach``), the smallest first: no shift wins ties."""
+    k = int(np.floor(reach / step + 1e-9))
+    values = np.arange(-k, k + 1) * step
+    return values[np.argsort(np.abs(values), kind="stable")]
+
+
+#: candidate points scored per batch of the turn search (bounds its memory: about 100 MB)
+BATCH_POINTS = 1_500_000
 
 
 def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, n: np.ndarray,
              angles: np.ndarray, offsets: np.ndarray, frame: tuple[np.ndarray, np.ndarray], settings: SearchSettings,
-             keep: int = 1) -> list[tuple[float, np.ndarray, np.ndarray, float]]:  # fmt: skip
-    """The ``keep`` best (agreement, R, t, angle) among the turns ``angles`` (radians) of R about
-    ``n`` through t and the shifts ``offsets[i] e1 + offsets[j] e2`` (metres); the best turn of each
-    angle only, best first (ties: the earlier angle, the smaller shift)."""
+             keep: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """For each of N poses (N, 3, 3), (N, 3): the ``keep`` best among its turns by ``angles`` (A,) radians
+    about its axis ``n`` (N, 3) through t and its shifts ``offsets[i] e1 + offsets[j] e2`` (metres; ``frame``:
+    e1, e2 (N, 3)); the best shift of each turn only, best first (ties: the earlier angle, the smaller shift).
+    Returns agreement (N, keep), R (N, keep, 3, 3), t (N, keep, 3), angle (N, keep)."""
     e1, e2 = frame
-    shifts = (offsets[:, None, None] * e1 + offsets[None, :, None] * e2).reshape(-1, 3)  # (M, 3), row-major (i, j)
-    D, found = model.diameter, []
-    for angle, Rk in zip(angles, turns(n, angles) @ R, strict=True):  # one turn at a time: (M, K, 3) stays small
-        posed, facing = model.posed(Rk, t)
-        pts = posed[facing]
-        scores = agreement(pts[None] + shifts[:, None], np.ones((len(shifts), len(pts)), bool), depth, camera,
-                           settings.tolerance * D, settings.see_through_weight)  # fmt: skip
-        m = int(np.argmax(scores))
-        found.append((float(scores[m]), Rk, t + shifts[m], float(angle)))
-    found.sort(key=lambda f: -f[0])  # stable: ties keep the earlier angle
-    return found[:keep]
+    N, A = len(R), len(angles)
+    shifts = (offsets[None, :, None, None] * e1[:, None, None] + offsets[None, None, :, None] * e2[:, None, None])
+    shifts = shifts.reshape(N, -1, 3)  # (N, M, 3), row-major (i, j)
+    Rs = (rodrigues(n[:, None], angles[None]) @ R[:, None]).reshape(-1, 3, 3)  # (N A, 3, 3)
+    posed, facing = facing_points(Rs, np.repeat(t, A, 0), model)  # (N A, K, 3), (N A, K)
+    M, K = shifts.shape[1], posed.shape[1]
+    best_score, best_shift = np.empty(N * A), np.empty(N * A, np.intp)
+    rows = max(1, BATCH_POINTS // max(M * K, 1))
+    D = model.diameter
+    for r0 in range(0, N * A, rows):
+        sl = slice(r0, r0 + rows)
+        cand = posed[sl, None] + shifts[np.arange(N * A)[sl] // A][:, :, None]  # (r, M, K, 3)
+        valid = np.broadcast_to(facing[sl, None], cand.shape[:-1])
+        scores = agreement(cand, valid, depth, camera, settings.tolerance * D, settings.see_through_weight)
+        best_shift[sl] = scores.argmax(1)
+        best_score[sl] = scores[np.arange(len(scores)), best_shift[sl]]
+    best_score, best_shift = best_score.reshape(N, A), best_shift.reshape(N, A)
+    order = np.argsort(-best_score, axis=1, kind="stable")[:, :keep]  # stable: ties keep the earlier angle
+    h = np.arange(N)[:, None]
+    Rk = Rs.reshape(N, A, 3, 3)[h, order]
+    tk = t[:, None] + shifts[h, best_shift[h, order]]
+    return best_score[h, order], Rk, tk, angles[order]
 
 
 def search_pose(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, axis: np.ndarray,
                 settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
-    """The best pose among the turns and shifts of (R, t) (module docstring) and its agreement.
+    """The best pose among the turns and shifts of (R, t) (module docstring) and its agreement:
+    :func:`search_poses` of one pose."""
+    Rb, tb, score = search_poses(np.asarray(R)[None], np.asarray(t)[None], model, depth, camera, axis, settings)
+    return Rb[0], tb[0], float(score[0])
 
-    With ``coarse`` > 1 the grid is first searched at ``coarse`` times its steps, then at its own
-    steps around the three best coarse turns (± one coarse step of turn and shift each way).
+
+def search_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, axis: np.ndarray,
+                 settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The best pose among the turns and shifts of each of the poses (N, 3, 3), (N, 3) (module docstring), all
+    scored in batches; each pose's result is what it would be alone.
+
+    With ``coarse`` > 1 the grid is first searched at ``coarse`` times its steps, then (``fine: grid``) at its
+    own steps around the three best coarse turns (± one coarse step of turn and shift each way), or
+    (``fine: local``) by a pattern search from them.
 
     Args:
-        R (3, 3), t (3,): the pose (camera frame, metres). model: a :class:`opnet.geometry.icp.ModelCloud`.
+        R (N, 3, 3), t (N, 3): the poses (camera frame, metres). model: a :class:`opnet.geometry.icp.ModelCloud`.
         depth: (H, W) z-depth (metres, NaN missing) seen by ``camera`` (fx, fy, cx, cy).
         axis: the model-frame axis to turn about (:func:`model_axis`).
     Returns:
-        (R, t, agreement) of the best candidate (the first of equals: no turn, no shift, if it ties).
+        R (N, 3, 3), t (N, 3), agreement (N,) of each pose's best candidate (the first of equals: no turn, no
+        shift, if it ties).
     """
+    R, t = np.asarray(R, np.float64).reshape(-1, 3, 3), np.asarray(t, np.float64).reshape(-1, 3)
     D, s = model.diameter, settings
-    n = R @ axis  # the axis in the camera frame, through the origin t
-    helper = np.eye(3)[int(np.argmin(np.abs(n)))]
+    n = R @ axis  # (N, 3): the axis in the camera frame, through the origin t
+    helper = np.eye(3)[np.argmin(np.abs(n), axis=1)]
     e1 = np.cross(n, helper)
-    e1 /= np.linalg.norm(e1)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     frame = (e1, np.cross(n, e1))
-
-    def offsets(step: float, reach: float) -> np.ndarray:
-        k = int(np.floor(reach / step + 1e-9))
-        values = np.arange(-k, k + 1) * step
-        return values[np.argsort(np.abs(values), kind="stable")]  # no shift first: it wins ties
-
     if s.coarse <= 1:
         angles = np.radians(np.arange(0.0, 360.0 - 1e-9, s.turn_step_deg))
-        best = _best_of(R, t, model, depth, camera, n, angles, offsets(s.shift_step * D, s.shift * D), frame, s)[0]
-        return best[1], best[2], best[0]
+        score, Rb, tb, _ = _best_of(R, t, model, depth, camera, n, angles, _offsets(s.shift_step * D, s.shift * D),
+                                    frame, s)  # fmt: skip
+        return Rb[:, 0], tb[:, 0], score[:, 0]
     turn, step = s.turn_step_deg * s.coarse, s.shift_step * s.coarse
     angles = np.radians(np.arange(0.0, 360.0 - 1e-9, turn))
-    coarse = _best_of(R, t, model, depth, camera, n, angles, offsets(step * D, s.shift * D), frame, s, keep=3)
+    coarse = _best_of(R, t, model, depth, camera, n, angles, _offsets(step * D, s.shift * D), frame, s, keep=3)
     if s.fine == "local":
-        return _refine_turns(coarse, model, depth, camera, n, frame, np.radians(turn) / 2, step * D / 2, s)
-    best = None
-    for _, _, t_c, angle in coarse:
-        fine = np.radians(np.arange(-turn, turn + 1e-9, s.turn_step_deg)) + angle
-        fine = fine[np.argsort(np.abs(fine - angle), kind="stable")]  # the coarse turn first: it wins ties
-        found = _best_of(R, t_c, model, depth, camera, n, fine, offsets(s.shift_step * D, step * D), frame, s)[0]
-        if best is None or found[0] > best[0]:
-            best = found
-    return best[1], best[2], best[0]
+        return _refine_turns(coarse[:3], model, depth, camera, n, frame, np.radians(turn) / 2, step * D / 2, s)
+    out_R, out_t, out_s = R.copy(), t.copy(), np.full(len(R), -np.inf)
+    for c in range(coarse[0].shape[1]):  # around each of the three best coarse turns, the first best of equals
+        angle = coarse[3][:, c]
+        for h in range(len(R)):
+            fine = np.radians(np.arange(-turn, turn + 1e-9, s.turn_step_deg)) + angle[h]
+            fine = fine[np.argsort(np.abs(fine - angle[h]), kind="stable")]  # the coarse turn first: it wins ties
+            score, Rb, tb, _ = _best_of(R[h : h + 1], coarse[2][h : h + 1, c], model, depth, camera, n[h : h + 1],
+                                        fine, _offsets(s.shift_step * D, step * D), (e1[h : h + 1], frame[1][h : h + 1]),
+                                        s)  # fmt: skip
+            if score[0, 0] > out_s[h]:
+                out_R[h], out_t[h], out_s[h] = Rb[0, 0], tb[0, 0], score[0, 0]
+    return out_R, out_t, out_s
 
 
-def _refine_turns(starts: list[tuple[float, np.ndarray, np.ndarray, float]], model: Any, depth: np.ndarray, camera: Any,
+def _refine_turns(starts: tuple[np.ndarray, np.ndarray, np.ndarray], model: Any, depth: np.ndarray, camera: Any,
                   n: np.ndarray, frame: tuple[np.ndarray, np.ndarray], turn: float, shift: float,
-                  settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
-    """``fine: local``: from the coarse grid's best poses a pattern search of six moves (a turn of ``turn``
-    radians about ``n`` either way, a shift of ``shift`` metres either way along each of ``frame``), every
-    start's moves scored in one batch; a start whose best is to stay halves its steps, until they are below
-    half the grid's own steps. The best pose and its agreement (the first start of equals)."""
-    R = np.array([f[1] for f in starts])
-    t = np.array([f[2] for f in starts])
-    score = np.array([f[0] for f in starts])
-    C, rows = len(R), np.arange(len(R))
-    steps_r, steps_t = np.full(C, turn), np.full(C, shift)
+                  settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """``fine: local``: from each pose's coarse best (``starts``: agreement (N, S), R (N, S, 3, 3), t (N, S, 3))
+    a pattern search of six moves (a turn of ``turn`` radians about its axis ``n`` (N, 3) either way, a shift of
+    ``shift`` metres either way along each of ``frame`` (N, 3) each), every start's moves scored in one batch; a
+    start whose best is to stay halves its steps; a pose's starts go on until all its steps are below half the
+    grid's own. Each pose's best (the first start of equals): R (N, 3, 3), t (N, 3), agreement (N,)."""
+    score, R, t = (np.array(a, np.float64) for a in starts)
+    N, S = score.shape
+    steps_r, steps_t = np.full((N, S), turn), np.full((N, S), shift)
     stop_r, stop_t = np.radians(settings.turn_step_deg) / 2, settings.shift_step * model.diameter / 2
     e1, e2 = frame
-    while (steps_r >= stop_r).any() or (steps_t >= stop_t).any():
-        dR = np.repeat(np.eye(3)[None, None], C, 0).repeat(7, 1)  # (C, 7, 3, 3): stay, turn +-, shifts +- e1, e2
-        dR[:, 1], dR[:, 2] = turns(n, steps_r), turns(n, -steps_r)
-        dv = np.zeros((C, 7, 3))
-        for j, e in enumerate((e1, -e1, e2, -e2)):
-            dv[:, 3 + j] = steps_t[:, None] * e
-        Rn = dR @ R[:, None]
-        tn = t[:, None] + dv  # turns about the axis through the pose's origin, as the grid's
-        s = score_poses(Rn.reshape(-1, 3, 3), tn.reshape(-1, 3), model, depth, camera, settings).reshape(C, 7)
-        s[:, 0] = score
-        best = s.argmax(1)
+    while True:
+        live = np.flatnonzero((steps_r >= stop_r).any(1) | (steps_t >= stop_t).any(1))
+        if not len(live):
+            break
+        L = len(live)
+        dR = np.broadcast_to(np.eye(3), (L, S, 7, 3, 3)).copy()  # stay, turn +-, shifts +- e1, e2
+        dR[:, :, 1] = rodrigues(n[live, None], steps_r[live])
+        dR[:, :, 2] = rodrigues(n[live, None], -steps_r[live])
+        dv = np.zeros((L, S, 7, 3))
+        for j, e in enumerate((e1[live], -e1[live], e2[live], -e2[live])):
+            dv[:, :, 3 + j] = steps_t[live][..., None] * e[:, None]
+        Rn = dR @ R[live][:, :, None]
+        tn = t[live][:, :, None] + dv  # turns about the axis through the pose's origin, as the grid's
+        sc = score_poses(Rn.reshape(-1, 3, 3), tn.reshape(-1, 3), model, depth, camera, settings).reshape(L, S, 7)
+        sc[..., 0] = score[live]
+        best = sc.argmax(-1)
         stay = best == 0
-        steps_r[stay] /= 2
-        steps_t[stay] /= 2
-        R, t, score = Rn[rows, best], tn[rows, best], s[rows, best]
-    k = int(np.argmax(score))
-    return R[k], t[k], float(score[k])
+        sr, st = steps_r[live], steps_t[live]
+        sr[stay] /= 2
+        st[stay] /= 2
+        steps_r[live], steps_t[live] = sr, st
+        li, si = np.meshgrid(np.arange(L), np.arange(S), indexing="ij")
+        R[live], t[live], score[live] = Rn[li, si, best], tn[li, si, best], sc[li, si, best]
+    k = np.argmax(score, axis=1)
+    h = np.arange(N)
+    return R[h, k], t[h, k], score[h, k]
 
 
 def is_flat(points: np.ndarray) -> bool:
@@ -344,9 +395,26 @@ def _moves(step_rad: np.ndarray, step_m: np.ndarray) -> tuple[np.ndarray, np.nda
 def score_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
                 settings: SearchSettings) -> np.ndarray:  # fmt: skip
     """Agreement of poses (N, 3, 3), (N, 3) (their model points facing the camera), in one batch."""
-    p = np.einsum("nij,pj->npi", R, model.points) + t[:, None]
-    facing = np.einsum("nij,pj,npi->np", R, model.normals, p) < 0
+    p, facing = facing_points(R, t, model)
     return agreement(p, facing, depth, camera, settings.tolerance * model.diameter, settings.see_through_weight)
+
+
+def facing_points(R: np.ndarray, t: np.ndarray, model: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The model points facing the camera at poses (N, 3, 3), (N, 3), packed: (N, K, 3) and which of them
+    are real (N, K) (K: the most any pose has; the rest pad). Agreement counts only these, at half the work
+    of all the points."""
+    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
+    # (R n) . (R p + t) = n . p + n . (R^T t): one (P, N) product, no turned normals
+    local_t = (np.swapaxes(R, 1, 2) @ t[:, :, None])[..., 0]  # R^T t (N, 3)
+    facing = local_t @ model.normals.T + np.sum(model.normals * model.points, 1) < 0
+    count = facing.sum(1)
+    K = int(count.max(initial=0))
+    rows, cols = np.nonzero(facing)  # row-major: each pose's facing points in model order
+    slot = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
+    chosen = np.zeros((len(R), K), np.intp)  # the pad repeats point 0 (masked out)
+    chosen[rows, slot] = cols
+    packed = model.points[chosen] @ np.swapaxes(R, 1, 2) + t[:, None]
+    return packed, np.arange(K) < count[:, None]
 
 
 def local_search(R: np.ndarray, t: np.ndarray, centre: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
@@ -407,10 +475,26 @@ def search_any(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, came
 def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
                    settings: SearchSettings) -> float:  # fmt: skip
     """:func:`agreement` of one pose (its model points facing the camera)."""
-    posed, facing = model.posed(R, t)
-    return float(agreement(posed[None], facing[None], depth, camera, settings.tolerance * model.diameter,
-                           settings.see_through_weight)[0])  # fmt: skip
+    return float(score_poses(np.asarray(R)[None], np.asarray(t)[None], model, depth, camera, settings)[0])
 
 
-__all__ = ["AXES", "MODES", "SCORES", "SearchSettings", "agreement", "ambiguity_turns", "axis_permutations", "is_flat", "local_search",
-           "model_axis", "pose_agreement", "resolve_mode", "score_poses", "search_any", "search_pose", "turns"]
+__all__ = [
+    "AXES",
+    "MODES",
+    "SCORES",
+    "SearchSettings",
+    "agreement",
+    "ambiguity_turns",
+    "axis_permutations",
+    "is_flat",
+    "local_search",
+    "model_axis",
+    "pose_agreement",
+    "resolve_mode",
+    "rodrigues",
+    "score_poses",
+    "search_any",
+    "search_pose",
+    "search_poses",
+    "turns",
+]
