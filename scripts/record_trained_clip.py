@@ -6,7 +6,9 @@ train.py stores the clip planes of its training scenes' cameras in the run confi
 checkpoint (``trained_clip``): predict.py and the ONNX runtime normalize a new image's depth with
 them. For an older checkpoint this reads the planes from its training datasets (the config's
 ``data.root`` unless ``--data`` names them; their scenes must share one pair), writes them into a
-copy (or the file itself with ``--in-place``) atomically, and reads it back.
+copy (or the file itself with ``--in-place``) atomically, and reads it back. A refused checkpoint, a
+missing dataset or a target that cannot be written is one line ``error: <file>: <problem>`` with
+exit status 2, and leaves the target as it was and no temporary file.
 """
 
 from __future__ import annotations
@@ -18,9 +20,8 @@ from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-import torch  # noqa: E402
-
 from opnet.cli.build import load_checkpoint, read_checkpoint  # noqa: E402
+from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
 from opnet.data.datamodule import ConcatScenes, SceneSamples, as_paths  # noqa: E402
 from opnet.datasets import open_dataset  # noqa: E402
 from opnet.geometry.camera import trained_clip  # noqa: E402
@@ -53,10 +54,7 @@ def record(src: Path, dest: Path, roots: list[Path] | None = None) -> tuple[floa
     _, cfg = load_checkpoint(src)
     planes = datasets_clip(roots or as_paths(cfg.data.get("root")))
     ckpt["hyper_parameters"]["config"]["trained_clip"] = [float(planes[0]), float(planes[1])]
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp")
-    torch.save(ckpt, tmp)
-    os.replace(tmp, dest)
+    save_checkpoint(ckpt, dest)
     if trained_clip(load_checkpoint(dest)[1], dest) != planes:
         raise ValueError(f"{dest}: the written checkpoint does not read back with trained_clip {planes}")
     return planes
@@ -70,14 +68,14 @@ def main(argv: list[str] | None = None) -> int:
     where.add_argument("--write", type=Path, help="the copy to write")
     where.add_argument("--in-place", action="store_true", help="rewrite the checkpoint itself")
     args = ap.parse_args(argv)
-    try:
-        dest = args.ckpt if args.in_place else args.write
-        planes = record(args.ckpt, dest, args.data)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(f"{dest}: trained_clip [{planes[0]:g}, {planes[1]:g}] m")
-    return 0
+    dest = args.ckpt if args.in_place else args.write
+
+    def body() -> int:
+        planes = record(args.ckpt, require_writable(dest, "--write"), args.data)
+        print(f"{dest}: trained_clip [{planes[0]:g}, {planes[1]:g}] m")
+        return 0
+
+    return tool_main(body)
 
 
 if __name__ == "__main__":

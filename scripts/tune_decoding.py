@@ -13,6 +13,10 @@ them decides, so that the chosen defaults hold for more than one model.
 ``--write <file.ckpt>`` saves a copy of the (first) checkpoint whose config decodes with the tuned
 settings, so that eval.py, predict.py and export.py use them. ``--stride K`` tunes on every K-th
 scene of the split (the scenes of one pile are much alike; dense piles decode slowly).
+
+A refused checkpoint, a missing dataset or a target that cannot be written is one line
+``error: <file>: <problem>`` with exit status 2; the targets are checked before the network runs,
+and the files are written atomically (a failure leaves no temporary file and the old file as it was).
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 import torch  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
+from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
+from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.records import GroundTruthSet  # noqa: E402
 from opnet.parameterizations.averaging import PoseAveraging  # noqa: E402
@@ -138,7 +144,7 @@ def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]
     to ``dest`` and read back: its parameterization must decode as tuned.
 
     Raises:
-        ValueError: ``dest`` is ``src``, or the copy does not load with the tuned decoding.
+        ValueError: ``dest`` is ``src`` or cannot be written, or the copy does not load with the tuned decoding.
     """
     from opnet.cli.build import read_checkpoint
 
@@ -148,10 +154,7 @@ def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]
     param = ckpt["hyper_parameters"]["config"]["parameterization"]
     for key, value in settings.items():
         param[CONFIG_KEYS[key]] = value
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp")
-    torch.save(ckpt, tmp)
-    os.replace(tmp, dest)
+    save_checkpoint(ckpt, dest)
     system, _ = load_checkpoint(dest)
     loaded = current_settings(system.parameterization)
     compared = [k for k in settings if settings["averaging"] or k not in AVERAGING_KEYS]  # unused without averaging
@@ -161,18 +164,20 @@ def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]
 
 
 def write_table(rows: list[dict[str, Any]], out: Path) -> None:
-    out.mkdir(parents=True, exist_ok=True)
+    """``decoding_sweep.csv`` and ``decoding_sweep.md`` of the search's ``rows`` in ``out``, each atomically."""
     fields = sorted({k for r in rows for k in r}, key=lambda k: (k.startswith("ap"), k))
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=fields)
     writer.writeheader()
     writer.writerows(rows)
-    (out / "decoding_sweep.csv").write_text(buf.getvalue())
+    with write_errors_named(out / "decoding_sweep.csv"):
+        write_text_atomic(out / "decoding_sweep.csv", buf.getvalue())
     ranked = sorted(rows, key=lambda r: -r["ap"])
     lines = ["| " + " | ".join(fields) + " |", "|" + "---|" * len(fields)]
     lines += ["| " + " | ".join(f"{r.get(k, '')}" if not isinstance(r.get(k), float) else f"{r[k]:.4f}"
                                 for k in fields) + " |" for r in ranked]  # fmt: skip
-    (out / "decoding_sweep.md").write_text("\n".join(lines) + "\n")
+    with write_errors_named(out / "decoding_sweep.md"):
+        write_text_atomic(out / "decoding_sweep.md", "\n".join(lines) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -188,13 +193,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.stride < 1:
         print(f"error: --stride {args.stride}: expected an integer >= 1", file=sys.stderr)
         return 2
+    return tool_main(lambda: tune(args))
+
+
+def tune(args: argparse.Namespace) -> int:
+    """The tuning :func:`main` asks for: record, search, write."""
+    out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
+    require_writable(out / "decoding_sweep.csv", "--out")  # before the network runs, not after
+    if args.write is not None:
+        require_writable(args.write, "--write")
     torch.set_grad_enabled(False)
     splits = []
     for ckpt in args.ckpt:
         print(f"recording {args.split} outputs of {ckpt}", flush=True)
         splits.append(RecordedSplit.record(ckpt, args.split, args.stride))
     best, rows = search(splits, args.rounds)
-    out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
     write_table(rows, out)
     print(f"written {out}/decoding_sweep.csv, {out}/decoding_sweep.md")
     if args.write is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,23 @@ def meshes_dir(shared: Path) -> Path:
 @pytest.fixture(scope="session")
 def bunny_sample(shared: Path) -> Path:
     return shared / "data" / "sileane_bunny_sample"
+
+
+class FullDisk:
+    """A file object whose writes fail as on a full disk: in place of ``os.fdopen`` in
+    :mod:`opnet.fileio.atomic` (``monkeypatch.setattr(atomic.os, "fdopen", FullDisk)``)."""
+
+    def __init__(self, fd: int, mode: str = "wb") -> None:
+        os.close(fd)
+
+    def __enter__(self) -> FullDisk:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def write(self, data: bytes) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
 
 def small_builtin_dataset(root: Path, name: str, cycles: int, drops: int, seed: int, **scene: Any) -> Path:

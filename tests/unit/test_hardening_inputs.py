@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from conftest import FullDisk
 from opnet.datasets.bop import BOPDataset, symmetry_from_bop, write_bop_models
 from opnet.datasets.camera_file import read_camera_file, read_camera_yaml
 from opnet.datasets.depth_inputs import load_depth_image
@@ -218,27 +219,11 @@ def test_generate_command_line_numbers_name_the_key(key: str, value: Any) -> Non
 # -------------------------------------------------------------------------------------- full disk
 
 
-class _FullDisk:
-    """A file object whose writes fail as on a full disk."""
-
-    def __init__(self, fd: int) -> None:
-        os.close(fd)
-
-    def __enter__(self) -> _FullDisk:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        pass
-
-    def write(self, data: bytes) -> int:
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-
-
 def test_a_full_disk_is_one_line_naming_the_file_and_leaves_no_temporary(tmp_path: Path,
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     import opnet.fileio.atomic as atomic
 
-    monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: _FullDisk(fd))
+    monkeypatch.setattr(atomic.os, "fdopen", FullDisk)
     with pytest.raises(DiskFullError, match=rf"^{tmp_path / 'x.json'}: No space left on device \(disk full\)"):
         write_bytes_atomic(tmp_path / "x.json", b"{}")
     assert list(tmp_path.iterdir()) == []
@@ -348,7 +333,7 @@ def test_a_full_disk_while_replacing_a_folder_names_the_target(tmp_path: Path, m
     import opnet.fileio.atomic as atomic
     from opnet.datasets.outputs import folder_replaced
 
-    monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: _FullDisk(fd))
+    monkeypatch.setattr(atomic.os, "fdopen", FullDisk)
     target = tmp_path / "bop"
     with pytest.raises(DiskFullError, match=rf"^{target / 'models' / 'x.json'}: No space left on device"):
         with folder_replaced(target, overwrite=False) as tmp:

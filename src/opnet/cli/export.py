@@ -16,6 +16,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from opnet.cli.build import load_checkpoint
+from opnet.cli.tools import require_writable
 from opnet.datasets.outputs import is_within
 from opnet.deploy.export import (
     FORMATS,
@@ -66,6 +67,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
                          "another file it would replace); choose another out=")
     if out.exists() and not cfg.get("overwrite", False):
         raise ValueError(f"{out}: exists already; pass overwrite=true to replace it, or choose another out=")
+    require_writable(out, "out=")  # a read-only folder: refused before the export, named as out
     system, run_cfg = load_checkpoint(ckpt)
     name = parameterization_name(system.parameterization)
     wanted = cfg.get("expect_parameterization")

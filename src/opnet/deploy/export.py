@@ -20,6 +20,7 @@ and parameterization names and the output layout; ``opnet_version`` and the sour
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ import numpy as np
 import torch
 
 from opnet import __version__
-from opnet.fileio.atomic import disk_full_named
+from opnet.fileio.atomic import temporary_beside, write_errors_named
 from opnet.geometry.camera import trained_clip
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
@@ -139,11 +140,11 @@ def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET
     depth = torch.rand(2, 1, size, size)
     cam = torch.tensor([[size * 1.2, size * 1.2, (size - 1) / 2, (size - 1) / 2, size, size, 0.5, 1.5]] * 2,
                        dtype=torch.float64)
-    with disk_full_named(out):
-        out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
+    with write_errors_named(out):  # a read-only folder or a full disk: one line naming out
+        fd, tmp = temporary_beside(out)
+    os.close(fd)  # the exporters write by name
     try:  # a failure (a full disk) leaves neither the temporary file nor a partial out
-        with disk_full_named(out):
+        with write_errors_named(out):
             with torch.no_grad(), warnings.catch_warnings():
                 warnings.simplefilter("ignore", torch.jit.TracerWarning)  # the backbone's shape checks become constants
                 torch.onnx.export(model, (depth, cam), str(tmp), input_names=["depth", "camera"],

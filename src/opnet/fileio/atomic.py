@@ -58,6 +58,46 @@ def _umask() -> int:
     return mask
 
 
+@contextlib.contextmanager
+def write_errors_named(path: str | Path) -> Iterator[None]:
+    """Name ``path``, the one file a tool writes, in an ``OSError`` raised in the block, in one line
+    for the entry points: a full disk as a :class:`DiskFullError`, any other (a read-only folder or
+    file system, a folder at ``path``, a file where its folder should be) as a ``ValueError``
+    ``<path>: ...``, not naming the temporary file beside it (deleted by then). The per-image loops
+    do without it: to them an ``OSError`` is no bad input."""
+    try:
+        with disk_full_named(path):
+            yield
+    except DiskFullError:
+        raise
+    except OSError as e:
+        path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"{path}: is a folder; give the name of a file to write") from e
+        above = next((p for p in path.parents if p.exists()), None)
+        if above is not None and not above.is_dir():
+            raise ValueError(f"{path}: {above} is a file, not a folder") from e
+        raise ValueError(f"{path}: cannot be written ({e.strerror or type(e).__name__})") from e
+
+
+def temporary_beside(path: str | Path) -> tuple[int, Path]:
+    """A new, empty temporary file in ``path``'s folder (made if absent; the same file system, so that
+    ``os.replace`` onto ``path`` is atomic), unique to this writer, with the mode a plain ``open``
+    would give it: its open descriptor and its path."""
+    path = Path(path)
+    with disk_full_named(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        if hasattr(os, "fchmod"):
+            os.fchmod(fd, 0o666 & ~_umask())
+    except BaseException:
+        os.close(fd)
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return fd, Path(tmp)
+
+
 def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically, creating the parent folders.
 
@@ -66,18 +106,14 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
         data: the complete file content.
     """
     path = Path(path)
-    with disk_full_named(path):
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = temporary_beside(path)
     try:
         with disk_full_named(path):
-            if hasattr(os, "fchmod"):
-                os.fchmod(fd, 0o666 & ~_umask())
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
             os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
