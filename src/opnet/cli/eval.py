@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import build_datamodule, load_checkpoint
 from opnet.cli.console import report, result_summary
+from opnet.cli.locks import writer_lock
 from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
@@ -165,6 +166,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     started = time.monotonic()
     out_dir = Path(cfg.out) if cfg.get("out") else Path(cfg.ckpt).resolve().parent.parent / f"eval_{cfg.split}"
     require_output_folder(out_dir, [Path(cfg.ckpt)], "out=")  # a file or /dev/null: refused before the evaluation
+    with writer_lock(out_dir, "out="):  # a second eval into this folder stops at once
+        return _evaluate(cfg, out_dir, started)
+
+
+def _evaluate(cfg: DictConfig, out_dir: Path, started: float) -> dict[str, Any]:
+    """The evaluation of :func:`run` into ``out_dir`` (locked)."""
     system, run_cfg = load_checkpoint(cfg.ckpt)
     system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
     log.info("inference: %s", system.configure_inference(cfg.get("inference")))

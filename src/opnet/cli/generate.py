@@ -14,6 +14,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from opnet._repr import short_repr
+from opnet.cli.locks import writer_lock
 from opnet.objects import object_from_config
 from opnet.synthesis import GenerationReport, SceneConfig, generate_dataset
 
@@ -34,24 +35,27 @@ def run(cfg: DictConfig) -> GenerationReport:
     """Generate (or complete) the dataset ``cfg.out``; returns the report (also logged).
 
     Relative paths (``out``, ``object.mesh``) are relative to the working directory; ``object.json``
-    stores the mesh path made absolute.
+    stores the mesh path made absolute. The run holds the lock on ``out`` (:func:`opnet.cli.locks.writer_lock`):
+    a second run into the folder of a running one stops at once instead of claiming the same cycles.
     """
-    object_config = OmegaConf.to_container(cfg.object, resolve=True)
-    scene = SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
-    obj = object_from_config(object_config)
-    report = generate_dataset(
-        obj,
-        Path(str(cfg.out)),
-        cycles=whole_number(cfg.cycles, "cycles"),
-        drops=whole_number(cfg.drops, "drops"),
-        workers=whole_number(cfg.workers, "workers"),
-        seed=whole_number(cfg.seed, "seed"),
-        scene=scene,
-        progress=bool(cfg.get("progress", True)),
-        previews=int(cfg.get("previews", 4)),
-        object_config=object_config,
-        sensor=OmegaConf.to_container(cfg.sensor, resolve=True) if cfg.get("sensor") is not None else None,
-    )
+    out = Path(str(cfg.out))
+    with writer_lock(out, "out="):
+        object_config = OmegaConf.to_container(cfg.object, resolve=True)
+        scene = SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
+        obj = object_from_config(object_config)
+        report = generate_dataset(
+            obj,
+            out,
+            cycles=whole_number(cfg.cycles, "cycles"),
+            drops=whole_number(cfg.drops, "drops"),
+            workers=whole_number(cfg.workers, "workers"),
+            seed=whole_number(cfg.seed, "seed"),
+            scene=scene,
+            progress=bool(cfg.get("progress", True)),
+            previews=int(cfg.get("previews", 4)),
+            object_config=object_config,
+            sensor=OmegaConf.to_container(cfg.sensor, resolve=True) if cfg.get("sensor") is not None else None,
+        )
     log.info(
         "%s: %d cycles generated, %d already complete; %d scenes in %.1f s (%.2f scenes/s after %.1f s start-up); "
         "re-drops %d, unsettled drops %d",
