@@ -21,6 +21,17 @@ unfused paths; for the fused form as many images as keep its largest block buffe
 worker, per image best / median of 3: 55.5 / 55.8 ms in chunks of 1, 57.5 / 60.0 of 2, 56.5 / 60.5
 of 4, 65.2 / 65.8 of 8, 71.7 / 73.0 of 16), 8 for the small and tiny presets (small: 3.2 ms per
 image in chunks of 1, 2.5 of 2, 2.25 of 8, 2.95 of 32).
+``inference.device_side``: ``auto`` = on for a CUDA device, off on the CPU. On: predict.py's
+preprocessing (:mod:`opnet.data.preprocess_torch`) and the pose averaging of predict.py, eval.py
+and validation (:mod:`opnet.parameterizations.averaging_torch`) run as torch operations on the
+model's device, every image of a batch at once, and the poses come to the host in one transfer;
+off: OpenCV / numpy on the host, image by image. Both give the same input and poses to float
+rounding (tests). On this 2-core CPU the host is the faster of the two (``scripts/bench_infer.py``,
+docs/deployment.md "Device-side inference"): OpenCV's resize and the k-d tree beat tens of small
+torch operations.
+``inference.cuda_graph``: ``auto`` = on for a CUDA device: a batch of one image runs as a CUDA graph
+(captured at its first call, then replayed: one launch instead of one per kernel); on the CPU it
+is off, with a log line when asked for (``true``).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
 cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
@@ -36,6 +47,7 @@ which is why fp32 stays the default and bf16 is a documented opt-in.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -48,10 +60,12 @@ from opnet.hardware import cpu_has_native_bf16
 
 PRECISIONS = ("auto", "32", "bf16")
 AUTO_BOOL = ("auto", True, False)
-KEYS = ("precision", "fused", "channels_last", "compile", "max_batch", "workers")
+KEYS = ("precision", "fused", "channels_last", "compile", "max_batch", "workers", "device_side", "cuda_graph")
 #: the fused form's automatic chunk keeps its largest block buffer within this many bytes
 CHUNK_BYTES = 8 << 20
 MAX_CHUNK = 8
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -65,6 +79,10 @@ class InferenceSettings:
     max_batch: int | str = "auto"
     fused: bool | str = "auto"
     workers: int | str = "auto"
+    #: preprocessing and averaging as torch operations on the model's device ("auto": on CUDA)
+    device_side: bool | str = "auto"
+    #: batch-1 forwards replayed as a CUDA graph ("auto": on CUDA; the CPU falls back with a log line)
+    cuda_graph: bool | str = "auto"
 
     @classmethod
     def from_config(cls, cfg: Any) -> InferenceSettings:
@@ -78,6 +96,9 @@ class InferenceSettings:
         for key in ("channels_last", "fused"):
             if cfg.get(key, "auto") not in AUTO_BOOL:
                 raise ValueError(f"inference.{key}={cfg[key]!r}, expected auto, true or false")
+        for key in ("device_side", "cuda_graph"):
+            if not is_auto_bool(cfg.get(key, "auto")):
+                raise ValueError(f"inference.{key}={short_repr(cfg[key])}, expected auto, true or false")
         value = cfg.get("max_batch", "auto")
         if value != "auto" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ValueError(f"inference.max_batch={short_repr(value)}, expected a positive integer or auto")
@@ -86,7 +107,8 @@ class InferenceSettings:
         if not isinstance(cfg.get("compile", False), bool):
             raise ValueError(f"inference.compile={short_repr(cfg['compile'])}, expected true or false")
         return cls(precision, cfg.get("channels_last", "auto"), bool(cfg.get("compile", False)),
-                   cfg.get("max_batch", "auto"), cfg.get("fused", "auto"), cfg.get("workers", "auto"))
+                   cfg.get("max_batch", "auto"), cfg.get("fused", "auto"), cfg.get("workers", "auto"),
+                   cfg.get("device_side", "auto"), cfg.get("cuda_graph", "auto"))
 
     def resolved(self, device: torch.device, backbone: torch.nn.Module | None = None) -> tuple[bool, bool, bool]:
         """(bf16, channels_last, fused) for ``device`` (and ``backbone``: whether it can be fused).
@@ -104,6 +126,16 @@ class InferenceSettings:
             raise ValueError(f"inference.fused=true: {why_not}; use inference.fused=auto or false")
         fused = self.fused is not False and not why_not
         return bf16, cl, fused
+
+    def on_device(self, device: torch.device) -> bool:
+        """Whether preprocessing and averaging run on ``device`` (``device_side``)."""
+        return device_side(self.device_side, device)
+
+    def graphed(self, device: torch.device) -> bool:
+        """Whether a batch of one image runs as a CUDA graph on ``device`` (never compiled)."""
+        if self.cuda_graph is False or self.compile:
+            return False
+        return device.type == "cuda"
 
     def chunk(self, bytes_per_image: int | None = None) -> int:
         """Images per forward call; ``bytes_per_image``: the fused form's largest block buffer."""
@@ -123,14 +155,28 @@ class InferenceSettings:
 
             per_image = largest_block_bytes(backbone)
         workers = self.threads(fused)
+        extras = [", CUDA graph at batch 1" if self.graphed(device) else "",
+                  ", preprocessing and averaging on the device" if self.on_device(device) else ""]
         return (f"{form}, {layout}{', compiled' if self.compile else ''}, chunks of {self.chunk(per_image)}"
-                f"{f' on {workers} workers' if workers > 1 else ''} on {device.type}")
+                f"{f' on {workers} workers' if workers > 1 else ''}{''.join(extras)} on {device.type}")
 
     def threads(self, fused: bool) -> int:
         """Worker threads for the chunks of a batch (each computing with one core)."""
         if self.workers == "auto":
             return torch.get_num_threads() if fused else 1
         return int(self.workers)
+
+
+def is_auto_bool(value: object) -> bool:
+    """``auto``, true or false (a number is neither: 1 is no switch)."""
+    return value == "auto" if isinstance(value, str) else isinstance(value, bool)
+
+
+def device_side(setting: bool | str, device: torch.device) -> bool:
+    """``inference.device_side`` (auto, true or false) for a model on ``device``: auto = CUDA only."""
+    if not is_auto_bool(setting):
+        raise ValueError(f"inference.device_side={short_repr(setting)}, expected auto, true or false")
+    return device.type == "cuda" if setting == "auto" else bool(setting)
 
 
 def _why_not_fused(device: torch.device, backbone: torch.nn.Module | None, bf16: bool, compile: bool) -> str:
@@ -158,6 +204,12 @@ def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Call
     backbone.eval()
     module: Callable[[torch.Tensor], torch.Tensor]
     step, workers = settings.chunk(), settings.threads(fused)
+    graphed = settings.graphed(device)
+    if settings.cuda_graph is True and not graphed:
+        log.warning("inference.cuda_graph=true: %s; batch-1 forwards run without a CUDA graph",
+                    "compiled forwards are not captured" if settings.compile else f"no CUDA device ({device.type})")
+    elif settings.cuda_graph == "auto" and device.type != "cuda":
+        log.info("inference: no CUDA device (%s), batch-1 forwards run without a CUDA graph", device.type)
     if fused:
         from opnet.models.fused import FusedDenseNet
 
@@ -171,14 +223,18 @@ def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Call
     def one(x: torch.Tensor) -> torch.Tensor:
         if cl and not fused:
             x = x.contiguous(memory_format=torch.channels_last)
-        if bf16:
-            with torch.autocast(device.type, dtype=torch.bfloat16):
+        if bf16:  # a CUDA-graph capture must not use autocast's weight cache
+            with torch.autocast(device.type, dtype=torch.bfloat16, cache_enabled=not graphed):
                 return module(x).float()
         return module(x)
+
+    graph = CudaGraphForward(one) if graphed else None
 
     @torch.inference_mode()
     def run(images: torch.Tensor) -> torch.Tensor:
         x = images.to(device)
+        if graph is not None and len(x) == 1:
+            return graph(x)
         chunks = [x[i : i + step] for i in range(0, len(x), step)]
         if len(chunks) == 1:
             return one(x).contiguous()
@@ -189,6 +245,38 @@ def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Call
         return torch.cat(outs).contiguous()
 
     return run
+
+
+class CudaGraphForward:
+    """A forward function replayed as a CUDA graph: captured at the first call of each input shape
+    (after three warm-up calls on a side stream), then the input is copied into the graph's own
+    buffer and the graph replayed; returns a copy of the graph's output buffer."""
+
+    def __init__(self, forward: Callable[[torch.Tensor], torch.Tensor]) -> None:
+        self.forward = forward
+        self.graphs: dict[tuple[int, ...], tuple[Any, torch.Tensor, torch.Tensor]] = {}
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        key = tuple(x.shape)
+        if key not in self.graphs:
+            self.graphs[key] = self._capture(x)
+        graph, static_in, static_out = self.graphs[key]
+        static_in.copy_(x)
+        graph.replay()
+        return static_out.clone()
+
+    def _capture(self, x: torch.Tensor) -> tuple[Any, torch.Tensor, torch.Tensor]:
+        static_in = x.clone()
+        side = torch.cuda.Stream(x.device)
+        side.wait_stream(torch.cuda.current_stream(x.device))
+        with torch.cuda.stream(side):
+            for _ in range(3):
+                self.forward(static_in)
+        torch.cuda.current_stream(x.device).wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            static_out = self.forward(static_in)
+        return graph, static_in, static_out
 
 
 def _on_workers(fn: Callable[[torch.Tensor], torch.Tensor], chunks: list[torch.Tensor], workers: int) -> list[torch.Tensor]:

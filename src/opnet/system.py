@@ -78,16 +78,39 @@ class OPNetSystem(L.LightningModule):
     def predict_poses(self, batch: Batch) -> list[HypothesisSet]:
         """Pose hypotheses per image, camera frame, metres (through the fast inference path when
         :meth:`configure_inference` set one and the module is not training)."""
-        return self.parameterization.decode(self.infer(batch.images), batch.cameras)
+        return self.decode(self.infer(batch.images), batch.cameras)
+
+    def decode(self, output: torch.Tensor, cameras: Any) -> list[HypothesisSet]:
+        """The parameterization's hypotheses of a network output, averaged on the model's device
+        or on the host as :attr:`device_side` says."""
+        return self.parameterization.decode(output, cameras, device_side=self.device_side)
+
+    @property
+    def device_side(self) -> bool:
+        """Whether preprocessing (predict.py) and averaging run as torch operations on the model's
+        device (``inference.device_side``, resolved for the device the module is on now: ``auto``
+        is on for CUDA, so validation on a GPU averages there)."""
+        from opnet.inference import device_side
+
+        return device_side(getattr(self, "_device_side", "auto"), self.device)
+
+    def configure_decoding(self, device_side: bool | str = "auto") -> None:
+        """Set ``inference.device_side`` (auto, true or false) for validation, test and predictions."""
+        from opnet.inference import device_side as resolve
+
+        resolve(device_side, self.device)  # a bad value is refused now, naming the key
+        self._device_side = device_side
 
     def configure_inference(self, settings: Any) -> str:
-        """Use :func:`opnet.inference.fast_forward` with ``settings`` for predictions; returns a
-        description of the path (precision, memory format, device)."""
+        """Use :func:`opnet.inference.fast_forward` with ``settings`` for predictions (and their
+        ``device_side`` for decoding); returns a description of the path (precision, memory
+        format, CUDA graph, where preprocessing and averaging run, device)."""
         from opnet.inference import InferenceSettings, fast_forward
 
         if not isinstance(settings, InferenceSettings):
             settings = InferenceSettings.from_config(settings)
         self._fast = fast_forward(self.backbone, settings)
+        self.configure_decoding(settings.device_side)
         return settings.describe(self.device, self.backbone)
 
     def infer(self, images: torch.Tensor) -> torch.Tensor:
@@ -113,7 +136,7 @@ class OPNetSystem(L.LightningModule):
         output = self(batch.images)
         losses = self._losses(batch, output)
         self.log_dict({f"{stage}/{k}": v for k, v in losses.items()}, batch_size=len(batch))
-        hyps = self.parameterization.decode(output, batch.cameras)
+        hyps = self.decode(output, batch.cameras)
         metric.update(hyps, batch.gt_sets)
         return hyps
 

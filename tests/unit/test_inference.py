@@ -76,6 +76,9 @@ def test_bf16_path_is_close_but_not_exact() -> None:
     ({"fused": "yes"}, "inference.fused='yes'"),
     ({"workers": -1}, "inference.workers=-1"),
     ({"threads": 4}, "unknown keys"),
+    ({"device_side": "yes"}, "inference.device_side='yes'"),
+    ({"device_side": 1}, "inference.device_side=1"),  # a number is no switch
+    ({"cuda_graph": "on"}, "inference.cuda_graph='on'"),
 ])  # fmt: skip
 def test_bad_inference_settings_are_refused(cfg: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
@@ -86,6 +89,50 @@ def test_settings_from_a_config() -> None:
     cfg = {"precision": "32", "fused": False, "channels_last": "auto", "compile": False, "max_batch": 4, "workers": 2}
     assert InferenceSettings.from_config(cfg) == InferenceSettings("32", "auto", False, 4, False, 2)
     assert InferenceSettings.from_config(None) == InferenceSettings()
+    both = InferenceSettings.from_config({"device_side": True, "cuda_graph": False})
+    assert (both.device_side, both.cuda_graph) == (True, False)
+
+
+def test_device_side_and_cuda_graph_resolve_by_device() -> None:
+    """auto: both on a CUDA device, neither on the CPU; a compiled forward is never captured."""
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    auto = InferenceSettings()
+    assert (auto.on_device(cpu), auto.graphed(cpu)) == (False, False)
+    assert (auto.on_device(cuda), auto.graphed(cuda)) == (True, True)
+    assert InferenceSettings(device_side=True).on_device(cpu) and not InferenceSettings(device_side=False).on_device(cuda)
+    assert not InferenceSettings(cuda_graph=False).graphed(cuda) and not InferenceSettings(compile=True).graphed(cuda)
+    assert "CUDA graph" not in auto.describe(cpu, _net()) and "on the device" not in auto.describe(cpu, _net())
+    assert auto.describe(cuda, _net()).endswith("fp32, channels-last, chunks of 8, CUDA graph at batch 1, preprocessing and "
+                                                "averaging on the device on cuda")
+
+
+@pytest.mark.parametrize(("setting", "level", "message"), [
+    (True, "WARNING", "inference.cuda_graph=true: no CUDA device (cpu); batch-1 forwards run without a CUDA graph"),
+    ("auto", "INFO", "inference: no CUDA device (cpu), batch-1 forwards run without a CUDA graph"),
+])  # fmt: skip
+def test_a_cuda_graph_on_the_cpu_falls_back_with_a_log_line(setting: object, level: str, message: str,
+                                                            caplog: pytest.LogCaptureFixture) -> None:
+    net = _net()
+    x = torch.rand(1, 1, 128, 128)
+    with torch.inference_mode():
+        ref = net(x)
+    with caplog.at_level("INFO", logger="opnet.inference"):
+        run = fast_forward(copy.deepcopy(net), InferenceSettings(fused=False, cuda_graph=setting))
+    assert [(r.levelname, r.getMessage()) for r in caplog.records] == [(level, message)]
+    torch.testing.assert_close(run(x), ref, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+@pytest.mark.parametrize("precision", ["32", "bf16"])
+def test_the_cuda_graph_replays_the_forward_of_each_new_image(precision: str) -> None:
+    net = _net().cuda()
+    plain = fast_forward(copy.deepcopy(net), InferenceSettings(precision, cuda_graph=False))
+    graphed = fast_forward(copy.deepcopy(net), InferenceSettings(precision, cuda_graph=True))
+    for seed in range(3):  # the graph is captured once, then replayed on each new input
+        x = torch.rand(1, 1, 128, 128, generator=torch.Generator().manual_seed(seed)).cuda()
+        torch.testing.assert_close(graphed(x), plain(x), rtol=1e-4, atol=1e-4)
+    x = torch.rand(3, 1, 128, 128, device="cuda")  # a larger batch runs without the graph
+    torch.testing.assert_close(graphed(x), plain(x), rtol=1e-4, atol=1e-4)
 
 
 def test_chunks_on_workers_keep_their_order_and_raise_errors() -> None:

@@ -44,6 +44,7 @@ from omegaconf import DictConfig, OmegaConf
 from opnet.cli.build import load_checkpoint
 from opnet.cli.eval import with_decoding_overrides
 from opnet.data.preprocess import to_network_input
+from opnet.data.preprocess_torch import to_network_input as device_input
 from opnet.datasets.depth_inputs import (
     DepthImage,
     claimed_outputs,
@@ -75,13 +76,16 @@ def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint
     size, fit = int(data.get("input_size", 128)), str(data.get("fit", "pad"))  # the training's framing
     roi = parse_roi(data.get("roi")) if roi == "checkpoint" else roi
     depth, camera = crop_image(image.depth, image.camera, roi, f"{image.path}: roi")
-    net_in, net_cam = to_network_input(depth, camera, size=size, interpolation=cv2.INTER_AREA, fit=fit)
-    x = torch.from_numpy(net_in)[None, None].to(system.device)
+    if system.device_side:  # the same input, computed on the model's device (inference.device_side)
+        x, net_cam = device_input(depth, camera, size=size, fit=fit, device=system.device)
+    else:
+        net_in, net_cam = to_network_input(depth, camera, size=size, interpolation=cv2.INTER_AREA, fit=fit)
+        x = torch.from_numpy(net_in)[None, None].to(system.device)
     output = system.infer(x)
     if not bool(torch.isfinite(output).all()):  # would decode to "0 objects" without a word
         raise ValueError(f"{image.path}: the network's output holds NaN or inf (diverged weights or an input it "
                          "cannot take); no poses written for it")
-    return system.parameterization.decode(output, [net_cam])[0]
+    return system.decode(output, [net_cam])[0]
 
 
 def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: OPNetSystem,

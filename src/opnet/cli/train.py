@@ -77,6 +77,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     comps = build_components(cfg)
     datamodule = build_datamodule(cfg, comps.obj, train=True)
     trainer = build_trainer(cfg)
+    # validation averages on the model's device or on the host (+inference.device_side=; auto: on a GPU)
+    comps.system.configure_decoding((cfg.get("inference") or {}).get("device_side", "auto"))
     trainer.fit(comps.system, datamodule=datamodule, ckpt_path=resolve_ckpt_path(cfg.get("ckpt_path"), output_dir),
                 weights_only=True)  # explicit: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
     result: dict[str, Any] = {}

@@ -28,6 +28,7 @@ from opnet.metrics.records import HypothesisSet
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import Candidates, resolve
 from opnet.parameterizations.averaging import PoseAveraging
+from opnet.parameterizations.averaging_torch import average_batch
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import RotationCodec
 from opnet.parameterizations.positions import (
@@ -319,16 +320,38 @@ class Parameterization(abc.ABC):
 
     # ---- decoding ----------------------------------------------------------------------------
     def decode(
-        self, output: torch.Tensor, camera: Camera | Sequence[Camera]
+        self, output: torch.Tensor, camera: Camera | Sequence[Camera], device_side: bool = False
     ) -> list[HypothesisSet]:
         """Pose hypotheses of every image.
 
         Args:
             output: (B, out_channels, S, S) network output in [0, 1].
             camera: the network-input camera (one for all images, or one per image).
+            device_side: average on the output's device, every image at once
+                (:mod:`opnet.parameterizations.averaging_torch`), and bring the result to the host
+                in one transfer; False: each image's hypotheses averaged on the host in numpy. The
+                same hypotheses either way (to float rounding).
         Returns:
             B hypothesis sets, camera frame, metres (averaged per image when ``averaging`` is set).
         """
+        b, R, t, score, v_hat = self.decode_cells(output, camera)
+        B = output.shape[0]
+        if B == 0:
+            return []
+        if device_side:
+            return self._decode_on_device(b, R, t, score, v_hat, B)
+        splits = np.cumsum(torch.bincount(b, minlength=B).tolist())[:-1]
+        per_image = zip(
+            *(np.split(x.cpu().numpy(), splits) for x in (R, t, score, v_hat)), strict=True
+        )
+        hyps = [HypothesisSet(*arrays) for arrays in per_image]
+        return [self.averaging(h) for h in hyps] if self.averaging is not None else hyps
+
+    def decode_cells(
+        self, output: torch.Tensor, camera: Camera | Sequence[Camera]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The hypothesis of every cell (slot) above the threshold, on the output's device: image
+        index (N,) long (sorted), R (N, 3, 3), t (N, 3) metres, score (N,), visibility (N,) float64."""
         grid5 = self.split_slots(output.detach())  # (B, L, C, S, S)
         B = grid5.shape[0]
         present = self._present(grid5[:, :, 0])
@@ -341,14 +364,26 @@ class Parameterization(abc.ABC):
         R = self.rotation.decode(feat[:, 5:])
         p_hat, v_hat = feat[:, 0], feat[:, 1]
         score = {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[self.score]
-        if B == 0:
-            return []
-        splits = np.cumsum(torch.bincount(b, minlength=B).tolist())[:-1]
-        per_image = zip(
-            *(np.split(x.cpu().numpy(), splits) for x in (R, t, score, v_hat)), strict=True
-        )
-        hyps = [HypothesisSet(*arrays) for arrays in per_image]
-        return [self.averaging(h) for h in hyps] if self.averaging is not None else hyps
+        return b, R, t, score, v_hat
+
+    def _decode_on_device(self, b: torch.Tensor, R: torch.Tensor, t: torch.Tensor, score: torch.Tensor,
+                          v_hat: torch.Tensor, B: int) -> list[HypothesisSet]:  # fmt: skip
+        """:meth:`decode` with ``device_side``: averaged on the device, one transfer to the host."""
+        found = torch.bincount(b, minlength=B)
+        if self.averaging is not None:
+            b, R, t, score, v_hat = average_batch(self.averaging, b, R, t, score, v_hat, B)
+        packed = torch.cat((R.reshape(-1, 9), t, score[:, None], v_hat[:, None]), 1)
+        counts = torch.bincount(b, minlength=B)
+        host = torch.cat((packed.reshape(-1), counts.to(packed.dtype), found.to(packed.dtype))).cpu().numpy()
+        rows = host[: packed.numel()].reshape(-1, 14)
+        counts, found = host[packed.numel() :].astype(np.int64).reshape(2, B)
+        hyps = []
+        for k, part in enumerate(np.split(rows, np.cumsum(counts)[:-1])):
+            if self.averaging is not None and found[k] > 1 and not len(part):
+                hyps.append(HypothesisSet.empty())  # every hypothesis noise, as the numpy averaging returns it
+            else:
+                hyps.append(HypothesisSet(part[:, :9], part[:, 9:12], part[:, 12], part[:, 13]))
+        return hyps
 
     def with_decoding(self, **settings: Any) -> Parameterization:
         """A copy with other decoding settings (the encoding is unchanged), for tuning on data.
