@@ -2,11 +2,15 @@
 
     python scripts/bench_infer.py [--model paper] [--batches 1,32] [--repeats 10] [--threads N]
                                   [--device cpu|cuda] [--compile] [--out results/speed/infer.csv]
+                                  [--latency-out results/gpu/latency.csv] [--decoding tuned|paper]
 
 In one run, per batch size: the preprocessing, the forward pass on each inference path (fp32
 eager, fp32 channels-last, the default fused fp32 form, bf16 autocast channels-last, optionally
 compiled) with its achieved GFLOP/s (the network's 9.97 GFLOP per image over the best time) and its
-time as a multiple of the roofline floor, decoding + averaging, and end-to-end on the default path.
+time as a multiple of the roofline floor, decoding + averaging, and end-to-end on the default path;
+each of preprocessing, decoding + averaging and end-to-end also device-side (``inference.device_side``:
+torch operations on the model's device, every image of the batch at once), timed interleaved with
+its host counterpart (one call of each in turn, so a busy moment of the machine slows both).
 The roofline is a 2048^2 fp32 matrix product's GFLOP/s, timed right before every repeat of every
 forward (each warm: the second of two runs): each repeat's forward is divided by the floor of the
 product timed beside it (the network's GFLOP at that moment's rate) and the median of those ratios
@@ -23,6 +27,13 @@ output (a perfect target of a 25-part scene plus noise, many low-confidence cell
 pose hypotheses. End-to-end = the three in sequence for one batch. On a CUDA device it also times
 bf16 autocast, channels-last and a CUDA-graph replay of the forward pass, and the training
 throughput of the paper network. Prints a table (milliseconds per batch and per image).
+
+``--latency-out``: per batch and precision (fp32 = the default path of the device, bf16 autocast
+channels-last, and on CUDA bf16 replayed as a CUDA graph), the forward and end-to-end milliseconds
+per batch, end to end with the host's and with the device-side pre- and postprocessing; columns
+device, network, batch, precision, forward_ms, end_to_end_ms (the device's default: device-side on
+CUDA, host on the CPU), end_to_end_host_ms, end_to_end_device_ms. Decoding: the parameterization
+with ``conf/decoding/<--decoding>.yaml`` (tuned: averaging on, as trained checkpoints decode).
 """
 
 from __future__ import annotations
@@ -41,9 +52,10 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from opnet.analysis.toy_scenes import random_scene_batch
+from opnet.data import preprocess_torch
 from opnet.data.preprocess import to_network_input
 from opnet.geometry import Camera
-from opnet.inference import InferenceSettings, fast_forward
+from opnet.inference import CudaGraphForward, InferenceSettings, fast_forward
 from opnet.models.stats import gflops_per_image
 from opnet.objects import builtin_object
 from opnet.paths import config_dir
@@ -65,6 +77,24 @@ def timeit(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = la
         sync()
         times.append(1000 * (time.perf_counter() - t0))
     return min(times), statistics.median(times)
+
+
+def interleaved(fns: dict[str, Callable[[], object]], repeats: int,
+                sync: Callable[[], None] = lambda: None) -> dict[str, tuple[float, float]]:
+    """(best, median) milliseconds of each function, called in turn: every repeat runs each once,
+    starting with the next one each time, so no arm owns the machine's quiet or busy moments."""
+    names = list(fns)
+    for name in names * 2:  # warm-up
+        fns[name]()
+    sync()
+    times: dict[str, list[float]] = {name: [] for name in names}
+    for r in range(repeats):
+        for name in names[r % len(names):] + names[: r % len(names)]:
+            t0 = time.perf_counter()
+            fns[name]()
+            sync()
+            times[name].append(1000 * (time.perf_counter() - t0))
+    return {name: (min(t), statistics.median(t)) for name, t in times.items()}
 
 
 def depth_image(camera: Camera, rng: np.random.Generator) -> np.ndarray:
@@ -118,6 +148,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--compile", action="store_true", help="also time torch.compile'd forwards (slow to start)")
     ap.add_argument("--out", type=Path, help="write the rows to this CSV (replaced)")
     ap.add_argument("--no-onnx", action="store_true", help="skip the ONNX Runtime rows")
+    ap.add_argument("--decoding", default="tuned", help="conf/decoding option of every parameterization")
+    ap.add_argument("--latency-out", type=Path, help="write the latency rows (forward and end to end per batch and "
+                    "precision) to this CSV (replaced)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -128,7 +161,7 @@ def main(argv: list[str] | None = None) -> None:
     camera = Camera.from_fov(50.0, 512, 512, 0.6, 1.2)
     net_cam = to_network_input(np.full((512, 512), 1.0, np.float32), camera)[1]
     roofs: list[float] = []
-    param, model, noisy = _setup(args.parameterization, args.model, obj, net_cam, device)
+    param, model, noisy = _setup(args.parameterization, args.model, obj, net_cam, device, args.decoding)
     gflop = gflops_per_image(model)
     print(f"model {args.model} ({sum(p.numel() for p in model.parameters()) / 1e6:.3f} M params, {gflop:.2f} GFLOP "
           f"per image), device {device}, torch {torch.__version__}, {torch.get_num_threads()} threads")
@@ -151,23 +184,35 @@ def main(argv: list[str] | None = None) -> None:
     fast = InferenceSettings()  # the default of predict.py / eval.py: the fused fp32 form on the CPU
     onnx = None if args.no_onnx or device.type != "cpu" else onnx_paths(model, param)
     variants = forward_variants(device, model, args.compile)
+    latency: list[tuple[int, str, float, float, float]] = []
     for b in [int(x) for x in args.batches.split(",")]:
         depths = [depth_image(camera, rng) for _ in range(b)]
         pre = lambda: [to_network_input(d, camera, 128, cv2.INTER_AREA) for d in depths]  # noqa: E731
         x = torch.from_numpy(np.stack([p[0] for p in pre()]))[:, None].to(device)
         out = noisy.expand(b, -1, -1, -1).contiguous().to(device)
         cams = [net_cam] * b
-        record(b, "preprocess", timeit(pre, args.repeats, sync))
+        arms = interleaved({"preprocess": pre, "preprocess (device-side)": lambda: preprocess_torch.to_network_input(
+            depths, camera, 128, device=device)}, args.repeats, sync)  # fmt: skip
+        for name, times in arms.items():
+            record(b, name, times)
         for name, make in variants.items():
             record_forward(b, name, make(copy.deepcopy(model), x), args.repeats if b == 1 else max(3, args.repeats // 3))
-        record(b, "decode + averaging", timeit(lambda: param.decode(out, cams), args.repeats, sync))
+        arms = interleaved({"decode + averaging": lambda: param.decode(out, cams),
+                            "decode + averaging (device-side)": lambda: param.decode(out, cams, device_side=True)},
+                           args.repeats, sync)  # fmt: skip
+        for name, times in arms.items():
+            record(b, name, times)
         run = fast_forward(copy.deepcopy(model), fast)
-
-        def end_to_end() -> object:
-            xs = torch.from_numpy(np.stack([p[0] for p in pre()]))[:, None].to(device)
-            return param.decode(run(xs), cams)
-
-        record(b, "end-to-end (default path)", timeit(end_to_end, args.repeats if b == 1 else 3, sync))
+        on_device = fast.on_device(device)
+        arms = interleaved({f"end-to-end ({'host pre/post' if on_device else 'default path'})": pipeline(
+            param, run, depths, camera, net_cam, device, False), f"end-to-end ({'default path, ' if on_device else ''}"
+            "device-side)": pipeline(param, run, depths, camera, net_cam, device, True)},
+            args.repeats if b == 1 else 3, sync)  # fmt: skip
+        for name, times in arms.items():
+            record(b, name, times)
+        if args.latency_out is not None:
+            latency += latency_rows(model, param, depths, camera, net_cam, x, device, b,
+                                    args.repeats if b == 1 else 3, sync)  # fmt: skip
         if onnx is not None:
             forward, estimator = onnx
             xn = x.cpu().numpy()
@@ -176,7 +221,7 @@ def main(argv: list[str] | None = None) -> None:
                    timeit(lambda: estimator.predict_batch(depths, [camera] * b), args.repeats if b == 1 else 3))
     e2e_rows = []
     for name in [p for p in args.parameterizations.split(",") if p]:
-        p_param, p_model, _ = _setup(name, args.model, obj, net_cam, device)
+        p_param, p_model, _ = _setup(name, args.model, obj, net_cam, device, args.decoding)
         run = fast_forward(p_model, fast)
         depth = depth_image(camera, rng)
 
@@ -205,8 +250,65 @@ def main(argv: list[str] | None = None) -> None:
                   for n, ms, f in e2e_rows]
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text("\n".join(lines) + "\n")
+    if args.latency_out is not None:
+        write_latency(args.latency_out, device, args.model, latency)
     if device.type == "cuda":
         print(f"training throughput (bf16, batch 32): {train_throughput(model, param.out_channels, device):.1f} images/s")
+
+
+def pipeline(param: object, run: Callable[[torch.Tensor], torch.Tensor], depths: list[np.ndarray], camera: Camera,
+             net_cam: Camera, device: torch.device, on_device: bool) -> Callable[[], object]:  # fmt: skip
+    """End to end as predict.py runs it for a batch of ``depths``: preprocessing, ``run``, decoding
+    and averaging, on the host (OpenCV / numpy, image by image) or ``on_device`` (torch, the batch at once)."""
+    cams = [net_cam] * len(depths)
+
+    def call() -> object:
+        if on_device:
+            x = preprocess_torch.to_network_input(depths, camera, 128, device=device)[0]
+        else:
+            x = torch.from_numpy(np.stack([to_network_input(d, camera, 128, cv2.INTER_AREA)[0] for d in depths]))
+        return param.decode(run(x[:, None] if x.dim() == 3 else x), cams, device_side=on_device)
+
+    return call
+
+
+#: the precisions of the latency rows: (name, settings, CUDA only)
+LATENCY_PRECISIONS = (("fp32", InferenceSettings(cuda_graph=False), False),
+                      ("bf16", InferenceSettings("bf16", True, cuda_graph=False), False),
+                      ("bf16 CUDA graph", InferenceSettings("bf16", True, cuda_graph=True), True))
+
+
+def latency_rows(model: torch.nn.Module, param: object, depths: list[np.ndarray], camera: Camera, net_cam: Camera,
+                 x: torch.Tensor, device: torch.device, batch: int, repeats: int,
+                 sync: Callable[[], None]) -> list[tuple[int, str, float, float, float]]:  # fmt: skip
+    """(batch, precision, forward ms, end to end ms host, device-side) per precision of
+    :data:`LATENCY_PRECISIONS` (the CUDA graph: every batch size captured, one graph each)."""
+    rows = []
+    for name, settings, cuda_only in LATENCY_PRECISIONS:
+        if cuda_only and device.type != "cuda":
+            continue
+        run = fast_forward(copy.deepcopy(model), settings)
+        if settings.cuda_graph is True:  # fast_forward graphs batch 1 only: here every batch size is one graph
+            graph = CudaGraphForward(fast_forward(copy.deepcopy(model), InferenceSettings("bf16", True, cuda_graph=False)))
+            run = torch.inference_mode()(lambda images, graph=graph: graph(images.to(device)))
+        times = interleaved({"forward": lambda run=run: run(x),
+                             "host": pipeline(param, run, depths, camera, net_cam, device, False),
+                             "device": pipeline(param, run, depths, camera, net_cam, device, True)}, repeats, sync)
+        rows.append((batch, name, times["forward"][0], times["host"][0], times["device"][0]))
+        print(f"    latency batch {batch:>3} {name:<16} forward {times['forward'][0]:8.2f} ms, end to end host "
+              f"{times['host'][0]:8.2f} ms, device-side {times['device'][0]:8.2f} ms", flush=True)
+    return rows
+
+
+def write_latency(path: Path, device: torch.device, network: str, rows: list[tuple[int, str, float, float, float]]) -> None:
+    """The latency CSV (replaced): end_to_end_ms is the device's default path (device-side on CUDA)."""
+    default_on_device = InferenceSettings().on_device(device)
+    lines = ["device,network,batch,precision,forward_ms,end_to_end_ms,end_to_end_host_ms,end_to_end_device_ms"]
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
+    lines += [f"{name},{network},{b},{p},{f:.3f},{d if default_on_device else h:.3f},{h:.3f},{d:.3f}"
+              for b, p, f, h, d in rows]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
 
 
 def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndarray], object], object] | None:
@@ -235,9 +337,13 @@ def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndar
     return (lambda x: session.run(None, {"x": x})), OnnxPoseEstimator(folder / "pipeline.onnx")
 
 
-def _setup(name: str, model_name: str, obj: object, net_cam: Camera, device: torch.device) -> tuple:
-    """The parameterization, a fresh network of ``model_name`` for it, and a realistic noisy output."""
+def _setup(name: str, model_name: str, obj: object, net_cam: Camera, device: torch.device,
+           decoding: str | None = None) -> tuple:  # fmt: skip
+    """The parameterization (with ``conf/decoding/<decoding>.yaml``), a fresh network of
+    ``model_name`` for it, and a realistic noisy output."""
     pcfg = OmegaConf.load(config_dir() / "parameterization" / f"{name}.yaml")
+    if decoding:
+        pcfg = OmegaConf.merge(pcfg, OmegaConf.load(config_dir() / "decoding" / f"{decoding}.yaml"))
     param = instantiate(pcfg, _partial_=True)(obj=obj)
     model = instantiate(OmegaConf.load(config_dir() / "model" / f"{model_name}.yaml"),
                         out_channels=param.out_channels, out_grid=param.grid_size).to(device).eval()
@@ -257,11 +363,11 @@ def forward_variants(device: torch.device, model: torch.nn.Module, compile: bool
     """The forward rows timed on ``device`` by name, in table order (nothing is built or run here):
     the inference paths of :func:`opnet.inference.fast_forward`, then on a CUDA device
     :data:`CUDA_VARIANTS` (bf16 autocast, channels-last and a CUDA-graph replay)."""
-    fast = InferenceSettings()
-    paths = {"forward fp32 eager": InferenceSettings("32", False, fused=False),
-             "forward fp32 channels-last": InferenceSettings("32", True, fused=False),
+    fast = InferenceSettings(cuda_graph=False)  # the rows time the forward itself; the graph has its own row
+    paths = {"forward fp32 eager": InferenceSettings("32", False, fused=False, cuda_graph=False),
+             "forward fp32 channels-last": InferenceSettings("32", True, fused=False, cuda_graph=False),
              f"forward {fast.describe(device, model).split(',')[0]} (default)": fast,
-             "forward bf16 autocast channels-last": InferenceSettings("bf16", True)}
+             "forward bf16 autocast channels-last": InferenceSettings("bf16", True, cuda_graph=False)}
     if compile:
         paths["forward bf16 channels-last compiled"] = InferenceSettings("bf16", True, compile=True)
     variants: dict[str, Variant] = {name: _inference_path(settings) for name, settings in paths.items()}

@@ -3,12 +3,20 @@ for the speed options of the CPU: memory format, mixed precision, DataLoader wor
 
     python scripts/bench_train.py --data <IPA dataset> [--steps 60] [--warmup 15]
     python scripts/bench_train.py --data <dir> --arms fp32 bf16+cl --workers 0 1
+    python scripts/bench_train.py --data <dir> --accelerator gpu --arms bf16+cl --workers 8 --network-alone \
+        --extra experiment=paper data.generate=null --throughput-out results/gpu/train_throughput.csv
 
 Each arm runs ``train.py``'s own components (Hydra config ``train`` with the arm's overrides) in a
 Lightning ``Trainer`` for ``warmup + steps`` optimizer steps and times the last ``steps`` (a
 callback reads the clock at every batch end); validation and checkpoints are off. Prints images/s
 per arm and the speed-up over the first arm. Run it on a quiet machine: another busy process on
 the two cores halves every figure.
+
+``--network-alone``: beside each arm, the network by itself at the arm's batch size, precision and
+memory format (random input on the device, forward, loss, backward, optimizer step:
+:func:`opnet.models.stats.train_images_per_s`), i.e. what the loop would reach if data, encoding
+and the loss cost nothing; ``--throughput-out`` writes both per arm (device, network, batch,
+precision, arm, workers, cache, loop_images_per_s, network_images_per_s).
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 from opnet.cli.build import build_components, build_datamodule  # noqa: E402
 from opnet.fileio.atomic import append_csv_rows  # noqa: E402
 from opnet.hardware import resolve_precision  # noqa: E402
+from opnet.models.stats import train_images_per_s  # noqa: E402
 from opnet.paths import config_dir  # noqa: E402
 
 ARMS: dict[str, list[str]] = {
@@ -49,22 +58,50 @@ class StepClock(L.Callback):
         self.times.append(time.perf_counter())
 
 
-def measure(overrides: list[str], steps: int, warmup: int) -> float:
-    """Training images/s of the config with ``overrides`` over ``steps`` steps after ``warmup``."""
+def measure(overrides: list[str], steps: int, warmup: int, accelerator: str = "cpu",
+            network_alone: bool = False) -> tuple[float, float | None, dict[str, Any]]:  # fmt: skip
+    """Training images/s of the config with ``overrides`` over ``steps`` steps after ``warmup``,
+    the network alone's at the same batch size and precision (None unless ``network_alone``), and
+    what was measured (network preset, batch size, precision)."""
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         cfg = compose("train", overrides=overrides)
     L.seed_everything(0, workers=True)
     comps = build_components(cfg)
     dm = build_datamodule(cfg, comps.obj, train=True)
     clock = StepClock()
+    precision = resolve_precision(cfg.trainer.precision, accelerator)
     trainer = L.Trainer(
-        accelerator="cpu", devices=1, precision=resolve_precision(cfg.trainer.precision, "cpu"), max_steps=warmup + steps,
+        accelerator=accelerator, devices=1, precision=precision, max_steps=warmup + steps,
         limit_val_batches=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
         enable_model_summary=False, callbacks=[clock], num_sanity_val_steps=0,
     )  # fmt: skip
     trainer.fit(comps.system, datamodule=dm)
     elapsed = clock.times[-1] - clock.times[warmup - 1]
-    return steps * int(cfg.data.batch_size) / elapsed
+    batch = int(cfg.data.batch_size)
+    alone = None
+    if network_alone:  # the trained weights are changed no further: the copy on the device is measured
+        device = torch.device("cuda" if accelerator == "gpu" else "cpu")
+        alone = train_images_per_s(comps.system.backbone.to(device), batch, int(cfg.data.input_size), steps, warmup,
+                                   fast=str(precision).startswith("bf16"))  # fmt: skip
+    return steps * batch / elapsed, alone, {"network": model_preset(overrides), "batch": batch, "precision": str(precision)}
+
+
+def model_preset(overrides: list[str]) -> str:
+    """The ``conf/model`` preset the overrides select: the last ``model=``, else the experiment's, else train.yaml's."""
+    chosen = [o.split("=", 1)[1] for o in overrides if o.startswith("model=")]
+    if chosen:
+        return chosen[-1]
+    from omegaconf import DictConfig, OmegaConf
+
+    experiments = [o.split("=", 1)[1] for o in overrides if o.startswith("experiment=")]
+    sources = [config_dir() / "experiment" / f"{e}.yaml" for e in experiments[-1:]] + [config_dir() / "train.yaml"]
+    for source in sources:
+        for entry in OmegaConf.load(source).get("defaults", []):
+            if isinstance(entry, DictConfig):
+                for key, value in entry.items():
+                    if key.removeprefix("override ").strip("/") == "model":
+                        return str(value)
+    return "?"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,19 +115,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=15)
     parser.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides for every arm")
     parser.add_argument("--out", type=Path, help="append the rows to this CSV (e.g. results/speed/train.csv)")
+    parser.add_argument("--accelerator", default="cpu", choices=["cpu", "gpu"])
+    parser.add_argument("--network-alone", action="store_true",
+                        help="also time the network alone at each arm's batch size and precision")
+    parser.add_argument("--throughput-out", type=Path, help="write loop and network-alone images/s to this CSV (replaced)")
     args = parser.parse_args(argv)
     import json
 
     obj = args.object or json.loads((args.data / "object.json").read_text())["name"]
     base = [f"object={obj}", "data=ipa", f"data.root={args.data.resolve()}", *args.extra]
-    rows = []
+    rows, details = [], []
     for cache in args.cache:
         for workers in args.workers:
             for arm in args.arms:
                 overrides = [*base, *ARMS[arm], f"data.num_workers={workers}", f"data.cache={cache}"]
-                ips = measure(overrides, args.steps, args.warmup)
+                ips, alone, what = measure(overrides, args.steps, args.warmup, args.accelerator, args.network_alone)
                 rows.append((arm, workers, cache, ips))
-                print(f"  {arm:8s} workers={workers} cache={cache}: {ips:6.1f} images/s", flush=True)
+                details.append((alone, what))
+                network = f", the network alone {alone:6.1f}" if alone is not None else ""
+                print(f"  {arm:8s} workers={workers} cache={cache}: {ips:6.1f} images/s{network}", flush=True)
     ref = rows[0][3]
     print(f"\ntorch {torch.__version__}, {torch.get_num_threads()} threads, batch from the config, "
           f"{args.steps} timed steps after {args.warmup}")  # fmt: skip
@@ -101,6 +144,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         append_csv_rows(args.out, ["arm", "workers", "cache", "images_per_s"],
                     [[arm, workers, cache, f"{ips:.1f}"] for arm, workers, cache, ips in rows])
+    if args.throughput_out is not None:
+        device = torch.cuda.get_device_name() if args.accelerator == "gpu" else "cpu"
+        lines = ["device,network,batch,precision,arm,workers,cache,loop_images_per_s,network_images_per_s"]
+        lines += [f"{device},{w['network']},{w['batch']},{w['precision']},{arm},{workers},{cache},{ips:.1f},"
+                  f"{'' if alone is None else f'{alone:.1f}'}" for (arm, workers, cache, ips), (alone, w) in zip(rows, details)]
+        args.throughput_out.parent.mkdir(parents=True, exist_ok=True)
+        args.throughput_out.write_text("\n".join(lines) + "\n")
     return 0
 
 
