@@ -1,0 +1,130 @@
+"""Pack a dataset folder small enough to carry to another machine, and unpack it there, losslessly.
+
+    python scripts/carry_dataset.py pack <dataset folder> <archive.tar.xz>
+    python scripts/carry_dataset.py unpack <archive.tar.xz> <folder>
+
+16-bit depth PNGs of piles compress poorly (deflate sees the bytes, not the surface): ``pack``
+stores each as its row differences (uint16, wrapping), which are near zero on smooth surfaces, and
+every other file as it is, in one xz-compressed tar. ``unpack`` turns the differences back into the
+same pixels in a PNG (the PNG bytes may differ, the depth does not) and checks the count of files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import sys
+import tarfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+#: a 16-bit depth image is stored as its row differences under this suffix
+DIFF_SUFFIX = ".rowdiff"
+MANIFEST = "carry_manifest.json"
+
+
+def _is_depth_png(path: Path) -> bool:
+    return path.suffix.lower() == ".png" and "depth" in path.name.lower()
+
+
+def row_differences(depth: np.ndarray) -> np.ndarray:
+    """(H, W) uint16 -> (H, W) uint16: each pixel minus the one on its left (wrapping), the first column kept."""
+    out = depth.copy()
+    out[:, 1:] = depth[:, 1:] - depth[:, :-1]  # uint16 arithmetic wraps: exact to invert
+    return out
+
+
+def undo_row_differences(diff: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`row_differences`."""
+    return np.cumsum(diff, axis=1, dtype=np.uint64).astype(np.uint16)  # sums mod 2**16
+
+
+def pack(folder: Path, archive: Path) -> dict[str, int]:
+    """Write ``archive`` (tar.xz) holding ``folder``; returns the counts of depth images and other files."""
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    depth_count = 0
+    with tarfile.open(archive, "w:xz", preset=6) as tar:
+        for path in files:
+            name = str(path.relative_to(folder))
+            depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if _is_depth_png(path) else None
+            if depth is None or depth.dtype != np.uint16 or depth.ndim != 2:
+                tar.add(path, arcname=name)
+                continue
+            diff = row_differences(depth)
+            header = np.asarray(diff.shape, np.uint32).tobytes()
+            _add_bytes(tar, name + DIFF_SUFFIX, header + diff.tobytes())
+            depth_count += 1
+        counts = {"depth_images": depth_count, "files": len(files)}
+        _add_bytes(tar, MANIFEST, json.dumps(counts).encode())
+    return counts
+
+
+def unpack(archive: Path, folder: Path) -> dict[str, int]:
+    """Restore ``archive`` into ``folder``; returns the manifest's counts.
+
+    Raises:
+        ValueError: the archive holds a path leaving ``folder``, or fewer files than it records.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    root = folder.resolve()
+    written = 0
+    counts: dict[str, int] = {}
+    with tarfile.open(archive, "r:xz") as tar:
+        for member in tar:
+            if not member.isfile():
+                continue
+            target = (folder / member.name).resolve()
+            if root not in target.parents:
+                raise ValueError(f"{archive}: {member.name} would be written outside {folder}")
+            data = tar.extractfile(member).read()
+            if member.name == MANIFEST:
+                counts = json.loads(data)
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if member.name.endswith(DIFF_SUFFIX):
+                shape = tuple(int(v) for v in np.frombuffer(data[:8], np.uint32))
+                diff = np.frombuffer(data[8:], np.uint16).reshape(shape)
+                target = target.with_name(target.name.removesuffix(DIFF_SUFFIX))
+                if not cv2.imwrite(str(target), undo_row_differences(diff)):
+                    raise ValueError(f"{target}: could not write the depth PNG")
+            else:
+                target.write_bytes(data)
+            written += 1
+    if written != counts.get("files", -1):
+        raise ValueError(f"{archive}: {written} files unpacked, the manifest records {counts.get('files')}")
+    return counts
+
+
+def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> None:
+    info = tarfile.TarInfo(name)
+    info.size = len(data)
+    tar.addfile(info, io.BytesIO(data))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("action", choices=["pack", "unpack"])
+    ap.add_argument("source", type=Path)
+    ap.add_argument("target", type=Path)
+    args = ap.parse_args(argv)
+    try:
+        if args.action == "pack":
+            if not args.source.is_dir():
+                raise ValueError(f"{args.source}: not a folder")
+            counts = pack(args.source, args.target)
+            size = args.target.stat().st_size / 2**20
+            print(f"{args.target}: {counts['files']} files ({counts['depth_images']} depth images), {size:.1f} MiB")
+        else:
+            counts = unpack(args.source, args.target)
+            print(f"{args.target}: {counts['files']} files unpacked ({counts['depth_images']} depth images)")
+    except (OSError, ValueError, tarfile.TarError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
