@@ -23,6 +23,7 @@ import copy
 import csv
 import io
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -93,7 +94,7 @@ def search_variant(text: str) -> tuple[str, ICPSettings]:
     label, _, pairs = text.partition(":")
     conf = OmegaConf.load(REPO / "conf" / "refine" / "search.yaml")
     try:
-        for pair in filter(None, pairs.split(",")):
+        for pair in filter(None, re.split(r",(?![^\[]*\])", pairs)):  # a list value keeps its commas
             key, value = pair.split("=", 1)
             section, name = key.strip().split(".", 1)
             if section not in ("icp", "search") or name not in conf[section]:

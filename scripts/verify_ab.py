@@ -33,7 +33,14 @@ DENSE_SCENE = {"camera_file": str(REPO / "conf" / "cameras" / "sileane_bunny.yam
                "camera_height": 1.5, "views": 2, "camera_jitter_m": 0.03, "camera_jitter_deg": 3.0,
                "bin_jitter_m": 0.03, "bin_jitter_deg": 15.0}  # fmt: skip
 PLATE_TEST = REPO / "outputs" / "data" / "cells" / "test_trained_c12"
-PARTS = ("bunny", "ring_screw", "ipd_plate")
+#: the cell study's validation piles (the basket anywhere in the working area; scripts/cells.py)
+CELL_VALIDATION = REPO / "outputs" / "data" / "cells" / "val_c6"
+PARTS = ("bunny", "ring_screw", "ipd_plate", "cell_plate")
+#: how a part's rows are named in the table (the object's name otherwise)
+LABELS = {"cell_plate": "ipd_plate, cell model, validation piles"}
+SPEED_EARLIER = ("earlier speed settings (every 2nd pixel, ICP to 1e-6 rad and 1e-7 m, no gain limit):"
+                 "icp.stride=2,icp.converged=[1.0e-6,1.0e-7],icp.min_gain=0")
+PROJECTIVE = "projective ICP:icp.association=projective"
 EARLIER = "earlier settings (merge 0, stride 1, all local points):search.merge=0,icp.stride=1,icp.local_points=0"
 FINE_LOCAL = "fine local:search.fine=local"
 
@@ -48,7 +55,11 @@ def arms(data: Path) -> dict[str, list[str]]:
                           f"--data=root={PLATE_TEST}", f"--data=test_root={PLATE_TEST}", "--data=cache=false",
                           "--data=test_min_objects=8", "--data=roi=[560,230,1250,1160]", "--data=clip=[1.55,2.05]",
                           "--decoding", "averaging=false", f"--search-variant={EARLIER}",
-                          f"--search-variant={FINE_LOCAL}"]}  # fmt: skip
+                          f"--search-variant={FINE_LOCAL}"],
+            "cell_plate": ["--ckpt=models/cell_ipd_plate.ckpt", "--search", "--budget-ms", "none",
+                           f"--data=root={CELL_VALIDATION}", f"--data=test_root={CELL_VALIDATION}", "--data=cache=false",
+                           "--decoding", "averaging=false", "--overridden-only", f"--search-variant={SPEED_EARLIER}",
+                           f"--search-variant={PROJECTIVE}"]}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,14 +71,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "results" / "verification")
     ap.add_argument("--report", action="store_true", help="only re-make --out from the runs")
     args = ap.parse_args(argv)
-    if "ipd_plate" in args.parts and not PLATE_TEST.is_dir():
-        print(f"error: {PLATE_TEST}: make the cell study's test piles first (python scripts/cells.py --stage generate)",
-              file=sys.stderr)
-        return 2
+    for part, folder in (("ipd_plate", PLATE_TEST), ("cell_plate", CELL_VALIDATION)):
+        if part in args.parts and not args.report and not folder.is_dir():
+            print(f"error: {folder}: make the cell study's piles first (python scripts/cells.py --stage generate)",
+                  file=sys.stderr)
+            return 2
     for part in args.parts:
         if args.report:
             continue
-        if part != "ipd_plate":
+        if part not in ("ipd_plate", "cell_plate"):
             out = args.data_dir / part
             run_logged([sys.executable, "generate.py", f"object={part}", "scene=bulk", "sensor=structured_light",
                         f"cycles={2 * args.piles}", "drops=75", "workers=1", "seed=11", f"out={out}", "progress=false",
@@ -81,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         if table.is_file():
             command = (args.runs / part / "command.txt").read_text().strip()
             command = command.replace(str(REPO) + "/", "")
-            rows += [{**r, "command": command} for r in csv.DictReader(table.open())]
+            rows += [{**r, "object": LABELS.get(part, r["object"]), "command": command}
+                     for r in csv.DictReader(table.open())]
     fields = ["object", "decoding", "refine", "scenes", "ap", "found", "t_mm_p50", "r_deg_p50", "icp_ms_per_image",
               "searched", "suppressed"]  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
@@ -96,11 +109,18 @@ def main(argv: list[str] | None = None) -> int:
              f"generated piles: bunny and ring screw {args.piles} piles x 2 views of 75 parts made with "
              "`sensor=structured_light` (the shipped dense models trained on ideal depth), scenes with >= 70 parts; "
              "IPD plates: the cell study's test piles with the basket where the plate model's training put it, at the "
-             "Photoneo's full resolution, scenes with >= 8 plates. AP: Brégier, max occlusion 0.5. ms/frame: the "
-             "refinement's time per image. `icp + search`: the settings of `conf/refine/search.yaml` when these ran (the "
-             "fine grid, merge 0.1, every 2nd depth pixel); `earlier settings`: the search as it was before (every "
+             "Photoneo's full resolution, scenes with >= 8 plates; `ipd_plate, cell model, validation piles`: the "
+             "cell recipe's model (`models/cell_ipd_plate.ckpt`, its bin finder) on the cell study's validation "
+             "piles (the basket anywhere in the working area, a seed of their own; what the refinement's speed "
+             "settings were chosen on). AP: Brégier, max occlusion 0.5. ms/frame: the "
+             "refinement's time per image. `icp + search`: the settings of `conf/refine/search.yaml` when these ran (for "
+             "the first plate rows the fine grid, merge 0.1, every 2nd depth pixel; for the cell model's rows today's: "
+             "every 4th pixel, ICP to a hundredth of a degree and millimetre or a step gaining under 0.1 %, every "
+             "hypothesis of an image searched in batches); `earlier settings`: the search as it was before (every "
              "decoded hypothesis searched, every pixel); `fine local`: the local pattern search in place of the fine "
-             "grid, the default since these rows (better in both decodings).", "",
+             "grid, the default since these rows (better in both decodings); `earlier speed settings`: every 2nd "
+             "pixel, ICP to a ten-thousandth and until no step lowers its cost; `projective ICP`: each model point paired with the pixel it projects "
+             "onto (faster, but no pull along a plate's plane).", "",
              "| object | decoding | refine | scenes | **AP** | found % | t p50 mm | r p50 ° | ms/frame | searched | dropped as duplicates |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:

@@ -113,3 +113,19 @@ def test_hypotheses_are_refined_best_first_within_the_budget() -> None:
 def test_bad_settings_are_one_clear_error(settings: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         ICPSettings.from_config(settings)
+
+
+def test_the_default_convergence_ends_where_a_tight_one_does() -> None:
+    # stopping at steps of a hundredth of a degree and millimetre ends within hundredths of the pose a
+    # ten-thousandth would reach; bad tolerances are refused naming the key
+    _, R_gt, scene, model, space = _setup("bracket")
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        R0, t0 = _perturbed(R_gt, rng, deg=6.0, mm=6.0)
+        loose = refine_pose(R0, t0, model, scene, space)
+        tight = refine_pose(R0, t0, model, scene, space, ICPSettings(converged=(1e-6, 1e-7)))
+        assert np.linalg.norm(loose.t - tight.t) * 1000 < 0.05
+        assert rotation_change_deg(tight.R, loose.R, space) < 0.05
+    for bad in ([1e-4], [0.0, 1e-5], [True, 1e-5], "1e-4", [float("nan"), 1e-5]):
+        with pytest.raises(ValueError, match=r"icp.converged must be two positive numbers \[radians, metres\]"):
+            ICPSettings(converged=bad)

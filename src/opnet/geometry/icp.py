@@ -81,6 +81,11 @@ class ICPSettings:
             (the scene point of the pixel it projects onto: every hypothesis in one batch; no pull
             along a surface, so a flat part's in-plane fit is left to the search).
         polish_association: the association of the ICP that polishes the search's poses (null: ``association``).
+        converged: a pose stops when its step turns less than ``converged[0]`` radians and moves less than
+            ``converged[1]`` metres (default a hundredth of a degree and of a millimetre, far below what the
+            metric or a gripper can tell).
+        min_gain: nearest-point ICP also stops when a step lowers the cost by less than this share of it (0:
+            only by ``converged`` or when no step lowers it).
         search: None (ICP only), or the depth-agreement search (:mod:`opnet.geometry.search`) run
             after ICP on each hypothesis within the budget, its best pose polished by ICP again.
     """
@@ -98,6 +103,8 @@ class ICPSettings:
     local_points: int = 0
     association: str = "nearest"
     polish_association: str | None = None
+    converged: tuple[float, float] = (1e-4, 1e-5)
+    min_gain: float = 1e-3
     search: SearchSettings | None = None
 
     def __post_init__(self) -> None:
@@ -112,6 +119,13 @@ class ICPSettings:
                 raise ValueError(f"icp.{key} must be a positive integer, got {value!r}")
         if isinstance(self.local_points, bool) or not isinstance(self.local_points, int) or self.local_points < 0:
             raise ValueError(f"icp.local_points must be an integer >= 0 (0: all), got {self.local_points!r}")
+        converged = self.converged
+        if isinstance(converged, str | bytes) or not hasattr(converged, "__len__") or len(converged) != 2 or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) and v > 0 for v in converged):
+            raise ValueError(f"icp.converged must be two positive numbers [radians, metres], got {converged!r}")
+        object.__setattr__(self, "converged", (float(converged[0]), float(converged[1])))
+        if isinstance(self.min_gain, bool) or not isinstance(self.min_gain, int | float) or not 0 <= self.min_gain < 1:
+            raise ValueError(f"icp.min_gain must be a number in [0, 1), got {self.min_gain!r}")
         for key in ("association", "polish_association"):
             value = getattr(self, key)
             if not (value in ASSOCIATIONS or (key == "polish_association" and value is None)):
@@ -343,8 +357,11 @@ def refine_pose(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneClo
             x = x / 2
         else:
             break  # no step lowers the cost: converged (or stuck)
+        gained = cost - new_cost
         Rc, tc, p, q, n, cost = R_new, t_new, p_new, q_new, n_new, new_cost
-        if np.linalg.norm(x[:3]) < 1e-6 and np.linalg.norm(x[3:]) < 1e-7:
+        if np.linalg.norm(x[:3]) < settings.converged[0] and np.linalg.norm(x[3:]) < settings.converged[1]:
+            break
+        if gained < settings.min_gain * (cost + gained):  # the cost has stopped falling
             break
     after = cost
     U, _, Vt = np.linalg.svd(Rc)  # re-orthonormalize
@@ -463,8 +480,8 @@ def refine_poses_projective(R: np.ndarray, t: np.ndarray, model: ModelCloud, sce
         cn, xn = _batched_cost_and_step(pn, qn, nn, kn, huber)
         enough = kn.sum(1) >= settings.min_points
         take = idx[enough]
-        small = (np.linalg.norm(x[take, :3], axis=1) < BATCH_CONVERGED[0]) & \
-            (np.linalg.norm(x[take, 3:], axis=1) < BATCH_CONVERGED[1])  # fmt: skip
+        small = (np.linalg.norm(x[take, :3], axis=1) < settings.converged[0]) & \
+            (np.linalg.norm(x[take, 3:], axis=1) < settings.converged[1])  # fmt: skip
         Rc[take], tc[take], cost[take], count[take], x[take] = R_new[enough], t_new[enough], cn[enough], \
             kn[enough].sum(1), xn[enough]  # fmt: skip
         active[idx[~enough]] = False
@@ -591,9 +608,6 @@ class _Stages:
         return out
 
 
-#: projective ICP stops a pose whose step turns less than this (radians) and moves less (metres): a
-#: hundredth of a degree and of a millimetre, far below what the metric or a gripper can tell
-BATCH_CONVERGED = (1e-4, 1e-5)
 #: hypotheses per batch of projective ICP under a time budget
 PROJECTIVE_CHUNK = 8
 
@@ -665,7 +679,7 @@ class Refiner:
 def search_settings(budget_ms: float | None = None) -> ICPSettings:
     """The settings of ``conf/refine/search.yaml`` (ICP with a wider reach and a looser guard, then
     the search; a test keeps the two equal), for the runtime, which reads no config."""
-    return ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, stride=2, search=SearchSettings())
+    return ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, stride=4, search=SearchSettings())
 
 
 def settings_from_config(refine: Any) -> ICPSettings | None:
