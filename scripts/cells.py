@@ -126,7 +126,7 @@ def datasets(data: Path, cycles: int, test_cycles: int) -> tuple[list[tuple[Path
 
 
 def validation_set(data: Path, cycles: int) -> tuple[Path, dict]:
-    """The validation piles the refinement's settings are chosen on (``scripts/search_speed.py``): the basket
+    """The validation piles the refinement's settings are chosen on (``scripts/verify_ab.py --parts cell_plate``): the basket
     anywhere in the working area, any yaw, full resolution, a seed neither training nor the test piles use."""
     size, pitch = HOLES[0]
     return data / f"val_c{cycles}", {"bin_area": AREA, "bin_hole_size": size, "bin_hole_pitch": pitch, "cycles": cycles}
@@ -223,13 +223,23 @@ def score_real_frames(run_dir: Path) -> int:
              "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
         rows.append(row(json.loads((out / "summary.json").read_text()), policy=str(ARMS[run_dir.name]["roi"]),
                         model=os.path.relpath(ckpt, REPO), placement="real frames", refine=refine))
-    head = ["# The real frames, scored once by the cell recipe", "",
+    stages = (json.loads((run_dir / "eval_real" / "search" / "summary.json").read_text()).get("icp") or {}) \
+        .get("ms_per_image_by_stage", {})  # fmt: skip
+    head = ["# The real frames, scored by the cell recipe", "",
             f"`python scripts/cells.py --stage real --real-arm {run_dir.name}` (every setting fixed on "
             "generated piles before this ran: results/cells/README.md). The three Photoneo frames of IPD object 18, "
             "official `visib_fract`, the whole frame given: the ROI is the checkpoint's "
-            f"(`{ARMS[run_dir.name]['roi']}`), the clip planes too.", ""]  # fmt: skip
+            f"(`{ARMS[run_dir.name]['roi']}`), the clip planes too. The frames were scored twice: first with the "
+            "refinement's earlier speed settings ([cell_first_scoring.md](cell_first_scoring.md)), then, after the "
+            "refinement was made faster and its speed settings chosen on the cell study's generated validation piles "
+            "(results/verification/README.md; no setting was chosen on these frames), here.", ""]  # fmt: skip
+    notes = ["", "The search's milliseconds per frame by stage: " + ", ".join(f"{k} {v:.0f}" for k, v in stages.items())
+             + " (scene: the depth as points; icp: ICP of every hypothesis; search: the turn search of all of them; "
+             "polish: ICP of the searched poses; rank: agreement and duplicates)."] if stages else []  # fmt: skip
     write_table(REPO / "results" / "real_ipd" / "cell.csv", rows, head,
                 ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
+    with (REPO / "results" / "real_ipd" / "cell.md").open("a") as f:
+        f.write("\n".join(notes) + ("\n" if notes else ""))
     return 0
 
 
@@ -254,7 +264,10 @@ SETTINGS = [
     "240 held-out scenes; results/verification/README.md), and its speed settings (merge 0.1, every 2nd pixel, the "
     "local fine stage) by the plate rows there. The generated piles' `search` rows above ran with the fine grid (the "
     "default then), except the whole-frame arm's (run after the switch, with the local fine stage); the real frames, "
-    "scored after, with the local fine stage (chosen on those plate rows before).",
+    "scored after, with the local fine stage (chosen on those plate rows before); the real frames' second scoring "
+    "with today's speed settings (every 4th depth pixel for ICP, ICP to a hundredth of a degree and millimetre or a "
+    "step gaining under 0.1 %), chosen on the cell study's validation piles (`val_c6`: the basket anywhere in the "
+    "working area, a seed of their own; results/verification/README.md, the cell model's rows).",
 ]
 
 

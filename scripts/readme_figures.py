@@ -322,12 +322,15 @@ def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
 
 def block_cells(results: Path, prefix: str = "") -> str:
     """A cell whose bin moves: generated piles where the bin stood in training and where it did not
-    (scripts/cells.py), and the real frames scored once by the recipe (results/real_ipd/cell.csv)."""
-    real = results / "real_ipd" / "cell.csv"
+    (scripts/cells.py), and the real frames scored by the recipe (results/real_ipd/cell.csv; its first scoring,
+    before the refinement's speed settings changed, cell_first_scoring.csv)."""
+    first, real = results / "real_ipd" / "cell_first_scoring.csv", results / "real_ipd" / "cell.csv"
+    earlier = [{**r, "refine": f"{r['refine']} (first scoring, earlier speed settings)"}
+               for r in (_csv(first) if first.is_file() else []) if r["refine"] != "none"]
     rows = [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
              f"{100 * float(r['found']):.1f}", f"{100 * float(r['found_of_all']):.1f}" if r.get("found_of_all") else "–",
              f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
-            for r in [*_csv(results / "cells" / "cells.csv"), *(_csv(real) if real.is_file() else [])]]
+            for r in [*_csv(results / "cells" / "cells.csv"), *earlier, *(_csv(real) if real.is_file() else [])]]
     return _table(["input (data.roi)", "model", "basket", "refine", "frames", "**AP**", "found %",
                    "found % of the frame's parts", "refine ms / frame"], rows) + "\n"
 
