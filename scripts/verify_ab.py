@@ -120,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
              "decoded hypothesis searched, every pixel); `fine local`: the local pattern search in place of the fine "
              "grid, the default since these rows (better in both decodings); `earlier speed settings`: every 2nd "
              "pixel, ICP to a ten-thousandth and until no step lowers its cost; `projective ICP`: each model point paired with the pixel it projects "
-             "onto (faster, but no pull along a plate's plane).", "",
+             "onto (faster, but no pull along a plate's plane). The other speed settings tried on the validation "
+             "piles: [speed_choices.md](speed_choices.md).", "",
              "| object | decoding | refine | scenes | **AP** | found % | t p50 mm | r p50 ° | ms/frame | searched | dropped as duplicates |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
