@@ -1,4 +1,4 @@
-"""MuJoCo against pybullet: the same piles? how fast? (issue 22)
+"""MuJoCo against pybullet: the same piles? how fast?
 
     python scripts/bench_physics.py --objects bunny,ring_screw --cycles 4 --out results/physics/ab.md
 

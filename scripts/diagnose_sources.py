@@ -1,4 +1,4 @@
-"""Where the hypotheses of a trained model come from and what each source is worth (issue 21).
+"""Where the hypotheses of a trained model come from and what each source is worth.
 
     python scripts/diagnose_sources.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/last.ckpt \\
         --ckpt outputs/table1/vanilla_bunny_s0/checkpoints/last.ckpt [--split test] [--out DIR]

@@ -1,4 +1,4 @@
-"""ICP refinement A/B (issue 26): the same network outputs scored without and with ICP.
+"""ICP refinement A/B: the same network outputs scored without and with ICP.
 
     python scripts/icp_ab.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/<best>.ckpt \\
         [--ckpt ...] [--split test] [--budget-ms 100 none] [--search] [--decoding averaging=false] \\

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The lock file and its check on newer Pythons (issue 22).
+# The lock file and its check on newer Pythons.
 #
 #   scripts/lock.sh            # re-make requirements.lock from pyproject.toml (keeps locked versions where they still fit)
 #   scripts/lock.sh --check    # every locked package resolves for CPython 3.12 and 3.13 on manylinux x86_64 as a

@@ -1,4 +1,4 @@
-"""The real-frame recipe (issue 26): train on generated piles of IPD object 18 seen as the IPD Photoneo
+"""The real-frame recipe: train on generated piles of IPD object 18 seen as the IPD Photoneo
 sees them, then score the three real frames of ``../shared/data/ipd_real_obj18`` with their ground truth.
 
     python scripts/real_ipd.py                       # generate, train, evaluate: results/real_ipd/

@@ -1,4 +1,4 @@
-"""The depth-agreement search, step by step, on the real IPD frames (issue 26).
+"""The depth-agreement search, step by step, on the real IPD frames.
 
     python scripts/search_ab.py outputs/real_ipd/run_D outputs/real_ipd/run_D_s1 outputs/real_ipd/run_D_s2 \\
         [--generated results/real_ipd/search_ab_generated/ab.csv] [--out results/real_ipd/search_ab.md]

@@ -1,4 +1,4 @@
-"""Checkpoints are data (issue 24, item 1): a checkpoint whose saved config names another callable
+"""Checkpoints are data: a checkpoint whose saved config names another callable
 than opnet's own components is refused by every path that loads one, before anything of it runs.
 Before the fix, ``predict.py ckpt=<tampered> ...`` wrote the payload's file and exited 0."""
 

@@ -1,4 +1,4 @@
-"""Nothing lost, nothing stale (issue 24, item 2): writers refuse a non-empty target unless told to
+"""Nothing lost, nothing stale: writers refuse a non-empty target unless told to
 replace it and then replace it whole; concurrent runs into one output folder cannot lose files;
 output names are unique within a run; an output onto an input is refused; a generation cut short
 fails the dataset check."""

@@ -152,7 +152,7 @@ def test_every_reader_lists_the_files_it_reads(dataset: Path, tmp_path: Path):
 
 
 def test_a_killed_build_leaves_no_orphan_temporary_file(dataset: Path, tmp_path: Path):
-    # SIGKILL while a shard was written left a 10 MB ".shard_*.tmp" behind for good (issue 24)
+    # SIGKILL while a shard was written left a 10 MB ".shard_*.tmp" behind for good
     import os
     import time
 

@@ -1,5 +1,5 @@
 """A checkpoint's saved config is read as it was trained: AP checkpoints from before AP had point
-placements (issue 21) keep the points they were trained with (the extent's ends)."""
+placements keep the points they were trained with (the extent's ends)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Values checked where they are read, and one-line errors naming the file or key (issue 24,
-items 3 and 4): BOP ids and translations, duplicate camera YAML keys, millimetre depth in a
+"""Values checked where they are read, and one-line errors naming the file or key: BOP
+ids and translations, duplicate camera YAML keys, millimetre depth in a
 ``.npy``, inside-out and oversized meshes, object config keys, generation arguments, full disks.
 Each test failed before its fix."""
 

@@ -1,4 +1,4 @@
-"""No import circles between the packages of ``src/opnet`` (issue 23): each package (``cli``,
+"""No import circles between the packages of ``src/opnet``: each package (``cli``,
 ``data``, ``synthesis``, ...) and each top-level module (``inference``, ``system``, ...) is one
 node; every ``import`` counts, at module level or inside a function, as both make the two
 depend on each other. A circle means a low layer reaches up into a high one (the inference engine

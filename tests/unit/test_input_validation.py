@@ -1,5 +1,5 @@
 """Validation at the edges: impossible values are refused where they are read, with the file named
-(issue 13: rotations scaled by 3 or reflected, visibilities of -5 or 50, segmentation ids of 1e30,
+(rotations scaled by 3 or reflected, visibilities of -5 or 50, segmentation ids of 1e30,
 deeply nested JSON, millimetre clip planes, a principal point 100000 px away, a BOM in a CSV)."""
 
 from __future__ import annotations

@@ -170,7 +170,7 @@ def test_paper_loss_reproduces_the_previous_values_exactly(case):
     import opnet.parameterizations as P
 
     obj = builtin_object(case[0])
-    # AP's reference points of that commit: the ends of the extent (placement=extent since issue 21)
+    # AP's reference points of that commit: the ends of the extent (placement=extent since the points moved onto the part)
     extra = {"placement": "extent"} if case[1] == "APParameterization" else {}
     param = getattr(P, case[1])(obj, **extra)  # rotation None: the Euler Z-Y-Z codec of the paper
     euler = hydra.utils.instantiate(OmegaConf.load(config_dir() / "rotation" / "euler_zyz.yaml"), _partial_=True)

@@ -1,4 +1,4 @@
-"""ONNX metadata validated like a checkpoint's config (issue 24, item 3): NaN or -1 thresholds, bad
+"""ONNX metadata validated like a checkpoint's config: NaN or -1 thresholds, bad
 names and ill-typed fields were accepted (or crashed later) before; every refusal is one line that
 names the file and the key."""
 

@@ -125,7 +125,7 @@ def test_eve_position_is_relative_to_the_enlarged_image():
 
 def test_ap_reference_points_follow_the_symmetry_class():
     shaft, zbracket = builtin_object("shaft"), builtin_object("zbracket")
-    extent = {"placement": "extent"}  # the ends of the extent (opnet before issue 21)
+    extent = {"placement": "extent"}  # the ends of the extent (opnet's earlier placement)
     np.testing.assert_allclose(
         APParameterization(shaft, **extent).points.numpy(), [[0, 0, 0.0425], [0, 0, -0.0425]], atol=1e-9
     )

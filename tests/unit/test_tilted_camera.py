@@ -1,4 +1,4 @@
-"""Tilted cameras in generation (issue 26): the camera looks at the bin floor's centre from
+"""Tilted cameras in generation: the camera looks at the bin floor's centre from
 ``camera_tilt_deg`` off vertical, the clip planes hold the whole scene, and the written ground
 truth reprojects onto the rendered segmentation."""
 

@@ -1,4 +1,4 @@
-"""The check of configs read back from files (issue 24, item 1): every ``_target_`` at any depth
+"""The check of configs read back from files: every ``_target_`` at any depth
 of a group's node must be one that the shipped ``conf/<group>/*.yaml`` name; nothing else is
 instantiated, however it is wrapped (``_args_``, ``_partial_``, tuples, interpolations)."""
 

@@ -1,4 +1,4 @@
-"""Values checked where they are read (issue 24, item 3): symmetry specs typed, repeats folded,
+"""Values checked where they are read: symmetry specs typed, repeats folded,
 reflections refused, group closure bounded; each case was accepted wrongly (or hung) before."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Point-to-plane ICP: refine pose hypotheses against the depth image (issue 26).
+"""Point-to-plane ICP: refine pose hypotheses against the depth image.
 
 Numpy and scipy only, so that training's evaluation, ``predict.py`` and the torch-free ONNX
 runtime (:mod:`opnet.deploy`) share it. Why not Open3D, the field's usual choice: its wheel is

@@ -1,4 +1,4 @@
-"""Depth-agreement search around a pose hypothesis: the refinement ICP cannot do (issue 26).
+"""Depth-agreement search around a pose hypothesis: the refinement ICP cannot do.
 
 Point-to-plane ICP fits a surface, so it cannot tell a flat part from the part turned about its
 normal or slid along its plane: on the real IPD frames (steel T-plates on an expanded-metal basket)

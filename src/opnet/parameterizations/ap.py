@@ -15,7 +15,7 @@ reference points on the object", fixes the symmetry rules, and leaves the rest o
   moved point, so the points still permute; revolution objects keep their points on the axis). A
   point on or in the part projects onto the part's own pixels unless another part hides it:
   measured on held-out bunny piles, 91 % of these points show their own part.
-- ``extent``: ``scale`` 1, the points at the ends of the part's extent (opnet before issue 21).
+- ``extent``: ``scale`` 1, the points at the ends of the part's extent (opnet's earlier placement).
   They lie outside the part for every reference mesh: only 15 % of the bunny's show their own
   part, the cell sees another part or the bin, and the network learns a presence it cannot see
   (results/table1/diagnostics).

@@ -1,4 +1,4 @@
-"""The camera's pose relative to the bin, measured from ground truth of parts lying flat (issue 26).
+"""The camera's pose relative to the bin, measured from ground truth of parts lying flat.
 
 A real frame's BOP ``scene_camera.json`` often gives the identity for ``cam_R_w2c`` (the world is
 the camera), so the tilt of the camera over the bin is not written anywhere. Parts that lie flat on
