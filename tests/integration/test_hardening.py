@@ -1,4 +1,4 @@
-"""Regression tests of the hardening issue: each case failed (hung, went silent, printed a raw
+"""Regression tests of the hardening work: each case failed (hung, went silent, printed a raw
 traceback or rewrote files) before its fix."""
 
 from __future__ import annotations
