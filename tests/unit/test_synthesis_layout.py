@@ -138,6 +138,34 @@ def test_bad_scene_settings_name_the_key(values: dict, match: str) -> None:
         SceneConfig(**values)
 
 
+@pytest.mark.parametrize(("values", "match"), [
+    # booleans are no numbers (true passed as 1 m, 1 degree), text no TypeError, a size no fraction
+    ({"bin_clearance": True}, r"^scene config: bin_clearance=True, expected a number$"),
+    ({"bin_inner_y": True}, r"^scene config: bin_inner_y=True, expected a number$"),
+    ({"bin_inner_y": "abc"}, r"^scene config: bin_inner_y='abc', expected a number$"),
+    ({"camera_tilt_deg": True}, r"^scene config: camera_tilt_deg=True, expected a number$"),
+    ({"camera_azimuth_deg": False}, r"^scene config: camera_azimuth_deg=False, expected a number$"),
+    ({"bin_hole_size": True}, r"^scene config: bin_hole_size=True, expected a number$"),
+    ({"bin_hole_pitch": True}, r"^scene config: bin_hole_pitch=True, expected a number$"),
+    ({"resolution": 64.5}, r"^scene config: resolution=64.5, expected a whole number$"),
+    ({"max_redrops": "many"}, r"^scene config: max_redrops='many', expected a whole number$"),
+])  # fmt: skip
+def test_scene_numbers_of_another_type_name_the_key(values: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        SceneConfig(**values)
+    assert SceneConfig(resolution=64.0).resolution == 64 and type(SceneConfig(resolution=64.0).resolution) is int
+
+
+def test_a_working_area_beyond_a_depth_cameras_range_is_refused_naming_it() -> None:
+    """The automatic camera rises to see the whole area: a 200 m area put it 232 m up, and the generator wrote
+    the dataset's first files before the written parameter.json was refused, naming itself."""
+    with pytest.raises(ValueError, match=r"^scene config: bin_area=\[-100.0, -100.0, 100.0, 100.0\]: the camera 232 m "
+                                         r"above the floor would need a far clip plane 239 m away, beyond a depth "
+                                         r"camera's 50 m"):  # fmt: skip
+        make_rig(builtin_object("zbracket"), 3, 1, SceneConfig(bin_area=(-100.0, -100.0, 100.0, 100.0)))
+    assert make_rig(builtin_object("zbracket"), 3, 1, SceneConfig(bin_area=(-1.0, -1.0, 1.0, 1.0))).camera.clip_end < 50
+
+
 def test_object_without_mesh_is_refused() -> None:
     from opnet.objects.model import ObjectModel
 

@@ -211,6 +211,15 @@ class SceneConfig:
             if not ok:
                 raise ValueError(f"scene config: {key}={getattr(self, key)!r}, expected {expected}")
 
+        for field in dataclasses.fields(self):  # a number's type first: true is no 1 m, "abc" no TypeError below
+            kind, value = field.type.removesuffix(" | None"), getattr(self, field.name)
+            if kind not in ("int", "float") or (value is None and field.type.endswith("| None")):
+                continue
+            need(isinstance(value, int | float) and not isinstance(value, bool)
+                 and (kind == "float" or float(value).is_integer()), field.name,
+                 "a whole number" if kind == "int" else "a number")
+            if kind == "int":
+                object.__setattr__(self, field.name, int(value))  # 64.0 of a YAML file is the size 64
         need(8 <= self.resolution <= MAX_IMAGE_SIDE, "resolution", f"an integer in 8..{MAX_IMAGE_SIDE}")
         for key in ("width", "height"):
             value = getattr(self, key)

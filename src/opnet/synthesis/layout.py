@@ -32,7 +32,7 @@ import trimesh
 
 from opnet.datasets.camera_file import read_camera_file
 from opnet.datasets.ipa_params import IPAParameters
-from opnet.geometry.camera import Camera
+from opnet.geometry.camera import MAX_CLIP_END_M, Camera
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
 
@@ -265,8 +265,26 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
             params = dataclasses.replace(params, clip_start=float(cfg.clip_start or near), clip_end=float(cfg.clip_end or far))
             camera = params.camera()
     rig = Rig(bin_geom, params, camera, T_world_cam, radius)
+    check_camera_range(rig, cfg)
     check_bin_area(rig, cfg)
     return rig
+
+
+def check_camera_range(rig: Rig, cfg: SceneConfig) -> None:
+    """Refuse a rig whose far clip plane lies beyond a depth camera's range (:data:`MAX_CLIP_END_M`):
+    the automatic camera raised to see a working area or a bin tens of metres across. Checked before
+    anything is written (the written parameter.json would be refused, naming itself, not the key).
+
+    Raises:
+        ValueError: naming the settings that place the camera so far.
+    """
+    if rig.camera.clip_end <= MAX_CLIP_END_M:
+        return
+    keys = [f"{k}={list(v) if isinstance(v, tuple) else v}" for k in ("bin_area", "bin_inner", "bin_inner_y", "camera_height",
+                                                                      "camera_tilt_deg") if (v := getattr(cfg, k))]
+    raise ValueError(f"scene config: {', '.join(keys) or 'the bin'}: the camera {rig.params.location[2]:.3g} m above the floor "
+                     f"would need a far clip plane {rig.camera.clip_end:.3g} m away, beyond a depth camera's "
+                     f"{MAX_CLIP_END_M:g} m; give a smaller working area or bin")  # fmt: skip
 
 
 def tilted(T_world_cam: np.ndarray, tilt_deg: float, azimuth_deg: float) -> np.ndarray:
