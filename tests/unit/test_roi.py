@@ -71,7 +71,11 @@ def test_auto_boxes_the_largest_region_inside_the_working_volume() -> None:
 @pytest.mark.parametrize(("value", "message"), [
     ([0, 0, 0, 10], "an empty box"),
     ([5, 5, 400, 100], "outside the 320 x 240 image"),
-    ([-1, 0, 10, 10], "expected 0 <= x0 < x1"),
+    # a negative origin is no empty box, reversed corners are named as such, a 2 x 2 box feeds the network nothing
+    ([-1, 0, 30, 30], r"=\[-1, 0, 30, 30\]: the box starts at pixel \(-1, 0\), outside the image; pixels count from 0"),
+    ([50, 60, 10, 20], r"=\[50, 60, 10, 20\]: the corners are reversed; give \[x0, y0, x1, y1\] with the top-left"),
+    ([0, 0, 2, 2], r"=\[0, 0, 2, 2\]: a box of 2 x 2 pixels; the network needs at least 16 a side"),
+    ("-10,0,50,50", r"=\[-10, 0, 50, 50\]: the box starts at pixel \(-10, 0\)"),  # as --roi gives it
     ("middle", "expected null, auto, auto:<metres> or"),
     ([1.5, 0, 10, 10], "whole pixel numbers"),
 ])

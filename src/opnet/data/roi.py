@@ -1,4 +1,4 @@
-"""Region of interest: the part of the depth image the network sees (issue 26).
+"""Region of interest: the part of the depth image the network sees.
 
 Real cells often show the bin in a fifth of the image; framed whole into 128 × 128 input pixels, a
 part becomes a few pixels wide. ``data.roi`` crops every image before the framing (``data.fit``),
@@ -6,7 +6,7 @@ with the intrinsics shifted (``cx - x0``, ``cy - y0``) and the image size change
 the same camera frame and nothing else changes. Values:
 
 - ``null``: the whole image (the default);
-- ``[x0, y0, x1, y1]``: a pixel box of the full image (``x1``, ``y1`` exclusive);
+- ``[x0, y0, x1, y1]``: a pixel box of the full image (``x1``, ``y1`` exclusive; at least :data:`MIN_BOX_SIDE` a side);
 - ``auto``: per image, the box of the bin found in the depth (:mod:`opnet.data.bin_finder`: the largest
   connected region of depth in the working volume, between the clip planes), 2 % of the image side to spare;
 - ``auto:S``: per image, a square of ``S`` metres at the bin's depth centred on the bin found: a fixed
@@ -35,6 +35,8 @@ from opnet.geometry.camera import Camera
 AUTO = "auto"
 #: the largest side ``auto:S`` takes, metres
 MAX_AUTO_SIDE = 20.0
+#: the smallest side of a fixed box, pixels (a smaller one holds less than a pixel per output cell of a 16-cell grid)
+MIN_BOX_SIDE = 16
 
 Box = tuple[int, int, int, int]
 
@@ -72,19 +74,29 @@ def parse_roi(value: Any, where: str = "data.roi") -> Box | str | None:
         if value.startswith(AUTO + ":"):
             return _parse_auto(value, where)
         parts = value.replace("[", "").replace("]", "").split(",")
-        if len(parts) == 4:
-            try:
-                return parse_roi([int(p) for p in parts], where)
-            except ValueError:
-                pass
+        try:
+            box = [int(p) for p in parts] if len(parts) == 4 else None
+        except ValueError:
+            box = None
+        if box is not None:  # a box of whole numbers: what is wrong with it (not "expected a box")
+            return parse_roi(box, where)
         raise ValueError(f"{where}={value!r}: expected null, auto, auto:<metres> or [x0, y0, x1, y1] pixels")
     if not isinstance(value, Sequence) or len(value) != 4:
         raise ValueError(f"{where}={value!r}: expected null, auto, auto:<metres> or [x0, y0, x1, y1] pixels")
     if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in value):
         raise ValueError(f"{where}={list(value)!r}: the box needs whole pixel numbers")
-    x0, y0, x1, y1 = (int(v) for v in value)
-    if x0 < 0 or y0 < 0 or x1 <= x0 or y1 <= y0:
-        raise ValueError(f"{where}={[x0, y0, x1, y1]}: expected 0 <= x0 < x1 and 0 <= y0 < y1 (an empty box)")
+    box = [x0, y0, x1, y1] = [int(v) for v in value]
+    if x0 < 0 or y0 < 0:
+        raise ValueError(f"{where}={box}: the box starts at pixel ({x0}, {y0}), outside the image; pixels count from "
+                         "0 at the image's top-left corner")  # fmt: skip
+    if x1 < x0 or y1 < y0:
+        raise ValueError(f"{where}={box}: the corners are reversed; give [x0, y0, x1, y1] with the top-left corner "
+                         "(x0, y0) first, then the bottom-right one (x1, y1, exclusive)")  # fmt: skip
+    if x1 == x0 or y1 == y0:
+        raise ValueError(f"{where}={box}: an empty box; expected x0 < x1 and y0 < y1")
+    if min(x1 - x0, y1 - y0) < MIN_BOX_SIDE:
+        raise ValueError(f"{where}={box}: a box of {x1 - x0} x {y1 - y0} pixels; the network needs at least "
+                         f"{MIN_BOX_SIDE} a side (its input would blow each pixel up into a block)")  # fmt: skip
     return (x0, y0, x1, y1)
 
 
