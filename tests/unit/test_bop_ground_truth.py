@@ -160,3 +160,16 @@ def test_check_reports_a_camera_rotation_that_is_no_rotation(R: list[float], why
     assert check_main([str(split), "--object-id", "1"]) == 1
     out = capsys.readouterr().out
     assert "1 problem(s)" in out and f"{cam}: image 1: 'cam_R_w2c'" in out
+
+
+@pytest.mark.parametrize("clip", [["1.5", "0.5"], ["0.5", "0.5"], ["nan", "1.5"], ["0.5", "500"]])
+def test_check_refuses_its_own_clip_option_not_every_camera(clip: list[str], tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """Reversed planes used to be reported against every image's scene_camera.json (exit 1), as if the
+    split's cameras were wrong: the option is, one line naming it, exit 2, before any scene is read."""
+    split = _split(tmp_path)
+    assert check_main([str(split), "--object-id", "1", "--clip", *clip]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.startswith("error: --clip=[") and captured.err.count("\n") == 1
+    assert "scene_camera.json" not in captured.err
+    assert check_main([str(split), "--object-id", "1", "--clip", "0.5", "1.5"]) == 0

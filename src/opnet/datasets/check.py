@@ -44,6 +44,7 @@ from opnet.datasets.sileane import SileaneDataset
 from opnet.datasets.sileane_json import read_gt_json
 from opnet.datasets.validate import not_rotations
 from opnet.fileio.files import read_json
+from opnet.geometry.camera import parse_clip
 from opnet.objects.bop import bop_numbers
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -377,10 +378,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--object-id", type=int, help="BOP splits: the obj_id to check")
     parser.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), help="BOP splits: working range, metres")
     args = parser.parse_args(argv)
+    try:  # the user's planes, not every image's camera, are wrong: one line, before any scene is read
+        clip = parse_clip(args.clip, "--clip")
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     status = 0
     for root in args.roots:
         try:
-            report = check_dataset(root, fast=args.fast, object_id=args.object_id, clip=args.clip)
+            report = check_dataset(root, fast=args.fast, object_id=args.object_id, clip=clip)
         except (ValueError, FileNotFoundError) as e:
             print(f"error: {e}", file=sys.stderr)
             status = 2
