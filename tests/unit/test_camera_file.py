@@ -115,3 +115,20 @@ def test_scene_settings_of_before_keep_their_generation_record() -> None:
     assert "camera_file" not in SceneConfig().to_dict()
     assert SceneConfig(camera_file="x.yaml").to_dict()["camera_file"] == "x.yaml"
     assert SceneConfig.from_dict(SceneConfig(camera_file_clip=True).to_dict()).camera_file_clip is True
+
+
+@pytest.mark.parametrize("name", ["scene_camera.json", "scene_camera.yaml"])
+def test_a_bop_scene_camera_file_is_named_as_such(name: str, tmp_path: Path) -> None:
+    """A BOP scene_camera.json given as the camera: the generator blamed it for lacking perspectiveAngle,
+    predict.py's camera.file for its unknown keys '0', '1'; it is one scene's cameras, per image."""
+    from opnet.datasets.depth_inputs import given_camera
+
+    doc = {str(i): {"cam_K": [600.0, 0.0, 320.0, 0.0, 600.0, 240.0, 0.0, 0.0, 1.0], "depth_scale": 0.1} for i in range(3)}
+    path = tmp_path / name
+    path.write_text(json.dumps(doc))
+    expected = rf"^{path}: a BOP scene_camera.json \(a cam_K for each of 3 image\(s\)\), not a camera file; read its split"
+    if name.endswith(".json"):
+        with pytest.raises(ValueError, match=expected):
+            read_camera_file(path)
+    with pytest.raises(ValueError, match=expected):
+        given_camera({"file": str(path)})

@@ -15,7 +15,7 @@ from typing import Any
 import yaml
 
 from opnet._repr import short_repr
-from opnet.fileio.files import read_text
+from opnet.fileio.files import read_json, read_text
 from opnet.geometry.camera import Camera
 
 YAML_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
@@ -78,6 +78,7 @@ def read_camera_yaml(path: str | Path, allowed: tuple[str, ...] = (*YAML_CAMERA_
     """The numbers of a camera YAML (keys among ``allowed``; null values are left out)."""
     path = Path(path)
     doc = read_yaml(path, "camera YAML")
+    refuse_bop_scene_camera(doc, path)
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: a camera YAML holds a mapping of {', '.join(allowed)}")
     unknown = sorted(set(map(str, doc)) - set(allowed))
@@ -122,11 +123,25 @@ def read_camera_file(path: str | Path) -> Camera:
     elif path.name.lower().endswith(".txt"):
         camera = read_camera_params(path)[0]
     elif suffix == ".json":
+        refuse_bop_scene_camera(read_json(path, "an object of camera parameters"), path)
         camera = read_parameters(path).camera()
     else:
         raise ValueError(f"{path}: unknown camera file; expected a Siléane camera_params.txt, an IPA "
                          f"parameter.json or a .yaml with {', '.join(YAML_CAMERA_KEYS)}")
     return require_principal_point_inside(camera, str(path))
+
+
+def refuse_bop_scene_camera(doc: Any, path: Path) -> None:
+    """A ValueError naming ``path`` when ``doc`` is a BOP ``scene_camera.json`` (a ``cam_K`` per image
+    id): its cameras belong to the images of a scene (read as a dataset), and it has no clip planes;
+    read as a camera file it was blamed for lacking ``perspectiveAngle`` or for keys '0', '1', ..."""
+    if not (isinstance(doc, dict) and doc and all(str(k).isdigit() for k in doc)
+            and all(isinstance(v, dict) and "cam_K" in v for v in doc.values())):
+        return
+    raise ValueError(f"{path}: a BOP scene_camera.json (a cam_K for each of {len(doc)} image(s)), not a camera file; read "
+                     "its split as a dataset (data.root=<split> data.object_id=<obj_id>), or give a camera YAML of "
+                     f"{', '.join(YAML_CAMERA_KEYS)} (fx, fy, cx, cy = cam_K[0], cam_K[4], cam_K[2], cam_K[5]; the "
+                     "clip planes of your working range, metres)")  # fmt: skip
 
 
 def require_principal_point_inside(camera: Camera, source: str) -> Camera:
