@@ -5,6 +5,8 @@ about the model's z axis, and bad input is one line naming the file with nothing
 from __future__ import annotations
 
 import math
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -133,3 +135,31 @@ def test_bad_input_is_one_line_naming_the_file_and_nothing_is_written(tmp_path: 
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and str(path) in err and message in err, err
     assert not out.parent.exists()
+
+
+@pytest.mark.parametrize("target", ["folder", "fifo", "png_folder"])
+def test_an_out_that_is_no_file_is_refused_before_the_work_and_left_as_it_was(tmp_path: Path, capsys,
+                                                                              target: str) -> None:  # fmt: skip
+    """--out a folder was a traceback after the whole measurement; a FIFO or a device (--out /dev/null as
+    root) was replaced by the written YAML, and its preview written beside it."""
+    src = tmp_path / "box.stl"
+    trimesh.creation.box((0.05, 0.03, 0.02)).export(src)
+    out = tmp_path / "out.yaml"
+    if target == "folder":
+        out.mkdir()
+    elif target == "fifo":
+        os.mkfifo(out)
+    else:
+        out.with_suffix(".png").mkdir()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert opnet_object([str(src), "--out", str(out), "--force"]) == 2
+    err = capsys.readouterr().err.strip()
+    blocked = out if target != "png_folder" else out.with_suffix(".png")
+    assert err == f"error: {blocked}: exists and is not a regular file; --out takes the name of a file to write"
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert target != "fifo" or stat.S_ISFIFO(os.stat(out).st_mode)
+
+
+def test_a_missing_mesh_is_named_as_missing(tmp_path: Path, capsys) -> None:
+    assert opnet_object([str(tmp_path / "gone.stl"), "--out", str(tmp_path / "x.yaml")]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {tmp_path / 'gone.stl'}: file not found"

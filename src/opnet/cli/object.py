@@ -39,6 +39,8 @@ def read_part(path: Path, units: str) -> tuple[Any, float, str]:
 
     try:
         raw = load_mesh(path)
+    except FileNotFoundError as e:  # no such file is no file trimesh cannot read
+        raise ValueError(str(e)) from None
     except ValueError as e:
         raise ValueError(str(e) if str(path) in str(e) else f"{path}: {e}") from None
     except Exception as e:  # noqa: BLE001  (a file trimesh cannot parse)
@@ -168,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     name = args.name or args.mesh.stem.lower()
     if args.tolerance_mm is not None and not (math.isfinite(args.tolerance_mm) and args.tolerance_mm > 0):
         return _fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
+    from opnet.cli.tools import require_writable
     from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
     from opnet.objects.symmetry_finder import find_symmetry
     from opnet.paths import config_dir
@@ -175,6 +178,11 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or config_dir() / "object" / f"{name}.yaml"
     if out.exists() and not args.force:
         return _fail(f"{out}: exists; give --force to overwrite it or another --out")
+    try:  # the YAML and its preview: before the measuring, not after it (a folder, a device, a read-only folder)
+        for target in (out, out.with_suffix(".png")):
+            require_writable(target, "--out")
+    except ValueError as e:
+        return _fail(str(e))
     try:
         mesh, scale, assumed = read_part(args.mesh, args.units)
         centroid_d = 2.0 * float(np.linalg.norm(mesh.vertices - mesh.centroid, axis=1).max())

@@ -12,10 +12,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from opnet.fileio.files import file_kind
 
 #: errno values of a write that failed for want of space: a full disk or an exhausted quota
 DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
@@ -98,6 +101,22 @@ def temporary_beside(path: str | Path) -> tuple[int, Path]:
     return fd, Path(tmp)
 
 
+def _require_replaceable(path: Path) -> None:
+    """Refuse a FIFO, socket or device at ``path``: ``os.replace`` would put the written file in its
+    place (as root, ``/dev/null`` became a regular file). A folder there fails in ``os.replace`` itself.
+
+    Raises:
+        ValueError: naming ``path`` and what it is.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # absent (or its folder is): the write itself says what is wrong
+        return
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise ValueError(f"{path}: not a regular file ({file_kind(mode)}); writing a file there would replace it, "
+                         "give the name of a file to write")
+
+
 def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically, creating the parent folders.
 
@@ -106,6 +125,7 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
         data: the complete file content.
     """
     path = Path(path)
+    _require_replaceable(path)
     fd, tmp = temporary_beside(path)
     try:
         with disk_full_named(path):

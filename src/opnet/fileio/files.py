@@ -27,10 +27,15 @@ def require_regular_file(path: str | Path) -> Path:
     except OSError as e:
         raise ValueError(f"{path}: cannot read file ({e})") from e
     if not stat.S_ISREG(mode):
-        kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else
-                "a socket" if stat.S_ISSOCK(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a file")
-        raise ValueError(f"{path}: not a regular file ({kind}); expected a data file")
+        raise ValueError(f"{path}: not a regular file ({file_kind(mode)}); expected a data file")
     return path
+
+
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, for messages: a folder, a FIFO, a socket, a device."""
+    return ("a folder" if stat.S_ISDIR(mode) else
+            "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else
+            "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a file")
 
 
 def read_bytes(path: str | Path) -> bytes:
