@@ -96,6 +96,12 @@ def writer_lock(folder: str | Path, option: str) -> Iterator[None]:
                 folder.rmdir()
 
 
+def _launched_worker() -> bool:
+    """This process is a worker that Lightning's process launcher started for distributed training (it
+    re-runs train.py with LOCAL_RANK / NODE_RANK set, into the same run directory)."""
+    return any(os.environ.get(key, "0") not in ("", "0") for key in ("LOCAL_RANK", "NODE_RANK"))
+
+
 class RunDirLock(Callback):
     """Hydra callback of train.py (``hydra.callbacks`` in conf/train.yaml): holds :func:`writer_lock`
     on the run directory (``hydra.run.dir``) from before Hydra writes anything into it until the run
@@ -107,6 +113,8 @@ class RunDirLock(Callback):
         self._held: contextlib.ExitStack | None = None
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if _launched_worker():  # a DDP worker Lightning started: its launcher, rank 0, holds the lock
+            return
         held = contextlib.ExitStack()
         try:
             held.enter_context(writer_lock(str(config.hydra.run.dir), "hydra.run.dir="))
