@@ -6,7 +6,10 @@ Each case is a file (or argument) a careless or hostile user could hand us, deri
 tiny dataset: truncated, garbled, impossible values, wrong units, special files; BOP copies of it,
 meshes, camera YAMLs, its checkpoint edited and exported to ONNX (metadata edited), full disks (a
 1 MB tmpfs, where this machine may mount one) and concurrent runs into one folder. Every case runs in
-its own process with a time limit. Verdicts:
+its own process with a time limit. The cases of each kind of defect (decoding overrides, booleans
+read as numbers, ground-truth integrity, a split with nothing to find, two writers into one folder,
+the checkpoint tools, generation settings, inputs foreign to the model, messages that mislead) are
+in their own families. Verdicts:
 
 - ``error``: refused with a one-line error that names the file (or the option / key);
 - ``ok``: a valid input, accepted (the controls: each family has one);
@@ -15,6 +18,9 @@ its own process with a time limit. Verdicts:
 - ``HANG``: no answer within the limit (a bug);
 - ``SILENT``: an impossible value accepted without a word (a bug);
 - ``VAGUE``: an error that does not name the file or key (a bug);
+- ``EXIT``: a refusal with another exit status than the command documents (a bug);
+- ``WRONG``: a valid input whose output does not say what it must (a bug: a split with nothing to
+  find printed as a score);
 - ``DIRTY``: the run left a temporary file behind, or concurrent runs lost outputs (a bug);
 - ``skipped``: the machine cannot stage the case (no tmpfs for a full disk); the reason is printed.
 
@@ -28,6 +34,7 @@ import json
 import multiprocessing as mp
 import os
 import random
+import re
 import shutil
 import subprocess
 import sys
@@ -59,6 +66,8 @@ class Case:
     concurrent: list[list[str]] | None = None  # command lines started together
     skip: str = ""  # why the case cannot run on this machine
     after: Callable[[], str] | None = None  # a check after the run: what it left or lost ("" = clean)
+    status: int | None = None  # the exit status a refused command line must give (None: any but 0)
+    says: str = ""  # what an accepted input's output must state (a reader's returned text, a command's output)
 
 
 # ---------------------------------------------------------------------------------------- fixtures
@@ -142,7 +151,6 @@ def _entry0(doc: list, key: str, value: Any) -> list:
 
 
 def reader_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
-    from opnet.datasets.check import check_dataset
     from opnet.datasets.ipa_csv import read_ipa_csv
     from opnet.datasets.ipa_params import read_parameters
     from opnet.datasets.png import read_png
@@ -302,12 +310,6 @@ def reader_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
         change(root)
         return root
 
-    def must_find(root: Path) -> Any:
-        report = check_dataset(root, fast=True)
-        if report.problems:
-            raise ValueError(str(report.problems[0]))
-        return report
-
     def truncate(p: Path) -> None:
         p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
 
@@ -322,7 +324,7 @@ def reader_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
     }
     for name, (valid, change) in datasets.items():
         root = broken_dataset(f"ds_{len(cases)}", change)
-        cases.append(Case("dataset check", name, valid, run=lambda r=root: must_find(r), names=(root.name,)))
+        cases.append(Case("dataset check", name, valid, run=lambda r=root: _check_finds(r), names=(root.name,)))
     return cases
 
 
@@ -415,10 +417,20 @@ def cli_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
                                                        f"object.mesh={box_mm}", f"out={ws / 'g6'}", h("g6")], ("box_mm.obj",)),
     ]  # fmt: skip
     (ws / "cases" / "flat.obj").write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nf 1 2 3\n")
-    return [Case(f, n, v, argv=a, names=names) for f, n, v, a, names in c]
+    return [Case(f, n, v, argv=a, names=names, status=_documented_status(n)) for f, n, v, a, names in c]
 
 
-# ------------------------------------------------------------------- more families (issue 24)
+#: refusals of one image among the inputs: predict.py and python -m opnet.deploy name it on its line, go on
+#: with the others and exit 1; every other refusal of a command line exits 2
+IMAGE_FAILURES = ("0x0 .npy", "camera.cx=100000", "FIFO in the input folder", "conflicting camera.fx on a dataset PNG",
+                  "camera.fx=1e12", ".npy depth in millimetres", "--fx 1e-9")  # fmt: skip
+
+
+def _documented_status(name: str) -> int:
+    return 1 if name in IMAGE_FAILURES else 2
+
+
+# ------------------------------------------------------------------------------- more families
 
 
 def make_extra(ws: Path, base: dict[str, Path]) -> dict[str, Path]:
@@ -820,17 +832,374 @@ def checkpoint_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
     return cases
 
 
+# ------------------------------------------------------------- defects by kind, in-process readers
+
+
+def decoding_cases(base: dict[str, Path]) -> list[Case]:
+    """``+decoding.<key>=...`` of predict.py and eval.py, as both read them (with_decoding_overrides on the
+    checkpoint's parameterization): out of range, NaN, booleans, text, unknown keys."""
+    from omegaconf import OmegaConf
+
+    from opnet.cli.build import load_checkpoint
+    from opnet.cli.eval import with_decoding_overrides
+
+    param = load_checkpoint(base["ckpt"])[0].parameterization  # loaded once, before the forks
+    nan = float("nan")
+    rows: dict[str, tuple[bool, dict[str, Any], str]] = {
+        "threshold 0.3": (True, {"threshold": 0.3}, ""),
+        "averaging false": (True, {"averaging": False}, ""),
+        "averaging eps 0.8, min_samples 2": (True, {"averaging": {"eps": 0.8, "min_samples": 2}}, ""),
+        "threshold 1.5": (False, {"threshold": 1.5}, "decoding.threshold"),
+        "threshold 1 (the open end)": (False, {"threshold": 1}, "decoding.threshold"),
+        "threshold -0.1": (False, {"threshold": -0.1}, "decoding.threshold"),
+        "threshold NaN": (False, {"threshold": nan}, "decoding.threshold"),
+        "threshold inf": (False, {"threshold": float("inf")}, "decoding.threshold"),
+        "threshold true": (False, {"threshold": True}, "decoding.threshold"),
+        "threshold 'abc'": (False, {"threshold": "abc"}, "decoding.threshold"),
+        "threshold '0.5' (text)": (False, {"threshold": "0.5"}, "decoding.threshold"),
+        "threshold null": (False, {"threshold": None}, "decoding.threshold"),
+        "threshold [0.5]": (False, {"threshold": [0.5]}, "decoding.threshold"),
+        "min_visibility 1": (False, {"min_visibility": 1}, "decoding.min_visibility"),
+        "min_visibility -0.1": (False, {"min_visibility": -0.1}, "decoding.min_visibility"),
+        "min_visibility false": (False, {"min_visibility": False}, "decoding.min_visibility"),
+        "min_visibility NaN": (False, {"min_visibility": nan}, "decoding.min_visibility"),
+        "score 'magic'": (False, {"score": "magic"}, "decoding.score"),
+        "score null": (False, {"score": None}, "decoding.score"),
+        "score true": (False, {"score": True}, "decoding.score"),
+        "averaging 5": (False, {"averaging": 5}, "decoding.averaging"),
+        "averaging 'abc'": (False, {"averaging": "abc"}, "decoding.averaging"),
+        "averaging eps -1": (False, {"averaging": {"eps": -1}}, "eps"),
+        "averaging eps NaN": (False, {"averaging": {"eps": nan}}, "eps"),
+        "averaging min_samples 0": (False, {"averaging": {"min_samples": 0}}, "min_samples"),
+        "averaging cluster_score 'x'": (False, {"averaging": {"cluster_score": "x"}}, "cluster_score"),
+        "averaging cluster_score true": (False, {"averaging": {"cluster_score": True}}, "cluster_score"),
+        "unknown averaging key 'foo'": (False, {"averaging": {"foo": 1}}, "foo"),
+        "unknown key 'colour'": (False, {"colour": "red"}, "colour"),
+    }  # fmt: skip
+    cases: list[Case] = []
+    for name, (valid, settings, key) in rows.items():
+        overrides = OmegaConf.create({"decoding": settings}).decoding  # as Hydra hands them over
+        _reader(cases, "decoding override", name, valid, lambda o=overrides: with_decoding_overrides(param, o),
+                *((key,) if key else ()))
+    return cases
+
+
+def _ckpt_with(ckpt: dict, path: Path, key: str, value: Any) -> Path:
+    """A copy of the checkpoint ``ckpt`` with its run config's ``key`` (dotted) set to ``value``, at ``path``."""
+    import copy
+
+    import torch
+
+    torch.save(_nested_set(f"hyper_parameters.config.{key}", value)(copy.deepcopy(ckpt)), path)
+    return path
+
+
+def boolean_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> list[Case]:
+    """Booleans where a checkpoint's config or an ONNX file's metadata holds numbers (trained_clip, the
+    averaging, the input size): true is no 1, false no 0."""
+    import torch
+
+    from opnet.cli.build import load_checkpoint
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    folder = ws / "cases" / "booleans"
+    folder.mkdir(parents=True, exist_ok=True)
+    ckpt = torch.load(base["ckpt"], map_location="cpu", weights_only=True)
+    cases: list[Case] = []
+    configs: dict[str, tuple[str, Any, str]] = {
+        "trained_clip true": ("trained_clip", True, "trained_clip"),
+        "trained_clip false": ("trained_clip", False, "trained_clip"),
+        "trained_clip [true, false]": ("trained_clip", [True, False], "trained_clip"),
+        "trained_clip [0.2, true]": ("trained_clip", [0.2, True], "trained_clip"),
+        "trained_clip '0.1,0.3' (text)": ("trained_clip", "0.1,0.3", "trained_clip"),
+        "data.input_size true": ("data.input_size", True, "input_size"),
+        "data.input_size false": ("data.input_size", False, "input_size"),
+        "data.input_size 128.0": ("data.input_size", 128.0, "input_size"),
+        "parameterization.threshold true": ("parameterization.threshold", True, "threshold"),
+    }
+    for i, (name, (key, value, named)) in enumerate(configs.items()):
+        path = _ckpt_with(ckpt, folder / f"ck_{i}.ckpt", key, value)
+        _reader(cases, "checkpoint booleans", name, False, lambda p=path: load_checkpoint(p), named)
+    metas: dict[str, tuple[str, Any, str]] = {
+        "trained_clip true": ("trained_clip", True, "trained_clip"),
+        "trained_clip [true, false]": ("trained_clip", [True, False], "trained_clip"),
+        "input.size true": ("input.size", True, "input.size"),
+        "input.size false": ("input.size", False, "input.size"),
+        "decoding.averaging true": ("decoding.averaging", True, "decoding.averaging"),
+        "decoding.averaging false": ("decoding.averaging", False, "decoding.averaging"),
+        "averaging min_samples true": ("decoding.averaging.min_samples", True, "min_samples"),
+        "averaging eps true": ("decoding.averaging.eps", True, "eps"),
+        "averaging keep_noise 1": ("decoding.averaging.keep_noise", 1, "keep_noise"),
+        "decoding.min_visibility false": ("decoding.min_visibility", False, "min_visibility"),
+        "grid_size true": ("grid_size", True, "grid_size"),
+        "pose_space.revolution 1": ("pose_space.revolution", 1, "revolution"),
+    }
+    averaging = {"eps": 0.5, "min_samples": 1, "cluster_score": "sum"}  # a model exported with its averaging
+    for i, (name, (key, value, named)) in enumerate(metas.items()):
+        def change(meta: dict, key: str = key, value: Any = value) -> dict:
+            if key.startswith("decoding.averaging."):
+                meta["decoding"]["averaging"] = {**averaging, **(meta["decoding"].get("averaging") or {})}
+            return _nested_set(key, value)(meta)
+
+        path = _onnx_with_meta(extra["onnx"], folder / f"meta_{i}.onnx", change)
+        _reader(cases, "ONNX metadata booleans", name, False, lambda p=path: OnnxPoseEstimator(p), named)
+    return cases
+
+
+def _check_finds(root: Path, object_id: int | None = None) -> Any:
+    """The dataset check (fast) of ``root``: its first problem as the error, or the report."""
+    from opnet.datasets.check import check_dataset
+
+    report = check_dataset(root, fast=True, object_id=object_id)
+    if report.problems:
+        raise ValueError(str(report.problems[0]))
+    return report
+
+
+def _bop_edited(ws: Path, src: Path, name: str, change: Callable[[Path], None]) -> Path:
+    """A copy of the BOP dataset ``src`` changed by ``change(split)``; its split folder."""
+    root = ws / "cases" / name
+    shutil.copytree(src, root)
+    change(root / "train_synt")
+    return root / "train_synt"
+
+
+def _edit_scene_json(path: Path, change: Callable[[dict], Any]) -> None:
+    path.write_text(json.dumps(change(json.loads(path.read_text()))))
+
+
+def _duplicate_last_instance(split: Path) -> None:
+    """The full bin's first instance listed twice: in scene_gt.json, its info and its mask (a consistent
+    duplicate, which only the check can tell)."""
+    scene = split / "000000"
+    for name in ("scene_gt.json", "scene_gt_info.json"):
+        _edit_scene_json(scene / name, _last_image(lambda e: [*e, dict(e[0])]))
+    image = max(json.loads((scene / "scene_gt.json").read_text()), key=int)
+    count = len(json.loads((scene / "scene_gt.json").read_text())[image])
+    masks = scene / "mask_visib"
+    shutil.copy(masks / f"{int(image):06d}_000000.png", masks / f"{int(image):06d}_{count - 1:06d}.png")
+
+
+def _camera_world(R: list[float]) -> Callable[[Path], None]:
+    """A change of a split: the full bin's camera given the world rotation ``R`` (cam_R_w2c)."""
+    return lambda split: _edit_scene_json(split / "000000" / "scene_camera.json",
+                                          _last_image(lambda e: {**e, "cam_R_w2c": R, "cam_t_w2c": [0.0, 0.0, 900.0]}))
+
+
+def ground_truth_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
+    """BOP ground truth that thins out or swells unseen: a deleted visible mask (the reader names the
+    file), a duplicate instance and a camera rotation that is no rotation (the dataset check reports them)."""
+    src = extra["bop"]
+    mask = "000000/mask_visib/000003_000001.png"
+    splits = {
+        "deleted mask_visib file": lambda s: (s / mask).unlink(),
+        "duplicate instance (gt, info and mask)": _duplicate_last_instance,
+        "cam_R_w2c scaled by 2": _camera_world(np.diag([2.0, 2.0, 2.0]).reshape(-1).tolist()),
+        "cam_R_w2c a reflection": _camera_world(np.diag([1.0, 1.0, -1.0]).reshape(-1).tolist()),
+        "cam_R_w2c 6 numbers": _camera_world([1.0, 0.0, 0.0, 0.0, 1.0, 0.0]),
+        "cam_R_w2c a turn about z": _camera_world([0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+        "scene without a mask_visib folder": lambda s: shutil.rmtree(s / "000000" / "mask_visib"),
+    }
+    found = {"deleted mask_visib file": "000003_000001.png", "duplicate instance (gt, info and mask)": "duplicates",
+             "cam_R_w2c scaled by 2": "cam_R_w2c", "cam_R_w2c a reflection": "cam_R_w2c", "cam_R_w2c 6 numbers": "cam_R_w2c"}
+    cases: list[Case] = []
+    for i, (name, change) in enumerate(splits.items()):
+        split = _bop_edited(ws, src, f"gt_{i}", change)
+        valid, names = name not in found, (found[name],) if name in found else ()
+        if "mask_visib" in name:  # the reader itself
+            _reader(cases, "BOP ground truth", f"{name}: reader", valid, lambda s=split: _read_bop(s), *names)
+        _reader(cases, "BOP ground truth", f"{name}: dataset check", valid, lambda s=split: _check_finds(s, 1), *names)
+    return cases
+
+
+def _scene_jsons(folder: Path, change: Callable[[list[dict]], list[dict]], source: Path) -> Path:
+    """``folder`` holding each Siléane JSON of ``source``, its entries changed by ``change``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for path in sorted(source.glob("*.json")):
+        (folder / path.name).write_text(json.dumps(change(json.loads(path.read_text()))))
+    return folder
+
+
+def _as_results(entries: list[dict]) -> list[dict]:
+    """Ground-truth entries as hypotheses at their poses, score 0.9."""
+    return [{"R": e["R"], "t": e["t"], "score": 0.9} for e in entries]
+
+
+def _evaluated(gt: Path, results: Path) -> str:
+    """The AP table of the Siléane scenes of ``gt`` and ``results``, as opnet-evaluate prints it."""
+    from opnet.datasets.sileane_json import read_gt_json, read_results_json
+    from opnet.metrics.bregier import evaluate_scenes
+    from opnet.objects import builtin_object
+
+    scenes = {p.stem: (read_gt_json(p), read_results_json(results / p.name)) for p in sorted(gt.glob("*.json"))}
+    return evaluate_scenes(scenes, builtin_object("zbracket").pose_space).table()
+
+
+def empty_metric_cases(ws: Path, base: dict[str, Path]) -> list[Case]:
+    """The metric's empty case: a split with nothing to find has AP 1.0 by convention, which the table must
+    say as such (with its false positives), not print as a score."""
+    folder, gt = ws / "cases" / "nothing", base["gt"]
+    hyps = _scene_jsons(folder / "hyps", _as_results, gt)
+    none = _scene_jsons(folder / "none", lambda e: [], gt)
+    empty = _scene_jsons(folder / "empty_gt", lambda e: [], gt)
+    hidden = _scene_jsons(folder / "occluded_gt", lambda e: [{**x, "occlusion_rate": 0.9} for x in e], gt)
+    one = _scene_jsons(folder / "one_empty", lambda e: e, gt)
+    first = min(one.glob("*.json"))
+    first.write_text("[]")
+    rows = [
+        ("every scene empty, hypotheses in each", empty, hyps, "nothing to find in this split: AP is reported as 1.0 by convention, 6 false positives"),
+        ("every scene empty, no hypothesis", empty, none, "nothing to find in this split: AP is reported as 1.0 by convention, 0 false positives"),
+        ("every part occluded beyond max_occlusion", hidden, hyps, "nothing to find in this split"),
+        ("one scene of three empty", one, hyps, "1 of 3 scenes had nothing to find (recall 1 there by convention), 1 false positives"),
+    ]  # fmt: skip
+    cases: list[Case] = []
+    for name, g, r, says in rows:
+        cases.append(Case("metric, nothing to find", name, True, run=lambda g=g, r=r: _evaluated(g, r), says=says))
+    return cases
+
+
+def scene_cases() -> list[Case]:
+    """Generation settings out of bounds, as generate.py reads them (SceneConfig, then the rig): one line
+    naming the key, before anything is written."""
+    from opnet.objects import builtin_object
+    from opnet.synthesis import SceneConfig
+    from opnet.synthesis.layout import make_rig
+
+    def rig(**values: Any) -> Any:
+        return make_rig(builtin_object("zbracket"), 3, 1, SceneConfig(resolution=64, **values))
+
+    nan = float("nan")
+    rows: list[tuple[str, bool, dict[str, Any], str]] = [
+        ("perforated basket (size 0.01, pitch 0.02)", True, {"bin_hole_size": 0.01, "bin_hole_pitch": 0.02}, ""),
+        ("working area of 10 cm, camera raised to see it", True, {"bin_area": [-0.05, -0.05, 0.05, 0.05]}, ""),
+        ("bin_hole_size -0.01", False, {"bin_hole_size": -0.01}, "bin_hole_size"),
+        ("bin_hole_size NaN", False, {"bin_hole_size": nan}, "bin_hole_size"),
+        ("bin_hole_size true", False, {"bin_hole_size": True}, "bin_hole_size"),
+        ("bin_hole_size 0.1 mm", False, {"bin_hole_size": 0.0001, "bin_hole_pitch": 0.01}, "bin_hole_size"),
+        ("bin_hole_size 0.01 without a pitch", False, {"bin_hole_size": 0.01}, "bin_hole_pitch"),
+        ("bin_hole_pitch below bin_hole_size", False, {"bin_hole_size": 0.01, "bin_hole_pitch": 0.005}, "bin_hole_pitch"),
+        ("bin_hole_pitch true", False, {"bin_hole_pitch": True}, "bin_hole_pitch"),
+        ("bin_clearance -1", False, {"bin_clearance": -1.0}, "bin_clearance"),
+        ("bin_clearance true", False, {"bin_clearance": True}, "bin_clearance"),
+        ("bin_clearance 1000 m", False, {"bin_clearance": 1000.0}, "bin_clearance"),
+        ("bin_clearance 'high'", False, {"bin_clearance": "high"}, "bin_clearance"),
+        ("bin_inner_y 0", False, {"bin_inner_y": 0.0}, "bin_inner_y"),
+        ("bin_inner_y -0.3", False, {"bin_inner_y": -0.3}, "bin_inner_y"),
+        ("bin_inner_y true", False, {"bin_inner_y": True}, "bin_inner_y"),
+        ("bin_inner_y 'abc'", False, {"bin_inner_y": "abc"}, "bin_inner_y"),
+        ("bin_inner_y 100 m", False, {"bin_inner_y": 100.0}, "bin_inner_y"),
+        ("camera_tilt_deg 90", False, {"camera_tilt_deg": 90.0}, "camera_tilt_deg"),
+        ("camera_tilt_deg -5", False, {"camera_tilt_deg": -5.0}, "camera_tilt_deg"),
+        ("camera_tilt_deg true", False, {"camera_tilt_deg": True}, "camera_tilt_deg"),
+        ("camera_tilt_deg NaN", False, {"camera_tilt_deg": nan}, "camera_tilt_deg"),
+        ("camera_tilt_deg 80 (above the horizon)", False, {"camera_tilt_deg": 80.0, "camera_height": 0.3}, "camera_tilt_deg"),
+        ("camera_azimuth_deg true", False, {"camera_azimuth_deg": True}, "camera_azimuth_deg"),
+        ("bin_area empty list", False, {"bin_area": []}, "bin_area"),
+        ("bin_area reversed", False, {"bin_area": [0.1, 0.1, -0.1, -0.1]}, "bin_area"),
+        ("bin_area [true, 0, 0, 0]", False, {"bin_area": [True, 0, 0, 0]}, "bin_area"),
+        ("bin_area outside the camera's view", False, {"bin_area": [0.0, 0.0, 1.0, 1.0], "camera_height": 0.4}, "bin_area"),
+        ("bin_area behind the camera's view", False, {"bin_area": [5.0, 5.0, 6.0, 6.0], "camera_height": 0.4}, "bin_area"),
+        ("bin_area 200 m across (camera 232 m up)", False, {"bin_area": [-100.0, -100.0, 100.0, 100.0]}, "bin_area"),
+        ("bin_yaw_deg empty list", False, {"bin_yaw_deg": []}, "bin_yaw_deg"),
+        ("bin_yaw_deg reversed", False, {"bin_yaw_deg": [30.0, -30.0]}, "bin_yaw_deg"),
+        ("bin_yaw_deg spanning 720", False, {"bin_yaw_deg": [0.0, 720.0]}, "bin_yaw_deg"),
+        ("bin_yaw_deg [NaN, 1]", False, {"bin_yaw_deg": [nan, 1.0]}, "bin_yaw_deg"),
+        ("bin_yaw_deg [true, false]", False, {"bin_yaw_deg": [True, False]}, "bin_yaw_deg"),
+        ("resolution 64.5", False, {"resolution": 64.5}, "resolution"),
+    ]  # fmt: skip
+    cases: list[Case] = []
+    for name, valid, values, key in rows:
+        if "resolution" in values:
+            _reader(cases, "scene settings", name, valid, lambda v=values: SceneConfig(**v), key)
+        else:
+            _reader(cases, "scene settings", name, valid, lambda v=values: rig(**v), *((key,) if key else ()))
+    return cases
+
+
+def input_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
+    """Inputs foreign to the model and messages that mislead: depth frames outside the clip planes,
+    regions of interest (tiny, negative, reversed, a bin finder on a frame with no bin), a BOP
+    scene_camera.json as the camera, refinement settings of the newer options."""
+    from omegaconf import OmegaConf
+
+    from opnet.data.roi import parse_roi, resolve_box
+    from opnet.datasets.camera_file import read_camera_file
+    from opnet.datasets.depth_inputs import given_camera, load_depth_image
+    from opnet.geometry.camera import Camera
+    from opnet.geometry.icp import settings_from_config
+
+    folder = ws / "cases" / "inputs"
+    folder.mkdir(parents=True, exist_ok=True)
+    cam = {"fx": 100, "fy": 100, "cx": 47.5, "cy": 47.5, "clip_start": 0.5, "clip_end": 1.5}
+    frames = {
+        "depth 1 m (between the planes)": (True, np.full((96, 96), 1.0, np.float32), ""),
+        "no depth at all (0 objects, said so)": (True, np.full((96, 96), np.nan, np.float32), ""),
+        "depth 5 m, beyond clip_end": (False, np.full((96, 96), 5.0, np.float32), "clip planes"),
+        "depth 0.05 m, before clip_start": (False, np.full((96, 96), 0.05, np.float32), "clip planes"),
+        "depth in millimetres": (False, np.full((96, 96), 1000.0, np.float32), "millimetres"),
+    }
+    cases: list[Case] = []
+    for i, (name, (valid, depth, key)) in enumerate(frames.items()):
+        path = folder / f"frame_{i}.npy"
+        np.save(path, depth)
+        _reader(cases, "depth frame", name, valid, lambda p=path: load_depth_image(p, cam), *((path.name, key) if key else ()))
+    camera = Camera(100.0, 100.0, 47.5, 47.5, 96, 96, 0.5, 1.5)
+    floor = np.full((96, 96), 2.0, np.float32)  # the floor beyond the far plane: nothing in the working volume
+    rois: list[tuple[str, bool, Any, np.ndarray | None]] = [
+        ("[8, 8, 88, 88]", True, [8, 8, 88, 88], None),
+        ("16 x 16 box", True, [0, 0, 16, 16], None),
+        ("2 x 2 box", False, [0, 0, 2, 2], None),
+        ("15 x 40 box", False, [0, 0, 15, 40], None),
+        ("negative origin", False, [-10, 0, 50, 50], None),
+        ("reversed corners", False, [50, 50, 10, 10], None),
+        ("x corners reversed", False, [50, 0, 10, 50], None),
+        ("empty box (x0 = x1)", False, [10, 10, 10, 50], None),
+        ("past the image", False, [0, 0, 1000, 1000], None),
+        ("auto on a frame with no bin (the floor only)", False, "auto", floor),
+        ("auto on a frame without depth", False, "auto", np.full((96, 96), np.nan, np.float32)),
+        ("auto:0.3 on a frame with no bin", False, "auto:0.3", floor),
+    ]
+    for name, valid, value, depth in rois:
+        _reader(cases, "region of interest", name, valid,
+                lambda v=value, d=depth: resolve_box(parse_roi(v, "roi"), d, camera, "roi", "frame.npy"), "roi")
+    scene_camera = extra["bop"] / "train_synt" / "000000" / "scene_camera.json"
+    _reader(cases, "camera file", "BOP scene_camera.json (generate.py scene.camera_file)", False,
+            lambda: read_camera_file(scene_camera), "a BOP scene_camera.json")
+    _reader(cases, "camera file", "BOP scene_camera.json (predict.py camera.file)", False,
+            lambda: given_camera({"file": str(scene_camera)}), "a BOP scene_camera.json")
+    refine = {
+        "icp, association projective": (True, "icp", {"association": "projective"}, ""),
+        "search, polish_association nearest": (True, "search", {"polish_association": "nearest"}, ""),
+        "icp.association closest": (False, "icp", {"association": "closest"}, "association"),
+        "icp.association true": (False, "icp", {"association": True}, "association"),
+        "icp.polish_association 5": (False, "search", {"polish_association": 5}, "polish_association"),
+        "icp.polish_association 'closest'": (False, "search", {"polish_association": "closest"}, "polish_association"),
+        "icp.stride 0": (False, "icp", {"stride": 0}, "stride"),
+        "icp.stride 1.5": (False, "icp", {"stride": 1.5}, "stride"),
+        "icp.stride true": (False, "icp", {"stride": True}, "stride"),
+        "search.coarse 0": (False, "search", {"search": {"coarse": 0}}, "coarse"),
+        "search.coarse 2.5": (False, "search", {"search": {"coarse": 2.5}}, "coarse"),
+        "search.coarse true": (False, "search", {"search": {"coarse": True}}, "coarse"),
+    }
+    groups = {m: OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "refine" / f"{m}.yaml")) for m in ("icp", "search")}
+    for name, (valid, method, change, key) in refine.items():
+        group = json.loads(json.dumps(groups[method]))
+        for section, values in ({"icp": change} if "search" not in change else change).items():
+            group[section].update(values)
+        _reader(cases, "refinement settings", name, valid, lambda g=group: settings_from_config(OmegaConf.create(g)),
+                *((key,) if key else ()))
+    return cases
+
+
 MOUNTS: list[Path] = []
 
 
 def full_disk(ws: Path, name: str, free_kb: int = 8) -> tuple[Path, str]:
     """A folder on a 1 MB tmpfs with ``free_kb`` left, and "" (or the folder and why there is none)."""
     mnt = ws / "full" / name
-    mnt.mkdir(parents=True, exist_ok=True)
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True, text=True)
-    if proc.returncode != 0:
-        return mnt, f"no tmpfs here ({(proc.stderr.strip() or 'mount failed')[:80]}): not run"
-    MOUNTS.append(mnt)
+    why = _mount_tmpfs(mnt, "rw")
+    if why:
+        return mnt, why
     filler = mnt / "filler"
     with filler.open("wb") as f:
         try:
@@ -986,7 +1355,7 @@ def cli_more_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> l
         ("BOP writer", "out=/dev/null", False, [*bop, "/dev/null"], ("/dev/null",)),
         ("BOP writer", "input not a dataset", False, [py, "-m", "opnet.datasets.bop", str(c), str(c / "b5")], ("cli2",)),
     ]  # fmt: skip
-    cases = [Case(f, n, v, argv=a, names=names) for f, n, v, a, names in rows]
+    cases = [Case(f, n, v, argv=a, names=names, status=_documented_status(n)) for f, n, v, a, names in rows]
     for case in cases:  # a refused camera leaves no dataset files behind to blame later
         if "scene.camera_file" in case.name:
             case.after = nothing_written(Path(next(a for a in case.argv or [] if a.startswith("out="))[4:]))
@@ -1001,17 +1370,288 @@ def cli_more_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> l
     for i, (family, argv) in enumerate(disk):
         mnt, why = full_disk(ws, f"full_{i}")
         cases.append(Case(family, "disk full (1 MB tmpfs)", False, argv=argv(mnt), names=(mnt.name,), skip=why,
-                          after=leftovers(mnt)))
+                          after=leftovers(mnt), status=2))
     # --- concurrent writers into one folder: one run must stop, naming it; nothing lost
     conc = ws / "concurrent"
-    cases.append(Case("predict.py", "two runs into one out at once", False, names=("c1",),
+    cases.append(Case("predict.py", "two runs into one out at once", False, names=("c1",), status=2,
                       concurrent=[[*predict, f"input={pngs}", f"out={conc / 'c1'}", h(f"c1{k}")] for k in "ab"],
                       after=complete_predictions(conc / "c1", n_pngs)))
-    cases.append(Case("python -m opnet.deploy", "two runs into one --out at once", False, names=("c2",),
+    cases.append(Case("python -m opnet.deploy", "two runs into one --out at once", False, names=("c2",), status=2,
                       concurrent=[[*deploy, str(pngs), "--out", str(conc / "c2")] for _ in "ab"],
                       after=complete_predictions(conc / "c2", n_pngs)))
-    cases.append(Case("BOP writer", "two writers (obj 1 and 2) into one folder at once", False, names=("c3",),
+    cases.append(Case("BOP writer", "two writers (obj 1 and 2) into one folder at once", False, names=("c3",), status=2,
                       concurrent=[[*bop, str(conc / "c3"), "--obj-id", k] for k in "12"]))
+    return cases
+
+
+def _mount_tmpfs(mnt: Path, options: str) -> str:
+    """Mount a 1 MB tmpfs with ``options`` at ``mnt``: "" or why not (then the case is skipped)."""
+    mnt.mkdir(parents=True, exist_ok=True)
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", f"{options},size=1m", "tmpfs", str(mnt)],
+                          capture_output=True, text=True)  # fmt: skip
+    if proc.returncode != 0:
+        return f"no tmpfs here ({(proc.stderr.strip() or 'mount failed')[:80]}): not run"
+    MOUNTS.append(mnt)
+    return ""
+
+
+def present(folder: Path, pattern: str, n: int) -> Callable[[], str]:
+    """A check after concurrent runs: ``folder`` holds ``n`` files matching ``pattern``, the one run's, none lost."""
+    def check() -> str:
+        found = len(list(folder.glob(pattern)))
+        return "" if found == n else f"{found} of {n} {pattern} in {folder.name}"
+
+    return check
+
+
+def cli_defect_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> list[Case]:
+    """Command lines of each kind of defect: decoding overrides, booleans in checkpoints and ONNX
+    metadata, ground truth the dataset check must report, a split with nothing to find, two writers
+    into one folder, the checkpoint tools, generation settings, inputs foreign to the model, messages
+    that mislead, the refinement's newer options and opnet-object. A refusal exits with the status the
+    command documents (2; 1 for predict.py's failed images and the dataset check's problems) and
+    writes nothing."""
+    import pickle
+
+    import torch
+    import trimesh
+
+    py = sys.executable
+    data, ckpt, model, bop = base["data"], base["ckpt"], extra["onnx"], extra["bop"]
+    c = ws / "cases" / "cli3"
+    c.mkdir(parents=True, exist_ok=True)
+    h = lambda name: f"hydra.run.dir={ws / 'hydra' / name}"  # noqa: E731
+    png = data / "p_depth" / "cycle_0000" / "002_depth_uint16.png"
+    cam = ["camera.fx=100", "camera.fy=100", "camera.cx=47.5", "camera.cy=47.5", "camera.clip_start=0.5", "camera.clip_end=1.5"]
+    dcam = ["--fx", "100", "--fy", "100", "--cx", "47.5", "--cy", "47.5", "--clip-start", "0.5", "--clip-end", "1.5"]
+    for name, metres in (("far", 5.0), ("near", 0.05), ("wall", 1.0)):
+        np.save(c / f"{name}.npy", np.full((96, 96), metres, np.float32))
+    ck = torch.load(ckpt, map_location="cpu", weights_only=True)
+    for name, key, value in (("clip_true", "trained_clip", True), ("clip_pair", "trained_clip", [True, False]),
+                             ("size_true", "data.input_size", True), ("size_false", "data.input_size", False),
+                             ("nodata", "data.root", str(ws / "gone")), ("roi_auto", "data.roi", "auto")):  # fmt: skip
+        _ckpt_with(ck, c / f"{name}.ckpt", key, value)
+    for name, key, value in (("clip_true", "trained_clip", True), ("size_true", "input.size", True),
+                             ("avg_true", "decoding.averaging", True)):  # fmt: skip
+        _onnx_with_meta(model, c / f"{name}.onnx", _nested_set(key, value))
+    (c / "text.ckpt").write_text("a checkpoint in name only\n")
+    (c / "code.ckpt").write_bytes(pickle.dumps({"state_dict": Path("x")}))
+    (c / "folder.ckpt").mkdir(exist_ok=True)
+    os.mkfifo(c / "fifo.yaml")
+    (c / "text.stl").write_text("these are not triangles\n")
+    (c / "empty.obj").write_bytes(b"")
+    box = trimesh.creation.box((0.04, 0.03, 0.02))
+    box.export(c / "box.obj")
+    trimesh.Trimesh(box.vertices, box.faces[:-2], process=False).export(c / "open.obj")
+    read_only = ws / "readonly"
+    no_ro = _mount_tmpfs(read_only, "ro")
+    scene_camera = bop / "train_synt" / "000000" / "scene_camera.json"
+    split = bop / "train_synt"
+    mask_gone = _bop_edited(ws, bop, "cli_mask", lambda s: (s / "000000/mask_visib/000003_000001.png").unlink())
+    duplicate = _bop_edited(ws, bop, "cli_dup", _duplicate_last_instance)
+    no_rotation = _bop_edited(ws, bop, "cli_w2c", _camera_world(np.diag([2.0, 2.0, 2.0]).reshape(-1).tolist()))
+    nothing = ws / "cases" / "nothing"  # empty_metric_cases' folders, made again if run alone
+    gt, hyps = _scene_jsons(nothing / "empty_gt", lambda e: [], base["gt"]), _scene_jsons(nothing / "hyps", _as_results, base["gt"])
+    empty_ds = ws / "cases" / "empty_dataset"
+    shutil.copytree(data, empty_ds, ignore=shutil.ignore_patterns("cache_*"))
+    for path in (empty_ds / "gt").rglob("*.csv"):  # every scene holds no part
+        path.write_text(path.read_text().splitlines()[0] + "\n")
+
+    predict = [py, "predict.py", f"ckpt={ckpt}", f"input={png}"]
+    evaluate = [py, "eval.py", f"ckpt={ckpt}", "examples=0"]
+    gen = [py, "generate.py", "cycles=1", "drops=1", "scene.resolution=64", "previews=0", "progress=false"]
+    deploy = [py, "-m", "opnet.deploy", str(model)]
+    check = [py, "-m", "opnet.datasets.check"]
+    record = [py, "scripts/record_trained_clip.py"]
+    tune = [py, "scripts/tune_decoding.py", "--rounds", "1"]
+    export = [py, "export.py", "check=false"]
+    obj = ["opnet-object"]
+    cases: list[Case] = []
+    numbers = iter(range(10_000))
+
+    def add(family: str, name: str, valid: bool, argv: list[str], names: tuple[str, ...] = (), status: int = 2,
+            out: Path | None = None, says: str = "", skip: str = "") -> None:  # fmt: skip
+        """A command line; a refusal must exit with ``status`` and write nothing into ``out``."""
+        after = nothing_written(out) if out is not None and not valid else None
+        cases.append(Case(family, name, valid, argv=argv, names=names, status=status, says=says, skip=skip, after=after))
+
+    def o(tag: str) -> Path:
+        """A fresh output folder (and Hydra run directory name) of a case."""
+        return c / f"{tag}{next(numbers)}"
+
+    # 1. decoding overrides on the command line
+    for override, key in (("+decoding.threshold=1.5", "decoding.threshold"), ("+decoding.threshold=nan", "decoding.threshold"),
+                          ("+decoding.threshold=true", "decoding.threshold"), ("+decoding.threshold=abc", "decoding.threshold"),
+                          ("+decoding.min_visibility=-0.1", "decoding.min_visibility"), ("+decoding.min_visibility=1", "decoding.min_visibility"),
+                          ("+decoding.averaging=5", "decoding.averaging"), ("+decoding.score=magic", "decoding.score"),
+                          ("+decoding.colour=red", "colour"), ("+decoding.averaging.eps=-1", "eps")):  # fmt: skip
+        out = o("p")
+        add("predict.py", override, False, [*predict, f"out={out}", override, h(out.name)], (key,), out=out)
+    for override, key in (("+decoding.threshold=-1", "decoding.threshold"), ("+decoding.score=null", "decoding.score"),
+                          ("+decoding.averaging.min_samples=0", "min_samples"), ("+decoding.averaging.foo=1", "foo")):  # fmt: skip
+        out = o("e")
+        add("eval.py", override, False, [*evaluate, f"out={out}", override, h(out.name)], (key,), out=out)
+    out = o("p")
+    add("predict.py", "+decoding.threshold=0.3 +decoding.averaging=false", True,
+        [*predict, f"out={out}", "+decoding.threshold=0.3", "+decoding.averaging=false", h(out.name)])
+    # 2. booleans read as numbers
+    for name, key in (("clip_true", "trained_clip"), ("clip_pair", "trained_clip"), ("size_true", "input_size"),
+                      ("size_false", "input_size")):  # fmt: skip
+        out = o("p")
+        add("predict.py", f"checkpoint {key} {name.split('_')[1]}", False,
+            [py, "predict.py", f"ckpt={c / f'{name}.ckpt'}", f"input={png}", f"out={out}", h(out.name)], (key,), out=out)
+    for name, key in (("clip_true", "trained_clip"), ("size_true", "input.size"), ("avg_true", "decoding.averaging")):
+        out = o("d")
+        add("python -m opnet.deploy", f"metadata {key} true", False,
+            [py, "-m", "opnet.deploy", str(c / f"{name}.onnx"), str(c / "wall.npy"), "--out", str(out), *dcam], (key,), out=out)
+    out = o("e")
+    add("eval.py", "checkpoint trained_clip true", False, [py, "eval.py", f"ckpt={c / 'clip_true.ckpt'}", f"out={out}", h(out.name)],
+        ("trained_clip",), out=out)
+    # 3. ground truth integrity: the dataset check reports (exit 1), naming the file
+    add("dataset check", "BOP split (valid)", True, [*check, str(split), "--object-id", "1"])
+    add("dataset check", "BOP instance's mask_visib file deleted", False, [*check, str(mask_gone), "--object-id", "1"],
+        ("000003_000001.png",), status=1)
+    add("dataset check", "BOP instance's mask_visib file deleted (--fast)", False,
+        [*check, str(mask_gone), "--object-id", "1", "--fast"], ("000003_000001.png",), status=1)
+    add("dataset check", "BOP duplicate instance", False, [*check, str(duplicate), "--object-id", "1"], ("duplicates",), status=1)
+    add("dataset check", "BOP cam_R_w2c not a rotation", False, [*check, str(no_rotation), "--object-id", "1"], ("cam_R_w2c",), status=1)
+    out = o("e")
+    add("eval.py", "BOP instance's mask_visib file deleted", False,
+        [*evaluate, f"out={out}", f"data.test_root={mask_gone}", "+data.object_id=1", h(out.name)], ("000003_000001.png",), out=out)
+    # 4. the metric's empty case
+    add("opnet-evaluate", "every scene with nothing to find", True,
+        ["opnet-evaluate", "--gt", str(gt), "--results", str(hyps), "--object", "zbracket"],
+        says="nothing to find in this split: AP is reported as 1.0 by convention, 6 false positives")
+    out = o("e")
+    add("eval.py", "a test split with nothing to find", True, [*evaluate, f"out={out}", f"data.test_root={empty_ds}", h(out.name)],
+        says="nothing to find in this split: AP is reported as 1.0 by convention")
+    # 6. the checkpoint tools
+    skip_ro = no_ro
+    add("record_trained_clip.py", "valid (a copy)", True, [*record, str(ckpt), "--write", str(c / "recorded.ckpt")])
+    add("record_trained_clip.py", "not a checkpoint", False, [*record, str(c / "text.ckpt"), "--write", str(c / "r1.ckpt")],
+        ("text.ckpt",), out=c / "r1.ckpt")
+    add("record_trained_clip.py", "a pickle holding code", False, [*record, str(c / "code.ckpt"), "--write", str(c / "r2.ckpt")],
+        ("code.ckpt",), out=c / "r2.ckpt")
+    add("record_trained_clip.py", "training dataset missing", False, [*record, str(c / "nodata.ckpt"), "--write", str(c / "r3.ckpt")],
+        ("gone",), out=c / "r3.ckpt")
+    add("record_trained_clip.py", "--write a folder", False, [*record, str(ckpt), "--write", str(c / "folder.ckpt")], ("folder.ckpt",),
+        out=c / "folder.ckpt")
+    add("record_trained_clip.py", "--write into a read-only folder", False, [*record, str(ckpt), "--write", str(read_only / "r.ckpt")],
+        ("readonly",), out=read_only, skip=skip_ro)
+    add("tune_decoding.py", "not a checkpoint", False, [*tune, "--ckpt", str(c / "text.ckpt"), "--out", str(c / "t1")], ("text.ckpt",),
+        out=c / "t1")
+    add("tune_decoding.py", "training dataset missing", False, [*tune, "--ckpt", str(c / "nodata.ckpt"), "--out", str(c / "t2")],
+        ("gone",), out=c / "t2")
+    add("tune_decoding.py", "--write a folder", False, [*tune, "--ckpt", str(ckpt), "--out", str(c / "t3"), "--write",
+                                                         str(c / "folder.ckpt")], ("folder.ckpt",), out=c / "t3")
+    add("tune_decoding.py", "--out a read-only folder", False, [*tune, "--ckpt", str(ckpt), "--out", str(read_only / "t")],
+        ("readonly",), out=read_only, skip=skip_ro)
+    add("tune_decoding.py", "--write into a read-only folder", False, [*tune, "--ckpt", str(ckpt), "--out", str(c / "t4"), "--write",
+                                                                      str(read_only / "t.ckpt")], ("readonly",), out=c / "t4", skip=skip_ro)
+    add("export.py", "not a checkpoint", False, [*export, f"ckpt={c / 'text.ckpt'}", f"out={c / 'x1.onnx'}", h("x1")], ("text.ckpt",))
+    add("export.py", "a pickle holding code", False, [*export, f"ckpt={c / 'code.ckpt'}", f"out={c / 'x2.onnx'}", h("x2")], ("code.ckpt",))
+    add("export.py", "training dataset missing (not needed)", True, [*export, f"ckpt={c / 'nodata.ckpt'}", f"out={c / 'x3.onnx'}", h("x3")])
+    add("export.py", "out= a folder", False, [*export, f"ckpt={ckpt}", f"out={c / 'folder.ckpt'}", h("x4")], ("folder.ckpt",),
+        out=c / "folder.ckpt")
+    add("export.py", "out= a read-only folder", False, [*export, f"ckpt={ckpt}", f"out={read_only / 'm.onnx'}", h("x5")], ("readonly",),
+        out=read_only, skip=skip_ro)
+    # 7. generation settings out of bounds: one line naming the key, nothing written
+    for override, key in (("scene.bin_hole_size=-0.01", "bin_hole_size"), ("scene.bin_hole_size=true", "bin_hole_size"),
+                          ("scene.bin_clearance=-1", "bin_clearance"), ("scene.bin_clearance=true", "bin_clearance"),
+                          ("scene.bin_clearance=1000", "bin_clearance"), ("scene.bin_inner_y=0", "bin_inner_y"),
+                          ("scene.bin_inner_y=true", "bin_inner_y"), ("scene.bin_inner_y=abc", "bin_inner_y"),
+                          ("scene.camera_tilt_deg=90", "camera_tilt_deg"), ("scene.camera_tilt_deg=true", "camera_tilt_deg"),
+                          ("scene.bin_area=[]", "bin_area"), ("scene.bin_area=[0.1,0.1,-0.1,-0.1]", "bin_area"),
+                          ("scene.bin_area=[-100,-100,100,100]", "bin_area"), ("scene.bin_yaw_deg=[]", "bin_yaw_deg"),
+                          ("scene.bin_yaw_deg=[30,-30]", "bin_yaw_deg"), ("scene.resolution=64.5", "resolution")):  # fmt: skip
+        out = o("g")
+        add("generate.py", override, False, [*gen, override, f"out={out}", h(out.name)], (key,), out=out)
+    out = o("g")
+    add("generate.py", "a working area outside the camera's view", False,
+        [*gen, "scene.camera_height=0.4", "scene.bin_area=[0,0,1,1]", f"out={out}", h(out.name)], ("bin_area",), out=out)
+    # 8. input foreign to the model (predict.py: a failed image is named on its line, exit 1)
+    for name, why in (("far", "beyond clip_end"), ("near", "before clip_start")):
+        out = o("p")
+        add("predict.py", f"depth frame wholly {why}", False, [py, "predict.py", f"ckpt={ckpt}", f"input={c / f'{name}.npy'}",
+                                                               f"out={out}", *cam, h(out.name)], (f"{name}.npy",), status=1, out=out)
+    out = o("d")
+    add("python -m opnet.deploy", "depth frame wholly beyond clip_end", False, [*deploy, str(c / "far.npy"), "--out", str(out), *dcam],
+        ("far.npy",), status=1, out=out)
+    out = o("p")
+    add("predict.py", "roi=[0,0,2,2] (a 2 x 2 box)", False, [*predict, f"out={out}", "roi=[0,0,2,2]", h(out.name)], ("2 x 2",), out=out)
+    out = o("d")
+    add("python -m opnet.deploy", "--roi 0,0,2,2", False, [*deploy, str(c / "wall.npy"), "--out", str(out), *dcam, "--roi", "0,0,2,2"],
+        ("2 x 2",), out=out)
+    out = o("p")
+    add("predict.py", "roi=auto on a frame with no bin", False, [py, "predict.py", f"ckpt={ckpt}", f"input={c / 'wall.npy'}",
+                                                                f"out={out}", *cam, "roi=auto", h(out.name)], ("wall.npy", "roi"), status=1, out=out)
+    out = o("p")
+    add("predict.py", "checkpoint data.roi=auto, a frame with no bin", False,
+        [py, "predict.py", f"ckpt={c / 'roi_auto.ckpt'}", f"input={c / 'wall.npy'}", f"out={out}", *cam, h(out.name)],
+        ("wall.npy", "roi"), status=1, out=out)
+    add("export.py", "out= a new .ckpt", False, [*export, f"ckpt={ckpt}", f"out={c / 'model.ckpt'}", h("x6")], (".ckpt",),
+        out=c / "model.ckpt")
+    # 9. messages that mislead
+    for roi, why in (("[-10,0,50,50]", "starts at pixel"), ("[50,50,10,10]", "corners are reversed")):
+        out = o("p")
+        add("predict.py", f"roi={roi}", False, [*predict, f"out={out}", f"roi={roi}", h(out.name)], (why,), out=out)
+    out = o("d")
+    add("python -m opnet.deploy", "--roi -10,0,50,50", False, [*deploy, str(c / "wall.npy"), "--out", str(out), *dcam, "--roi=-10,0,50,50"],
+        ("starts at pixel",), out=out)
+    add("dataset check", "--clip reversed (BOP split)", False, [*check, str(split), "--object-id", "1", "--clip", "1.5", "0.5"], ("--clip",))
+    add("dataset check", "--clip reversed (IPA dataset)", False, [*check, str(data), "--clip", "1.5", "0.5"], ("--clip",))
+    out = o("p")
+    add("predict.py", "camera.file= a BOP scene_camera.json", False, [py, "predict.py", f"ckpt={ckpt}", f"input={c / 'wall.npy'}",
+                                                                      f"out={out}", f"camera.file={scene_camera}", h(out.name)],
+        ("a BOP scene_camera.json",), out=out)
+    out = o("g")
+    add("generate.py", "scene.camera_file= a BOP scene_camera.json", False, [*gen, f"scene.camera_file={scene_camera}", f"out={out}",
+                                                                             h(out.name)], ("a BOP scene_camera.json",), out=out)
+    out = o("d")
+    add("python -m opnet.deploy", "--camera a BOP scene_camera.json", False, [*deploy, str(c / "wall.npy"), "--out", str(out), "--camera",
+                                                                            str(scene_camera)], ("a BOP scene_camera.json",), out=out)
+    out = o("t")
+    add("train.py", "data.input_size=256 without model.in_size", False,
+        [py, "train.py", "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.input_size=256",
+         f"hydra.run.dir={out}"], ("model.in_size",))  # fmt: skip
+    # the refinement's newer options
+    for group, override, key in (("icp", "refine.icp.association=closest", "association"),
+                                 ("search", "refine.icp.polish_association=5", "polish_association"),
+                                 ("icp", "refine.icp.stride=0", "stride"), ("search", "refine.search.coarse=0", "coarse")):  # fmt: skip
+        out = o("p")
+        add("predict.py", f"refine={group} {override}", False, [*predict, f"out={out}", f"refine={group}", override, h(out.name)],
+            (key,), out=out)
+    out = o("e")
+    add("eval.py", "refine=icp refine.icp.association=closest", False,
+        [*evaluate, f"out={out}", "refine=icp", "refine.icp.association=closest", h(out.name)], ("association",), out=out)
+    out = o("p")
+    add("predict.py", "refine=icp refine.icp.association=projective", True,
+        [*predict, f"out={out}", "refine=icp", "refine.icp.association=projective", h(out.name)])
+    # opnet-object
+    add("opnet-object", "a box", True, [*obj, str(c / "box.obj"), "--out", str(c / "box.yaml")])
+    add("opnet-object", "not watertight (read as a surface)", True, [*obj, str(c / "open.obj"), "--out", str(c / "open.yaml")],
+        says="not watertight")
+    for name, why in (("text.stl", "not a mesh"), ("empty.obj", "not a mesh"), ("gone.obj", "file not found")):
+        out = o("y")
+        add("opnet-object", f"{name} ({why})", False, [*obj, str(c / name), "--out", str(out / "x.yaml")], (name,), out=out)
+    for name, target in (("--out a folder", c / "folder.ckpt"), ("--out a FIFO", c / "fifo.yaml")):
+        add("opnet-object", name, False, [*obj, str(c / "box.obj"), "--out", str(target), "--force"], (target.name,))
+    add("opnet-object", "--out into a read-only folder", False, [*obj, str(c / "box.obj"), "--out", str(read_only / "x.yaml")],
+        ("readonly",), out=read_only, skip=skip_ro)
+    # 5. two writers into one folder: the second stops at once, exit 2, naming the folder; nothing lost
+    conc = ws / "concurrent"
+    train = [py, "train.py", "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
+             "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1", "test=false",
+             "trainer.enable_progress_bar=false", "example_predictions=0", f"hydra.run.dir={conc / 'c6'}"]  # fmt: skip
+    cases.append(Case("generate.py", "two runs into one out at once", False, names=("c4",), status=2,
+                      concurrent=[[*gen, "cycles=2", f"out={conc / 'c4'}", h(f"c4{x}")] for x in "ab"],
+                      after=present(conc / "c4", "gt/*/*.csv", 4)))
+    slow = ["refine=search", "+decoding.threshold=0", "+decoding.averaging=false"]  # every cell searched: seconds, not one
+    cases.append(Case("eval.py", "two runs into one out at once", False, names=("c5",), status=2,
+                      concurrent=[[*evaluate, f"out={conc / 'c5'}", *slow, h(f"c5{x}")] for x in "ab"],
+                      after=present(conc / "c5", "summary.json", 1)))
+    cases.append(Case("train.py", "two runs into one run directory at once", False, names=("c6",), status=2,
+                      concurrent=[train, train], after=present(conc / "c6", "checkpoints/last.ckpt", 1)))
     return cases
 
 
@@ -1020,8 +1660,8 @@ def cli_more_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> l
 
 def _child(fn: Callable[[], Any], conn: Any) -> None:
     try:
-        fn()
-        conn.send(("returned", ""))
+        result = fn()
+        conn.send(("returned", result if isinstance(result, str) else ""))  # a text for ``says``
     except USER_ERRORS as e:
         conn.send(("user_error", str(e)))
     except BaseException as e:  # noqa: BLE001 - classifying every outcome is the point
@@ -1052,8 +1692,10 @@ def run_cli(case: Case) -> tuple[str, str]:
         return "TRACEBACK", text.strip().splitlines()[-1][:200]
     # Hydra's hint line ("Set the environment variable HYDRA_FULL_ERROR=1 ...") is not a message
     errors = [line for line in text.splitlines() if "error" in line.lower() and "HYDRA_FULL_ERROR" not in line]
-    return _verdict(case, proc.returncode == 0 and not errors, proc.returncode != 0 or bool(errors),
-                    (errors[-1] if errors else text.strip().splitlines()[-1] if text.strip() else "")[:300])
+    accepted = proc.returncode == 0 and not errors
+    verdict, message = _verdict(case, accepted, proc.returncode != 0 or bool(errors),
+                                text if accepted else (errors[-1] if errors else text.strip().splitlines()[-1] if text.strip() else "")[:300])
+    return _exit_status(case, verdict, message, [proc.returncode])
 
 
 def run_concurrent(case: Case) -> tuple[str, str]:
@@ -1075,7 +1717,16 @@ def run_concurrent(case: Case) -> tuple[str, str]:
         return "TRACEBACK", next(t for t in texts if "Traceback" in t).strip().splitlines()[-1][:200]
     failed = [t for t, proc in zip(texts, procs) if proc.returncode != 0]
     errors = [line for t in failed for line in t.splitlines() if "error" in line.lower()]
-    return _verdict(case, not failed, bool(failed), (errors[-1] if errors else "")[:300])
+    verdict, message = _verdict(case, not failed, bool(failed), (errors[-1] if errors else "")[:300])
+    return _exit_status(case, verdict, message, [proc.returncode for proc in procs if proc.returncode != 0])
+
+
+def _exit_status(case: Case, verdict: str, message: str, statuses: list[int]) -> tuple[str, str]:
+    """An ``error`` verdict becomes ``EXIT`` when the refusal's exit status is not the documented one."""
+    wrong = [s for s in statuses if s != case.status]
+    if verdict != "error" or case.status is None or not wrong:
+        return verdict, message
+    return "EXIT", f"exit status {wrong[0]}, expected {case.status}: {message}"
 
 
 def run_case(case: Case) -> tuple[str, str]:
@@ -1092,7 +1743,10 @@ def run_case(case: Case) -> tuple[str, str]:
 
 
 def _verdict(case: Case, accepted: bool, user_error: bool, message: str) -> tuple[str, str]:
+    """The verdict of a case from its outcome; ``message``: the error, or what an accepted input printed."""
     if case.valid:
+        if accepted and case.says and case.says not in message:
+            return "WRONG", f"does not say {case.says!r}: {' / '.join(message.strip().splitlines()[:3])[:200]}"
         return ("ok", "") if accepted else ("TRACEBACK" if not user_error else "REFUSED", message)
     if accepted:
         return "SILENT", "accepted"
@@ -1117,11 +1771,14 @@ def main(argv: list[str] | None = None) -> int:
         base = make_base(ws)
         extra = make_extra(ws, base)
         cases = (reader_cases(ws, base) + bop_cases(ws, extra) + mesh_cases(ws) + camera_yaml_cases(ws)
-                 + onnx_cases(ws, extra) + checkpoint_cases(ws, base)
-                 + ([] if args.no_cli else cli_cases(ws, base) + cli_more_cases(ws, base, extra)))
+                 + onnx_cases(ws, extra) + checkpoint_cases(ws, base) + decoding_cases(base)
+                 + boolean_cases(ws, base, extra) + ground_truth_cases(ws, extra) + empty_metric_cases(ws, base)
+                 + scene_cases() + input_cases(ws, extra)
+                 + ([] if args.no_cli else cli_cases(ws, base) + cli_more_cases(ws, base, extra)
+                    + cli_defect_cases(ws, base, extra)))
         for case in cases:
             verdict, message = run_case(case)
-            message = message.replace(str(ws), "<ws>")
+            message = re.sub(r"\(pid \d+\)", "(pid <n>)", message.replace(str(ws), "<ws>"))  # the same table each run
             rows.append((case.family, case.name, "valid" if case.valid else "bad", verdict, message))
             print(f"{verdict:9s} {case.family} / {case.name}: {message[:150]}", flush=True)
     finally:
