@@ -136,3 +136,9 @@ def test_entry_configs_compose(name: str) -> None:
 def test_slurm_launcher_config_names_submitit() -> None:
     text = (CONF / "hydra" / "launcher" / "slurm.yaml").read_text()
     assert "submitit_slurm" in text and "gpus_per_node" in text
+
+
+@pytest.mark.parametrize("value", ["true", "abc", "4"])
+def test_an_input_size_that_is_no_size_is_named(value: str) -> None:
+    with pytest.raises(ValueError, match=r"data.input_size=.*expected a whole number of pixels"):
+        build_components(_compose("train", [f"data.input_size={value}", "paths.root_dir=/tmp/opnet"]))

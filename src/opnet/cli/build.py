@@ -68,7 +68,12 @@ def check_input_grid(cfg: DictConfig) -> None:
     step). Raises ValueError naming the keys and the two ways to a larger input."""
     size = (cfg.get("data") or {}).get("input_size")
     in_size = (cfg.get("model") or {}).get("in_size")
-    if size is None or in_size is None or size == in_size:
+    if size is None or in_size is None:
+        return
+    for key, value in (("data.input_size", size), ("model.in_size", in_size)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= MAX_INPUT_SIZE:
+            raise ValueError(f"{key}={short(repr(value))}, expected a whole number of pixels in 8..{MAX_INPUT_SIZE}")
+    if size == in_size:
         return
     message = (f"data.input_size={size} but model.in_size={in_size}: the network is built for the input it is fed; "
                f"set model.in_size={size}")

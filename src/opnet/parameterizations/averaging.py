@@ -116,10 +116,13 @@ class PoseAveraging:
     keep_noise: bool = False
 
     def __post_init__(self) -> None:
-        if not self.eps > 0:
+        eps, samples = self.eps, self.min_samples
+        if isinstance(eps, bool) or not isinstance(eps, int | float | np.number) or not np.isfinite(eps) or not eps > 0:
             raise ValueError(
-                f"parameterization.averaging_eps must be positive (a fraction of delta), got {self.eps}"
+                f"parameterization.averaging_eps must be a positive number (a fraction of delta), got {eps!r}"
             )
+        if isinstance(samples, bool) or not isinstance(samples, int | np.integer):
+            raise ValueError(f"parameterization.averaging_min_samples must be a whole number >= 1, got {samples!r}")
         if self.cluster_score not in CLUSTER_SCORES:
             raise ValueError(
                 f"parameterization.averaging_score must be one of {CLUSTER_SCORES}, "

@@ -203,10 +203,11 @@ class Parameterization(abc.ABC):
             raise ValueError(f"parameterization grid must be a positive integer, got {grid!r}")
         if int(slots) != slots or slots < 1:
             raise ValueError(f"parameterization slots must be a positive integer, got {slots!r}")
-        if not 0 <= threshold < 1:
-            raise ValueError(f"parameterization threshold must lie in [0, 1), got {threshold}")
-        if not 0 <= min_visibility < 1:
-            raise ValueError(f"parameterization.min_visibility must lie in [0, 1), got {min_visibility}")
+        for key, value in (("threshold", threshold), ("min_visibility", min_visibility)):  # booleans are no numbers
+            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not 0 <= value < 1:
+                raise ValueError(f"parameterization.{key} must lie in [0, 1), got {value!r}")
+        if not isinstance(averaging, bool | np.bool_):
+            raise ValueError(f"parameterization.averaging must be true or false, got {averaging!r}")
         if isinstance(min_target_visibility, bool) or not 0 <= min_target_visibility < 1:
             raise ValueError(f"parameterization.min_target_visibility must lie in [0, 1), got {min_target_visibility!r}")
         if score not in SCORES:
