@@ -62,6 +62,13 @@ def config_group(group: str) -> Iterator[None]:
         raise ValueError(f"config group '{group}': its keys do not fit its component ({short(text.splitlines()[0], 200)})") from e
 
 
+def check_pixels(key: str, value: Any) -> None:
+    """An input side: a whole number of pixels in 8..:data:`MAX_INPUT_SIZE` (never a boolean); ValueError naming
+    ``key`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= MAX_INPUT_SIZE:
+        raise ValueError(f"{key}={short(repr(value))}, expected a whole number of pixels in 8..{MAX_INPUT_SIZE}")
+
+
 def check_input_grid(cfg: DictConfig) -> None:
     """The network is built for ``model.in_size``; a fully convolutional network fed ``data.input_size`` pixels
     instead would put out another grid than the parameterization's ``grid`` (the loss would fail at the first
@@ -70,9 +77,8 @@ def check_input_grid(cfg: DictConfig) -> None:
     in_size = (cfg.get("model") or {}).get("in_size")
     if size is None or in_size is None:
         return
-    for key, value in (("data.input_size", size), ("model.in_size", in_size)):
-        if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= MAX_INPUT_SIZE:
-            raise ValueError(f"{key}={short(repr(value))}, expected a whole number of pixels in 8..{MAX_INPUT_SIZE}")
+    check_pixels("data.input_size", size)
+    check_pixels("model.in_size", in_size)
     if size == in_size:
         return
     message = (f"data.input_size={size} but model.in_size={in_size}: the network is built for the input it is fed; "
@@ -183,11 +189,9 @@ def check_framing(cfg: DictConfig, path: str | Path) -> None:
     from opnet.data.roi import parse_roi
 
     data = cfg.get("data") or {}
-    size, fit = data.get("input_size", 128), data.get("fit", "pad")
-    if isinstance(size, bool) or not isinstance(size, int) or not 8 <= size <= MAX_INPUT_SIZE:
-        raise ValueError(f"{path}: the checkpoint's config data.input_size={short(repr(size))}, expected a whole "
-                         f"number of pixels in 8..{MAX_INPUT_SIZE}")
+    fit = data.get("fit", "pad")
     try:
+        check_pixels("data.input_size", data.get("input_size", 128))
         parse_roi(data.get("roi"), "data.roi")
     except ValueError as e:
         raise ValueError(f"{path}: the checkpoint's config {e}") from None

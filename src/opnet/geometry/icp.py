@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -48,9 +48,11 @@ from opnet.geometry.search import (
     facing_points,
     model_axis,
     resolve_mode,
+    rodrigues,
     score_poses,
     search_any,
     search_poses,
+    skew,
     turns,
 )
 
@@ -170,6 +172,22 @@ class ModelCloud:
         return p, np.sum((self.normals @ R.T) * p, -1) < 0
 
 
+class _Grid(NamedTuple):
+    """The strided pixel grid a :class:`SceneCloud` was made from: points and normals per pixel (NaN where
+    none), which pixels have both, the pixels' image coordinates and the camera."""
+
+    xyz: np.ndarray  # (h, w, 3)
+    normals: np.ndarray  # (h, w, 3)
+    ok: np.ndarray  # (h, w)
+    u: np.ndarray  # (w,) image columns of the grid
+    v: np.ndarray  # (h,) image rows
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    stride: int
+
+
 class SceneCloud:
     """The depth image as camera-frame points (N, 3) with unit normals (N, 3).
 
@@ -179,9 +197,9 @@ class SceneCloud:
     hypothesis). ``tree``, a k-d tree over all the points, is made when first asked for.
     """
 
-    def __init__(self, points: np.ndarray, normals: np.ndarray, grid: tuple[np.ndarray, ...] | None = None) -> None:
+    def __init__(self, points: np.ndarray, normals: np.ndarray, grid: _Grid | None = None) -> None:
         self.points, self.normals = points, normals
-        self._grid = grid  # (xyz (h, w, 3), normals (h, w, 3), ok (h, w), u (w,), v (h,), fx, fy, cx, cy)
+        self._grid = grid
         self._tree: cKDTree | None = None
 
     @property
@@ -215,26 +233,25 @@ class SceneCloud:
             c /= np.where(norm > 0, norm, np.nan)
             c *= np.where(np.sum(c * xyz[1:-1, 1:-1], -1, keepdims=True) > 0, -1.0, 1.0)  # facing the camera
         ok = np.isfinite(n).all(-1)  # a finite normal needs the point and both neighbours each way
-        return cls(xyz[ok], n[ok], (xyz, n, ok, u, v, fx, fy, cx, cy))
+        return cls(xyz[ok], n[ok], _Grid(xyz, n, ok, u, v, fx, fy, cx, cy, stride))
 
     def neighbourhood(self, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
         """The points within ``radius`` metres of ``centre`` (3,) and their normals, in pixel order."""
         if self._grid is None:
             idx = np.sort(np.asarray(self.tree.query_ball_point(centre, radius), dtype=np.int64))
             return self.points[idx], self.normals[idx]
-        xyz, normals, ok, u, v, fx, fy, cx, cy = self._grid
+        g = self._grid
         x, y, z = (float(c) for c in centre)
         rows, cols = slice(None), slice(None)
         if z - radius > 1e-9:  # the ball lies in front of the camera: its pixels lie in the box of its corners
-            near, far = z - radius, z + radius
-            us = [fx * xx / zz + cx for xx in (x - radius, x + radius) for zz in (near, far)]
-            vs = [fy * yy / zz + cy for yy in (y - radius, y + radius) for zz in (near, far)]
-            cols = slice(*np.searchsorted(u, [min(us) - 1, max(us) + 1]))
-            rows = slice(*np.searchsorted(v, [min(vs) - 1, max(vs) + 1]))
-        window = xyz[rows, cols]
-        d2 = np.sum((window - centre) ** 2, -1)
-        near = ok[rows, cols] & (d2 <= radius * radius)
-        return window[near], normals[rows, cols][near]
+            depths = (z - radius, z + radius)
+            us = [g.fx * xx / zz + g.cx for xx in (x - radius, x + radius) for zz in depths]
+            vs = [g.fy * yy / zz + g.cy for yy in (y - radius, y + radius) for zz in depths]
+            cols = slice(*np.searchsorted(g.u, [min(us) - 1, max(us) + 1]))
+            rows = slice(*np.searchsorted(g.v, [min(vs) - 1, max(vs) + 1]))
+        window = g.xyz[rows, cols]
+        inside = g.ok[rows, cols] & (np.sum((window - centre) ** 2, -1) <= radius * radius)
+        return window[inside], g.normals[rows, cols][inside]
 
 
 @dataclass(frozen=True)
@@ -250,15 +267,11 @@ class ICPResult:
     residual_after: float = float("nan")
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
 def _rotation(w: np.ndarray) -> np.ndarray:
     """exp of the rotation vector ``w`` (Rodrigues)."""
     angle = float(np.linalg.norm(w))
     if angle < 1e-12:
-        return np.eye(3) + _skew(w)
+        return np.eye(3) + skew(w)
     return turns(w / angle, np.array([angle]))[0]
 
 
@@ -310,7 +323,7 @@ def _step(p: np.ndarray, q: np.ndarray, n: np.ndarray, huber: float) -> np.ndarr
     S[:3, :3] = np.array([[np.sum(py**2 + pz**2), -np.sum(px * py), -np.sum(px * pz)],
                           [-np.sum(px * py), np.sum(px**2 + pz**2), -np.sum(py * pz)],
                           [-np.sum(px * pz), -np.sum(py * pz), np.sum(px**2 + py**2)]])  # fmt: skip
-    cross_sum = _skew(p.sum(0))  # -[p]x^T = [p]x
+    cross_sum = skew(p.sum(0))  # -[p]x^T = [p]x
     S[:3, 3:] = cross_sum
     S[3:, :3] = cross_sum.T
     S[3:, 3:] = len(p) * np.eye(3)
@@ -377,18 +390,17 @@ def _project(scene: SceneCloud, p: np.ndarray, use: np.ndarray, max_distance: fl
     """Projective correspondences of model points (H, P, 3) marked ``use`` (H, P): the scene point and normal
     of the strided pixel each projects onto, kept where it is measured and within ``max_distance``:
     (q (H, P, 3), n_q (H, P, 3), kept (H, P))."""
-    xyz, normals, ok, u, v, fx, fy, cx, cy = scene._grid
-    h, w = ok.shape
-    stride = (u[1] - u[0]) if len(u) > 1 else (v[1] - v[0]) if len(v) > 1 else 1.0
+    g = scene._grid
+    h, w = g.ok.shape
     z = p[..., 2]
     inv = np.divide(1.0, z, out=np.zeros_like(z), where=z > 0)
-    j = (p[..., 0] * (fx * inv) + cx) / stride + 0.5  # the nearest strided pixel is floor(j)
-    i = (p[..., 1] * (fy * inv) + cy) / stride + 0.5
+    j = (p[..., 0] * (g.fx * inv) + g.cx) / g.stride + 0.5  # the nearest strided pixel is floor(j)
+    i = (p[..., 1] * (g.fy * inv) + g.cy) / g.stride + 0.5
     inside = use & (z > 0) & (j >= 0) & (j < w) & (i >= 0) & (i < h)
     flat = np.where(inside, i, 0).astype(np.intp) * w + np.where(inside, j, 0).astype(np.intp)
-    q = xyz.reshape(-1, 3)[flat]
-    n = normals.reshape(-1, 3)[flat]
-    kept = inside & ok.reshape(-1)[flat]
+    q = g.xyz.reshape(-1, 3)[flat]
+    n = g.normals.reshape(-1, 3)[flat]
+    kept = inside & g.ok.reshape(-1)[flat]
     kept &= np.sum((np.where(kept[..., None], q, p) - p) ** 2, -1) <= max_distance**2
     return q, n, kept
 
@@ -415,11 +427,8 @@ def _batched_cost_and_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, kept: np
     PP = np.swapaxes(pm, 1, 2) @ pm  # sum of p p^T
     S = np.zeros_like(A)
     S[:, :3, :3] = np.trace(PP, axis1=1, axis2=2)[:, None, None] * np.eye(3) - PP
-    ps = pm.sum(1)
-    skew = np.zeros((len(p), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -ps[:, 2], ps[:, 1], -ps[:, 0]
-    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = ps[:, 2], -ps[:, 1], ps[:, 0]
-    S[:, :3, 3:], S[:, 3:, :3] = skew, np.swapaxes(skew, 1, 2)
+    cross_sum = skew(pm.sum(1))
+    S[:, :3, 3:], S[:, 3:, :3] = cross_sum, np.swapaxes(cross_sum, 1, 2)
     S[:, 3:, 3:] = m.sum(1)[:, None, None] * np.eye(3)
     g = np.concatenate((np.cross(pm, e).sum(1), e.sum(1)), -1)
     A = A + POINT_WEIGHT * S
@@ -434,12 +443,7 @@ def _batched_cost_and_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, kept: np
 def _rotations(w: np.ndarray) -> np.ndarray:
     """exp of rotation vectors (H, 3) (Rodrigues)."""
     angle = np.linalg.norm(w, axis=1)
-    k = w / np.where(angle > 1e-12, angle, 1.0)[:, None]
-    K = np.zeros((len(w), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
+    return rodrigues(w / np.where(angle > 1e-12, angle, 1.0)[:, None], angle)
 
 
 def refine_poses_projective(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneCloud, space: Any,

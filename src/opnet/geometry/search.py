@@ -176,12 +176,19 @@ def turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return rodrigues(axis, angles)
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrices (..., 3, 3) of vectors (..., 3): ``skew(v) @ x == np.cross(v, x)``."""
+    v = np.asarray(v, np.float64)
+    K = np.zeros((*v.shape, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return K
+
+
 def rodrigues(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """Rotations (..., 3, 3) by ``angles`` (...) radians about unit ``axes`` (..., 3), broadcast together."""
     axes, angles = np.broadcast_arrays(np.asarray(axes, np.float64), np.asarray(angles, np.float64)[..., None])
-    K = np.zeros((*axes.shape, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -axes[..., 2], axes[..., 1], -axes[..., 0]
-    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = axes[..., 2], -axes[..., 1], axes[..., 0]
+    K = skew(axes)
     s, c = np.sin(angles[..., :1])[..., None], np.cos(angles[..., :1])[..., None]
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
