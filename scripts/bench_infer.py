@@ -29,11 +29,14 @@ bf16 autocast, channels-last and a CUDA-graph replay of the forward pass, and th
 throughput of the paper network. Prints a table (milliseconds per batch and per image).
 
 ``--latency-out``: per batch and precision (fp32 = the default path of the device, bf16 autocast
-channels-last, and on CUDA bf16 replayed as a CUDA graph), the forward and end-to-end milliseconds
-per batch, end to end with the host's and with the device-side pre- and postprocessing; columns
-device, network, batch, precision, forward_ms, end_to_end_ms (the device's default: device-side on
-CUDA, host on the CPU), end_to_end_host_ms, end_to_end_device_ms. Decoding: the parameterization
-with ``conf/decoding/<--decoding>.yaml`` (tuned: averaging on, as trained checkpoints decode).
+channels-last, and on CUDA fp32 and bf16 forwards replayed as CUDA graphs), the forward and
+end-to-end milliseconds per batch, end to end with the host's and with the device-side pre- and
+postprocessing, and on CUDA at batch 1 the whole pipeline replayed as one graph
+(:class:`opnet.inference.GraphedPipeline`, what ``predict.py`` runs on a GPU); columns device,
+network, batch, precision, forward_ms, end_to_end_ms (the device's default: the one graph where the
+row has it, else device-side on CUDA, host on the CPU), end_to_end_host_ms, end_to_end_device_ms,
+end_to_end_graph_ms. Decoding: the parameterization with ``conf/decoding/<--decoding>.yaml``
+(tuned: averaging on, as trained checkpoints decode).
 """
 
 from __future__ import annotations
@@ -42,7 +45,9 @@ import argparse
 import copy
 import statistics
 import time
+import traceback
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -55,7 +60,7 @@ from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.data import preprocess_torch
 from opnet.data.preprocess import to_network_input
 from opnet.geometry import Camera
-from opnet.inference import CudaGraphForward, InferenceSettings, fast_forward
+from opnet.inference import CudaGraphForward, GraphedPipeline, InferenceSettings, fast_forward
 from opnet.models.stats import gflops_per_image
 from opnet.objects import builtin_object
 from opnet.paths import config_dir
@@ -184,7 +189,7 @@ def main(argv: list[str] | None = None) -> None:
     fast = InferenceSettings()  # the default of predict.py / eval.py: the fused fp32 form on the CPU
     onnx = None if args.no_onnx or device.type != "cpu" else onnx_paths(model, param)
     variants = forward_variants(device, model, args.compile)
-    latency: list[tuple[int, str, float, float, float]] = []
+    latency: list[LatencyRow] = []
     for b in [int(x) for x in args.batches.split(",")]:
         depths = [depth_image(camera, rng) for _ in range(b)]
         pre = lambda: [to_network_input(d, camera, 128, cv2.INTER_AREA) for d in depths]  # noqa: E731
@@ -275,38 +280,60 @@ def pipeline(param: object, run: Callable[[torch.Tensor], torch.Tensor], depths:
 #: the precisions of the latency rows: (name, settings, CUDA only)
 LATENCY_PRECISIONS = (("fp32", InferenceSettings(cuda_graph=False), False),
                       ("bf16", InferenceSettings("bf16", True, cuda_graph=False), False),
+                      ("fp32 CUDA graph", InferenceSettings("32", True, cuda_graph=True), True),
                       ("bf16 CUDA graph", InferenceSettings("bf16", True, cuda_graph=True), True))
+
+#: a latency row: batch, precision, forward ms, end to end ms (host pre/post, device-side, whole
+#: pipeline as one CUDA graph at batch 1 or None)
+LatencyRow = tuple[int, str, float, float, float, float | None]
 
 
 def latency_rows(model: torch.nn.Module, param: object, depths: list[np.ndarray], camera: Camera, net_cam: Camera,
                  x: torch.Tensor, device: torch.device, batch: int, repeats: int,
-                 sync: Callable[[], None]) -> list[tuple[int, str, float, float, float]]:  # fmt: skip
-    """(batch, precision, forward ms, end to end ms host, device-side) per precision of
-    :data:`LATENCY_PRECISIONS` (the CUDA graph: every batch size captured, one graph each)."""
+                 sync: Callable[[], None]) -> list[LatencyRow]:  # fmt: skip
+    """The rows per precision of :data:`LATENCY_PRECISIONS` (the CUDA graph: every batch size
+    captured, one graph each; at batch 1 also the whole pipeline as one graph,
+    :class:`opnet.inference.GraphedPipeline`, which ``predict.py`` runs on a GPU)."""
     rows = []
     for name, settings, cuda_only in LATENCY_PRECISIONS:
         if cuda_only and device.type != "cuda":
             continue
         run = fast_forward(copy.deepcopy(model), settings)
+        arms = {}
         if settings.cuda_graph is True:  # fast_forward graphs batch 1 only: here every batch size is one graph
-            graph = CudaGraphForward(fast_forward(copy.deepcopy(model), InferenceSettings("bf16", True, cuda_graph=False)))
+            graph = CudaGraphForward(fast_forward(copy.deepcopy(model), replace(settings, cuda_graph=False)))
             run = torch.inference_mode()(lambda images, graph=graph: graph(images.to(device)))
-        times = interleaved({"forward": lambda run=run: run(x),
-                             "host": pipeline(param, run, depths, camera, net_cam, device, False),
-                             "device": pipeline(param, run, depths, camera, net_cam, device, True)}, repeats, sync)
-        rows.append((batch, name, times["forward"][0], times["host"][0], times["device"][0]))
+            if batch == 1:
+                whole = GraphedPipeline(copy.deepcopy(model), settings, param, camera, 128)
+                try:  # captured here: a failure leaves the other rows standing
+                    whole(depths[0])
+                    arms["graph"] = lambda whole=whole: whole(depths[0])
+                except Exception:  # noqa: BLE001 - printed, the row says so
+                    traceback.print_exc()
+                    print(f"    latency {name}: the whole pipeline could not be captured as one graph", flush=True)
+        arms = {"forward": lambda run=run: run(x),
+                "host": pipeline(param, run, depths, camera, net_cam, device, False),
+                "device": pipeline(param, run, depths, camera, net_cam, device, True), **arms}
+        times = interleaved(arms, repeats, sync)
+        graphed = times["graph"][0] if "graph" in times else None
+        rows.append((batch, name, times["forward"][0], times["host"][0], times["device"][0], graphed))
         print(f"    latency batch {batch:>3} {name:<16} forward {times['forward'][0]:8.2f} ms, end to end host "
-              f"{times['host'][0]:8.2f} ms, device-side {times['device'][0]:8.2f} ms", flush=True)
+              f"{times['host'][0]:8.2f} ms, device-side {times['device'][0]:8.2f} ms"
+              + ("" if graphed is None else f", one graph {graphed:8.2f} ms"), flush=True)
     return rows
 
 
-def write_latency(path: Path, device: torch.device, network: str, rows: list[tuple[int, str, float, float, float]]) -> None:
-    """The latency CSV (replaced): end_to_end_ms is the device's default path (device-side on CUDA)."""
+def write_latency(path: Path, device: torch.device, network: str, rows: list[LatencyRow]) -> None:
+    """The latency CSV (replaced): end_to_end_ms is the device's default path (on CUDA the whole
+    pipeline as one graph at batch 1 where the row has it, else device-side pre- and postprocessing;
+    on the CPU the host's)."""
     default_on_device = InferenceSettings().on_device(device)
-    lines = ["device,network,batch,precision,forward_ms,end_to_end_ms,end_to_end_host_ms,end_to_end_device_ms"]
+    lines = [("device,network,batch,precision,forward_ms,end_to_end_ms,end_to_end_host_ms,end_to_end_device_ms,"
+              "end_to_end_graph_ms")]
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
-    lines += [f"{name},{network},{b},{p},{f:.3f},{d if default_on_device else h:.3f},{h:.3f},{d:.3f}"
-              for b, p, f, h, d in rows]
+    for b, p, f, h, d, g in rows:
+        default = g if g is not None else (d if default_on_device else h)
+        lines.append(f"{name},{network},{b},{p},{f:.3f},{default:.3f},{h:.3f},{d:.3f},{'' if g is None else f'{g:.3f}'}")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
 

@@ -30,8 +30,12 @@ rounding (tests). On this 2-core CPU the host is the faster of the two (``script
 docs/deployment.md "Device-side inference"): OpenCV's resize and the k-d tree beat tens of small
 torch operations.
 ``inference.cuda_graph``: ``auto`` = on for a CUDA device: a batch of one image runs as a CUDA graph
-(captured at its first call, then replayed: one launch instead of one per kernel); on the CPU it
-is off, with a log line when asked for (``true``).
+(captured at its first call, then replayed: one launch instead of one per kernel); with
+``device_side`` on as well, ``predict.py`` runs each image whole as one graph
+(:class:`GraphedPipeline`: preprocessing, network, decoding and averaging with every shape fixed by
+the grid, :mod:`opnet.parameterizations.dense_decoding`; the host only copies the depth in, the
+table out, and projects the averaged rotations). On the CPU it is off, with a log line when asked
+for (``true``).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
 cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
@@ -200,34 +204,14 @@ def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Call
     The fused form is built from the backbone's weights now: later changes to them are not seen.
     """
     device = next(backbone.parameters()).device
-    bf16, cl, fused = settings.resolved(device, backbone)
-    backbone.eval()
-    module: Callable[[torch.Tensor], torch.Tensor]
-    step, workers = settings.chunk(), settings.threads(fused)
     graphed = settings.graphed(device)
     if settings.cuda_graph is True and not graphed:
         log.warning("inference.cuda_graph=true: %s; batch-1 forwards run without a CUDA graph",
                     "compiled forwards are not captured" if settings.compile else f"no CUDA device ({device.type})")
     elif settings.cuda_graph == "auto" and device.type != "cuda":
         log.info("inference: no CUDA device (%s), batch-1 forwards run without a CUDA graph", device.type)
-    if fused:
-        from opnet.models.fused import FusedDenseNet
-
-        module = FusedDenseNet(backbone)
-        step = settings.chunk(module.block_bytes_per_image)
-    else:
-        if cl:
-            backbone = backbone.to(memory_format=torch.channels_last)
-        module = torch.compile(backbone) if settings.compile else backbone
-
-    def one(x: torch.Tensor) -> torch.Tensor:
-        if cl and not fused:
-            x = x.contiguous(memory_format=torch.channels_last)
-        if bf16:  # a CUDA-graph capture must not use autocast's weight cache
-            with torch.autocast(device.type, dtype=torch.bfloat16, cache_enabled=not graphed):
-                return module(x).float()
-        return module(x)
-
+    one, step, fused = _chunk_forward(backbone, settings, graphed)
+    workers = settings.threads(fused)
     graph = CudaGraphForward(one) if graphed else None
 
     @torch.inference_mode()
@@ -245,6 +229,147 @@ def fast_forward(backbone: torch.nn.Module, settings: InferenceSettings) -> Call
         return torch.cat(outs).contiguous()
 
     return run
+
+
+def _chunk_forward(backbone: torch.nn.Module, settings: InferenceSettings,
+                   capturable: bool) -> tuple[Callable[[torch.Tensor], torch.Tensor], int, bool]:  # fmt: skip
+    """(the forward of one chunk, images per chunk, fused) for ``settings``; ``capturable``: no
+    autocast weight cache (a CUDA-graph capture must not use it)."""
+    device = next(backbone.parameters()).device
+    bf16, cl, fused = settings.resolved(device, backbone)
+    backbone.eval()
+    module: Callable[[torch.Tensor], torch.Tensor]
+    step = settings.chunk()
+    if fused:
+        from opnet.models.fused import FusedDenseNet
+
+        module = FusedDenseNet(backbone)
+        step = settings.chunk(module.block_bytes_per_image)
+    else:
+        if cl:
+            backbone = backbone.to(memory_format=torch.channels_last)
+        module = torch.compile(backbone) if settings.compile else backbone
+
+    def one(x: torch.Tensor) -> torch.Tensor:
+        if cl and not fused:
+            x = x.contiguous(memory_format=torch.channels_last)
+        if bf16:
+            with torch.autocast(device.type, dtype=torch.bfloat16, cache_enabled=not capturable):
+                return module(x).float()
+        return module(x)
+
+    return one, step, fused
+
+
+class GraphedPipeline:
+    """One depth image to its pose hypotheses, end to end on the model's device: the
+    preprocessing (:func:`opnet.data.preprocess_torch.to_network_input`), the network and the
+    decoding with averaging (:class:`opnet.parameterizations.dense_decoding.DenseDecoding`), every
+    shape fixed, so on a CUDA device the three run as one CUDA graph (captured at the first call,
+    then replayed: one launch for the whole image). The depth goes to the device through a pinned
+    buffer, the result comes back as one table, and the host only projects the averaged rotations
+    and orders the rows. The same hypotheses as ``predict.py``'s path of the same settings (tests).
+
+    Args:
+        backbone: the network (its weights as they are now, in eval mode).
+        settings: the inference settings (precision, channels-last; ``cuda_graph`` false: no graph).
+        param: the parameterization, with its decoding settings.
+        camera: the camera of the depth images (every image the same size).
+        size, fit, canvas: the framing, as :func:`opnet.data.preprocess.to_network_input`.
+        graph: capture a CUDA graph (default: on a CUDA device unless ``settings.cuda_graph`` is false).
+    """
+
+    def __init__(self, backbone: torch.nn.Module, settings: InferenceSettings, param: Any, camera: Any,
+                 size: int = 128, fit: str = "pad", canvas: tuple[int, int, int] | None = None,
+                 graph: bool | None = None) -> None:  # fmt: skip
+        from opnet.data.preprocess import square_canvas
+        from opnet.parameterizations.dense_decoding import DenseDecoding
+
+        self.device = next(backbone.parameters()).device
+        self.graph_wanted = self.device.type == "cuda" and settings.cuda_graph is not False if graph is None else graph
+        if self.graph_wanted and self.device.type != "cuda":
+            raise ValueError(f"GraphedPipeline: a CUDA graph needs a CUDA device, the model is on {self.device.type}")
+        self.forward = _chunk_forward(backbone, settings, capturable=True)[0]
+        self.camera, self.size = camera, size
+        self.canvas = canvas if canvas is not None else square_canvas(camera, fit)
+        x0, y0, side = self.canvas
+        self.net_camera = camera.cropped(x0, y0, side, side).resized(size, size)
+        self.decoding = DenseDecoding(param, self.net_camera, 1, self.device)
+        self._graph: Any = None
+        shape = (1, camera.height, camera.width)
+        self._depth = torch.zeros(shape, dtype=torch.float32, device=self.device)
+        self._host_depth = torch.zeros(shape, dtype=torch.float32, pin_memory=self.graph_wanted)
+        self._result: torch.Tensor | None = None
+        self._output: torch.Tensor | None = None
+        self._host_result: torch.Tensor | None = None
+
+    @torch.inference_mode()
+    def compute(self, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(1, H, W) depth on the device -> (the flat float64 result: the decoding's table, then
+        three flags: the clustering settled, the depth holds infinite values, the network's output
+        is not finite; the network output). Nothing is read back: capturable."""
+        from opnet.data import preprocess_torch
+
+        x = preprocess_torch.to_network_input(depth, self.camera, self.size, canvas=self.canvas, static=True)[0]
+        output = self.forward(x)
+        table, settled = self.decoding(output)
+        flags = torch.stack((settled.all(), torch.isinf(depth).any(), ~torch.isfinite(output).all()))
+        return torch.cat((table.reshape(-1), flags.to(torch.float64))), output
+
+    def __call__(self, depth: Any) -> Any:
+        """Hypotheses (:class:`opnet.metrics.records.HypothesisSet`, camera frame, metres) of one
+        (H, W) depth image in metres (NaN or z <= 0 = missing).
+
+        Raises:
+            ValueError: an image that is no float (H, W) array of the camera's size, infinite depth,
+                or a network output that is not finite.
+        """
+        import numpy as np
+
+        from opnet.data.preprocess import _check_matches_camera
+
+        if not isinstance(depth, np.ndarray) or depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
+            raise ValueError(f"depth: expected an (H, W) float numpy image, got "
+                             f"{getattr(depth, 'shape', type(depth).__name__)} {getattr(depth, 'dtype', '')}")
+        _check_matches_camera(depth, self.camera, "depth")
+        self._host_depth[0].numpy()[...] = depth
+        if self.graph_wanted:
+            result, output = self._replay()
+        else:
+            self._depth.copy_(self._host_depth)
+            result, output = self.compute(self._depth)
+            result = result.cpu()
+        values = result.numpy()
+        settled, infinite, diverged = values[-3:] > 0.5
+        if infinite:
+            raise ValueError("depth: contains infinite values; use NaN for missing depth")
+        if diverged:
+            raise ValueError("the network's output holds NaN or inf (diverged weights or an input it cannot take)")
+        table = values[:-3].reshape(1, self.decoding.cells, -1)
+        return self.decoding.hypotheses(table, np.array([settled]), output)[0]
+
+    def _replay(self) -> tuple[torch.Tensor, torch.Tensor]:
+        if self._graph is None:
+            self._capture()
+        self._depth.copy_(self._host_depth, non_blocking=True)
+        self._graph.replay()
+        self._host_result.copy_(self._result, non_blocking=True)
+        torch.cuda.current_stream(self.device).synchronize()
+        return self._host_result, self._output
+
+    def _capture(self) -> None:
+        self._depth.copy_(self._host_depth)
+        side = torch.cuda.Stream(self.device)
+        side.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(side):  # warm-up: lazy tables and cuBLAS handles made outside the capture
+            for _ in range(3):
+                self.compute(self._depth)
+        torch.cuda.current_stream(self.device).wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            self._result, self._output = self.compute(self._depth)
+        self._host_result = torch.empty_like(self._result, device="cpu").pin_memory()
+        self._graph = graph
 
 
 class CudaGraphForward:

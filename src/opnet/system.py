@@ -110,8 +110,25 @@ class OPNetSystem(L.LightningModule):
         if not isinstance(settings, InferenceSettings):
             settings = InferenceSettings.from_config(settings)
         self._fast = fast_forward(self.backbone, settings)
+        self._settings = settings
+        self._pipelines: dict = {}
         self.configure_decoding(settings.device_side)
         return settings.describe(self.device, self.backbone)
+
+    def graphed_pipeline(self, camera: Any, size: int, fit: str) -> Any:
+        """The whole prediction of one image of ``camera`` as one CUDA graph
+        (:class:`opnet.inference.GraphedPipeline`, made at the first image of each camera and
+        framing), where :meth:`configure_inference` asked for a CUDA graph and device-side decoding
+        on a CUDA device; else None."""
+        settings = getattr(self, "_settings", None)
+        if settings is None or self.training or not settings.graphed(self.device) or not self.device_side:
+            return None
+        key = (camera, size, fit)
+        if key not in self._pipelines:
+            from opnet.inference import GraphedPipeline
+
+            self._pipelines[key] = GraphedPipeline(self.backbone, settings, self.parameterization, camera, size, fit)
+        return self._pipelines[key]
 
     def infer(self, images: torch.Tensor) -> torch.Tensor:
         """The network output for prediction: the fast path if configured (eval mode), else forward."""

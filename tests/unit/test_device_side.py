@@ -329,3 +329,192 @@ def test_on_cuda_the_preprocessing_and_averaging_equal_the_host(pile: list) -> N
     net_cam = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
     out = _noisy_outputs(param, net_cam, 6, seed=1)
     assert_same_hypotheses(param.decode(out, net_cam), param.decode(out.cuda(), net_cam, device_side=True))
+
+
+# ---- the graphed pipeline: every shape fixed ---------------------------------------------------
+class HostTraffic(torch.overrides.TorchFunctionMode):
+    """Records what a CUDA-graph capture cannot hold: data copied between the host and the device
+    (new tensors from host data, ``.to`` / ``copy_`` across devices, values read back)."""
+
+    READ_BACK = frozenset((torch.Tensor.cpu, torch.Tensor.item, torch.Tensor.tolist, torch.Tensor.numpy,
+                           torch.Tensor.__bool__))
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[str] = []
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        result = func(*args, **kwargs)
+        if func in (torch.tensor, torch.from_numpy) or (func in (torch.as_tensor, torch.asarray)
+                                                         and not isinstance(args[0], torch.Tensor)):
+            self.seen.append(f"{func.__name__} of host data")
+        elif func in self.READ_BACK:
+            self.seen.append(f"Tensor.{func.__name__}")
+        elif func is torch.Tensor.to and isinstance(result, torch.Tensor) and result.device != args[0].device:
+            self.seen.append(f"Tensor.to from {args[0].device} to {result.device}")
+        elif func is torch.Tensor.copy_ and args[1].device != args[0].device:
+            self.seen.append(f"Tensor.copy_ from {args[1].device} to {args[0].device}")
+        return result
+
+
+DENSE_NAMES = ["vanilla", "eve", "ap", "mp", "si"]  # z (64 x 64 cells) below, with two settings
+
+
+@pytest.mark.parametrize("averaging", AVERAGINGS, ids=["none", "tuned", "eps0.5", "min3-mean", "min2-noise"])
+@pytest.mark.parametrize("name", DENSE_NAMES)
+@pytest.mark.parametrize("obj", ["zbracket", "pin"])
+def test_dense_decoding_equals_the_host_on_random_outputs(obj: str, name: str, averaging: bool | dict) -> None:
+    """Every cell decoded and averaged with fixed shapes (what the CUDA graph runs) gives the host's
+    hypotheses: the same clusters, order, poses and scores."""
+    from opnet.parameterizations.dense_decoding import DenseDecoding
+
+    param = _with_averaging(_parameterization(name, builtin_object(obj)), averaging)
+    camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
+    out = _noisy_outputs(param, camera, 6, seed=len(name))
+    dense = DenseDecoding(param, camera, 6, "cpu")
+    host = param.decode(out, camera)
+    assert_same_hypotheses(host, dense.decode(out))
+    assert len(host[1]) == 1 and len(host[2]) == 0
+    assert bool(dense(out)[1].all())  # every clustering settled within the rounds: nothing fell back
+
+
+@pytest.mark.parametrize("averaging", [AVERAGINGS[1], AVERAGINGS[3]], ids=["tuned", "min3-mean"])
+def test_dense_decoding_of_z_equals_the_host(averaging: dict) -> None:
+    from opnet.parameterizations.dense_decoding import DenseDecoding
+
+    param = _with_averaging(_parameterization("z"), averaging)
+    camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
+    out = _noisy_outputs(param, camera, 3, seed=1)
+    assert_same_hypotheses(param.decode(out, camera), DenseDecoding(param, camera, 3, "cpu").decode(out))
+
+
+def test_a_clustering_that_has_not_settled_is_decoded_by_the_parameterization() -> None:
+    """With too few propagation rounds an image's labels are flagged unsettled and the image is
+    decoded the host's way: the hypotheses stay right; with the default rounds a chain of 60
+    hypotheses, each within eps of the next only, settles."""
+    from opnet.parameterizations.dense_decoding import DenseDecoding
+
+    param = _with_averaging(_parameterization("eve"), {"eps": 1.5, "cluster_score": "sum"})
+    camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
+    out = _noisy_outputs(param, camera, 4, seed=2)
+    dense = DenseDecoding(param, camera, 4, "cpu")
+    dense.rounds = 0
+    settled = dense(out)[1]
+    assert not bool(settled[0]) and bool(settled[2])  # image 0 has clusters, image 2 no hypothesis
+    assert_same_hypotheses(param.decode(out, camera), dense.decode(out))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_component_roots_are_scipys_components(seed: int) -> None:
+    """Fixed-shape connected components against scipy's, on random graphs, and on a path of 256
+    nodes numbered at random (the slow case): one round does not settle it and says so, the default
+    six do."""
+    from scipy.sparse.csgraph import connected_components
+
+    from opnet.parameterizations.dense_decoding import component_roots
+
+    rng = np.random.default_rng(seed)
+    n = 80
+    adjacency = rng.random((n, n)) < rng.uniform(0.005, 0.05)
+    adjacency = np.triu(adjacency, 1)
+    adjacency = adjacency | adjacency.T
+    core = rng.random(n) < 0.8
+    adjacency &= core[:, None] & core[None, :]
+    roots, settled = component_roots(torch.from_numpy(adjacency)[None], torch.from_numpy(core)[None])
+    assert bool(settled[0])
+    labels = connected_components(adjacency, directed=False)[1]
+    expected = np.array([np.flatnonzero(labels == labels[i]).min() if core[i] else n for i in range(n)])
+    np.testing.assert_array_equal(roots[0].numpy(), expected)
+    order = rng.permutation(256)
+    path = np.zeros((256, 256), bool)
+    path[order[:-1], order[1:]] = path[order[1:], order[:-1]] = True
+    for rounds, settles in ((1, False), (6, True)):
+        roots, settled = component_roots(torch.from_numpy(path)[None], torch.ones(1, 256, dtype=torch.bool), rounds)
+        assert bool(settled[0]) == settles
+    assert set(roots[0].tolist()) == {0}
+
+
+def test_the_graphed_pipeline_equals_predict_image(pile: list) -> None:
+    """The whole pipeline with fixed shapes (here without a graph, on the CPU) gives predict.py's
+    hypotheses; bad input is refused as predict.py refuses it."""
+    from opnet.inference import GraphedPipeline, InferenceSettings
+
+    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
+    system.configure_inference({"device_side": False})
+    camera = pile[0].camera
+    pipeline = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image")
+    assert not pipeline.graph_wanted
+    host = [predict_image(system, DepthImage(Path(f"{r.name}.png"), r.depth, r.camera)) for r in pile]
+    assert_same_hypotheses(host, [pipeline(r.depth) for r in pile], atol=1e-4)
+    assert sum(len(h) for h in host) > 10
+    bad = pile[0].depth.copy()
+    bad[3, 4] = np.inf
+    with pytest.raises(ValueError, match="infinite"):
+        pipeline(bad)
+    with pytest.raises(ValueError, match="does not match the camera"):
+        pipeline(bad[:-1])
+    with pytest.raises(ValueError, match="float"):
+        pipeline(np.zeros(bad.shape, np.int32))
+
+
+@pytest.mark.parametrize("name", ["vanilla", "si"])
+def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape(name: str) -> None:
+    """What a CUDA graph captures, checked without one: on the meta device (which holds shapes,
+    no values) the preprocessing and the decoding run, so no shape depends on the data (``nonzero``
+    and reading a value fail there), and once warm they copy nothing between host and device. (The
+    network is a stand-in of the output's shape: its head turns autocast off, which the meta device
+    does not know; its forward alone has been replayed as a CUDA graph since it was written.)"""
+    from opnet.inference import GraphedPipeline, InferenceSettings
+    from opnet.parameterizations.dense_decoding import WIDTH
+
+    system = _system([f"parameterization={name}", "decoding=tuned"])
+    param = system.parameterization
+    camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)
+    pipeline = GraphedPipeline(system.backbone, InferenceSettings(), param, camera, 128)
+    pipeline.decoding = type(pipeline.decoding)(param, pipeline.net_camera, 1, "meta")
+    shape = (param.out_channels, param.grid_size, param.grid_size)
+    pipeline.forward = lambda x: torch.nn.functional.interpolate(x, size=shape[1:]).expand(-1, shape[0], -1, -1)
+    depth = torch.empty(1, 236, 300, device="meta")
+    pipeline.compute(depth)  # warm: the resize tables and the group's tensors are made on the device
+    with HostTraffic() as traffic:
+        result, output = pipeline.compute(depth)
+    assert traffic.seen == []
+    assert result.device.type == "meta" and result.shape == (pipeline.decoding.cells * WIDTH + 3,)
+    # the controls: the host's decoding and the torch averaging read values back
+    with pytest.raises(NotImplementedError), HostTraffic():
+        param.decode(output, [pipeline.net_camera])
+    with HostTraffic() as traffic:
+        param.decode(torch.rand(1, *shape), [pipeline.net_camera])
+    assert traffic.seen
+
+
+def test_the_system_graphs_whole_images_only_on_a_gpu() -> None:
+    system = _system(["parameterization=eve", "decoding=tuned"])
+    camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)
+    assert system.graphed_pipeline(camera, 128, "pad") is None  # not configured
+    system.configure_inference({"device_side": True, "cuda_graph": True})
+    assert system.graphed_pipeline(camera, 128, "pad") is None  # the CPU: no graph
+    if torch.cuda.is_available():
+        system.cuda().configure_inference({"device_side": True})
+        pipeline = system.graphed_pipeline(camera, 128, "pad")
+        assert pipeline is not None and pipeline is system.graphed_pipeline(camera, 128, "pad")
+        system.configure_inference({"device_side": False})
+        assert system.graphed_pipeline(camera, 128, "pad") is None
+
+
+@CUDA
+@pytest.mark.parametrize("precision", ["32", "bf16"])
+def test_on_cuda_the_graph_replays_the_pipeline(pile: list, precision: str) -> None:
+    """The captured graph gives what the same pipeline gives without a graph, image after image."""
+    from opnet.inference import GraphedPipeline, InferenceSettings
+
+    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"]).cuda()
+    settings = InferenceSettings(precision, True)
+    camera = pile[0].camera
+    graphed = GraphedPipeline(system.backbone, settings, system.parameterization, camera, 128, "image")
+    eager = GraphedPipeline(system.backbone, settings, system.parameterization, camera, 128, "image", graph=False)
+    assert graphed.graph_wanted
+    for r in pile:
+        assert_same_hypotheses([eager(r.depth)], [graphed(r.depth)], atol=1e-6)
+    assert graphed._graph is not None

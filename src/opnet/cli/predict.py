@@ -76,6 +76,12 @@ def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint
     size, fit = int(data.get("input_size", 128)), str(data.get("fit", "pad"))  # the training's framing
     roi = parse_roi(data.get("roi")) if roi == "checkpoint" else roi
     depth, camera = crop_image(image.depth, image.camera, roi, f"{image.path}: roi")
+    graphed = system.graphed_pipeline(camera, size, fit)
+    if graphed is not None:  # on a GPU: preprocessing, network and decoding replayed as one CUDA graph
+        try:
+            return graphed(depth)
+        except ValueError as exc:
+            raise ValueError(f"{image.path}: {exc}; no poses written for it") from exc
     if system.device_side:  # the same input, computed on the model's device (inference.device_side)
         x, net_cam = device_input(depth, camera, size=size, fit=fit, device=system.device)
     else:

@@ -147,18 +147,20 @@ def _blend(estimates: tuple[torch.Tensor, torch.Tensor], weights: tuple[torch.Te
     return (estimates[0] * weights[0] + estimates[1] * weights[1]) / total.clamp_min(1e-12), total > 0
 
 
-def fill_missing_depth(images: torch.Tensor, fill_value: float) -> torch.Tensor:
+def fill_missing_depth(images: torch.Tensor, fill_value: float, static: bool = False) -> torch.Tensor:
     """:func:`opnet.data.preprocess.fill_missing_depth` of every (H, W) image of ``images``
     (..., H, W) float32, NaN = missing; an image without any valid pixel becomes ``fill_value``.
 
     The numpy version fills only the missing pixels, in at most two passes (after the first, every
     row and column through a valid pixel is full); here each pass computes every pixel's estimate
-    and keeps those of the missing ones. A pass is skipped when nothing is missing (one device sync).
+    and keeps those of the missing ones. A pass is skipped when nothing is missing (one device sync),
+    unless ``static``: then both passes run (they change nothing where nothing is missing) and no
+    value is read back, so the fill can be captured in a CUDA graph.
     """
     valid = ~torch.isnan(images)
     out = torch.where(valid, images, 0.0)
     for _ in range(2):
-        if bool(valid.all()):
+        if not static and bool(valid.all()):
             return out
         row_est, row_two, row_one = _line_estimates(out, valid, -1)
         col_est, col_two, col_one = _line_estimates(out, valid, -2)
@@ -177,14 +179,16 @@ def _resized_depth(batch: torch.Tensor, camera: Camera, canvas: tuple[int, int, 
     return area_resize(values, canvas, size), area_resize(weight, canvas, size)
 
 
-def as_depth_batch(depth: np.ndarray | torch.Tensor | list[np.ndarray], device: torch.device | str) -> torch.Tensor:
+def as_depth_batch(depth: np.ndarray | torch.Tensor | list[np.ndarray], device: torch.device | str,
+                   static: bool = False) -> torch.Tensor:  # fmt: skip
     """(B, H, W) float32 depth on ``device`` from one (H, W) image, a list of them or a (B, H, W)
-    array or tensor; numpy images are validated as :func:`opnet.data.preprocess.check_depth` does."""
+    array or tensor; numpy images are validated as :func:`opnet.data.preprocess.check_depth` does,
+    tensors too unless ``static`` (no value read back: the caller checks for infinite depth)."""
     if isinstance(depth, torch.Tensor):
         if depth.dim() not in (2, 3) or not depth.is_floating_point() or depth.numel() == 0:
             raise ValueError(f"depth: expected a non-empty (H, W) or (B, H, W) float tensor, got "
                              f"{tuple(depth.shape)} {depth.dtype}")
-        if bool(torch.isinf(depth).any()):
+        if not static and bool(torch.isinf(depth).any()):
             raise ValueError("depth: contains infinite values; use NaN for missing depth")
         batch = depth if depth.dim() == 3 else depth[None]
         return batch.to(device=device, dtype=torch.float32)
@@ -202,6 +206,7 @@ def to_network_input(
     fit: str = "pad",
     canvas: tuple[int, int, int] | None = None,
     device: torch.device | str | None = None,
+    static: bool = False,
 ) -> tuple[torch.Tensor, Camera]:
     """:func:`opnet.data.preprocess.to_network_input` (``INTER_AREA``) of images of one camera, on
     ``device`` (default: the depth tensor's, else the CPU).
@@ -210,6 +215,8 @@ def to_network_input(
         depth: (H, W) or (B, H, W) depth in metres (NaN or z <= 0 = missing), numpy or a tensor, or
             a list of (H, W) numpy images; (H, W) must match ``camera``.
         camera, size, fit, canvas: as :func:`opnet.data.preprocess.to_network_input`.
+        static: read no value back (a tensor's infinite depth is not refused: the caller checks),
+            so that the preprocessing can be captured in a CUDA graph.
     Returns:
         ``(images, camera_in)``: (B, 1, size, size) float32 normalized depth in [0, 1] on the device,
         and the camera of the network input.
@@ -220,7 +227,7 @@ def to_network_input(
         raise ValueError(f"to_network_input: size={size}, expected a positive input side")
     if device is None:
         device = depth.device if isinstance(depth, torch.Tensor) else "cpu"
-    batch = as_depth_batch(depth, device)
+    batch = as_depth_batch(depth, device, static)
     _check_matches_camera(batch[0], camera, "depth")
     x0, y0, side = canvas if canvas is not None else square_canvas(camera, fit)
     # on the CPU a few images at a time, so that the full-resolution temporaries stay in the caches
@@ -232,9 +239,9 @@ def to_network_input(
     normalized = (depth_in - camera.clip_start) / (camera.clip_end - camera.clip_start)
     rows, cols = _image_window(camera, x0, y0, side, size)
     if rows.start >= rows.stop or cols.start >= cols.stop:
-        image = fill_missing_depth(normalized, 1.0)
+        image = fill_missing_depth(normalized, 1.0, static)
     else:  # the padding is all missing: replicating the filled border is what the fill would do
-        inner = fill_missing_depth(normalized[:, rows, cols], 1.0)
+        inner = fill_missing_depth(normalized[:, rows, cols], 1.0, static)
         borders = (cols.start, size - cols.stop, rows.start, size - rows.stop)
         image = inner if not any(borders) else torch.nn.functional.pad(inner[:, None], borders, mode="replicate")[:, 0]
     return image.clamp(0.0, 1.0)[:, None], camera.cropped(x0, y0, side, side).resized(size, size)

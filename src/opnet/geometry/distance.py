@@ -85,23 +85,28 @@ class PoseSpace:
         For revolution objects the spin about z is left as it is; only the axis flip (with
         rotoreflection) is chosen. Shapes: (..., 3, 3) broadcastable -> (..., 3, 3).
         """
-        G = torch.as_tensor(self.group, dtype=R.dtype, device=R.device)
+        L, G = self.to_torch(R.dtype, R.device)
         cand = R.unsqueeze(-3) @ G  # (..., K, 3, 3)
         if self.revolution:
             err = (cand[..., :, 2] - R_ref.unsqueeze(-3)[..., :, 2]).square().sum(-1)
         else:
-            L = torch.as_tensor(self.Lambda, dtype=R.dtype, device=R.device)
             err = ((cand - R_ref.unsqueeze(-3)) @ L).square().sum((-1, -2))
         best = err.argmin(dim=-1)
         idx = best[..., None, None, None].expand(best.shape + (1, 3, 3))
         return torch.gather(cand, -3, idx).squeeze(-3)
 
     def to_torch(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
-        """(Lambda (3, 3), group (K, 3, 3)) as tensors."""
-        return (
-            torch.as_tensor(self.Lambda, dtype=dtype, device=device),
-            torch.as_tensor(self.group, dtype=dtype, device=device),
-        )
+        """(Lambda (3, 3), group (K, 3, 3)) as tensors, made once per dtype and device (so a
+        computation captured in a CUDA graph copies nothing from the host)."""
+        key = (dtype, torch.device(device))
+        cache = self.__dict__.setdefault("_tensors", {})  # not a field: neither compared nor pickled
+        if key not in cache:
+            cache[key] = (torch.as_tensor(self.Lambda, dtype=dtype, device=device),
+                          torch.as_tensor(self.group, dtype=dtype, device=device))  # fmt: skip
+        return cache[key]
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_tensors"}
 
 
 @numpy_compatible
@@ -109,7 +114,7 @@ def _representatives(R: torch.Tensor, t: torch.Tensor, space: PoseSpace) -> torc
     t = t.to(R.dtype)
     K = space.num_representatives
     if space.revolution:
-        axes = torch.as_tensor(space.group[:, :, 2], dtype=R.dtype, device=R.device)  # (K, 3): g e_z
+        axes = space.to_torch(R.dtype, R.device)[1][:, :, 2]  # (K, 3): g e_z
         rot_part = space.lam * torch.einsum("...ij,kj->...ki", R, axes)  # (..., K, 3)
     else:
         Lambda, G = space.to_torch(R.dtype, R.device)
