@@ -458,8 +458,9 @@ def test_the_graphed_pipeline_equals_predict_image(pile: list) -> None:
         pipeline(np.zeros(bad.shape, np.int32))
 
 
-@pytest.mark.parametrize("name", ["vanilla", "si"])
-def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape(name: str) -> None:
+@pytest.mark.parametrize("formulation", ["ours", "paper"])  # 6-D orientation; Euler angles
+@pytest.mark.parametrize("name", ["vanilla", "eve", "si"])
+def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape(name: str, formulation: str) -> None:
     """What a CUDA graph captures, checked without one: on the meta device (which holds shapes,
     no values) the preprocessing and the decoding run, so no shape depends on the data (``nonzero``
     and reading a value fail there), and once warm they copy nothing between host and device. (The
@@ -468,7 +469,7 @@ def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape
     from opnet.inference import GraphedPipeline, InferenceSettings
     from opnet.parameterizations.dense_decoding import WIDTH
 
-    system = _system([f"parameterization={name}", "decoding=tuned"])
+    system = _system([f"parameterization={name}", "decoding=tuned", f"formulation={formulation}"])
     param = system.parameterization
     camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)
     pipeline = GraphedPipeline(system.backbone, InferenceSettings(), param, camera, 128)
