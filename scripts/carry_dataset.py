@@ -2,11 +2,14 @@
 
     python scripts/carry_dataset.py pack <dataset folder> <archive.tar.xz>
     python scripts/carry_dataset.py unpack <archive.tar.xz> <folder>
+    python scripts/carry_dataset.py verify <dataset folder> <archive.tar.xz>
 
 16-bit depth PNGs of piles compress poorly (deflate sees the bytes, not the surface): ``pack``
 stores each as its row differences (uint16, wrapping), which are near zero on smooth surfaces, and
 every other file as it is, in one xz-compressed tar. ``unpack`` turns the differences back into the
 same pixels in a PNG (the PNG bytes may differ, the depth does not) and checks the count of files.
+``verify`` unpacks the archive into a temporary folder and compares it with the dataset: the same
+files, every depth image's pixels and every other file's bytes.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import io
 import json
 import sys
 import tarfile
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -98,6 +102,33 @@ def unpack(archive: Path, folder: Path) -> dict[str, int]:
     return counts
 
 
+def verify(folder: Path, archive: Path) -> dict[str, int]:
+    """Unpack ``archive`` into a temporary folder and compare it with ``folder``; returns the counts.
+
+    Raises:
+        ValueError: naming the first file missing, extra, or different (depth: in its pixels).
+    """
+    with tempfile.TemporaryDirectory(prefix="carry_verify_") as tmp:
+        out = Path(tmp)
+        counts = unpack(archive, out)
+        ours = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+        theirs = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+        if ours != theirs:
+            missing, extra = sorted(set(ours) - set(theirs)), sorted(set(theirs) - set(ours))
+            raise ValueError(f"{archive}: files differ from {folder}: missing {missing[:3]}, extra {extra[:3]}")
+        for name in ours:
+            a, b = folder / name, out / name
+            if _is_depth_png(a):
+                da, db = cv2.imread(str(a), cv2.IMREAD_UNCHANGED), cv2.imread(str(b), cv2.IMREAD_UNCHANGED)
+                if da is not None and da.dtype == np.uint16 and da.ndim == 2:
+                    if db is None or db.dtype != da.dtype or not np.array_equal(da, db):
+                        raise ValueError(f"{archive}: {name}: the depth differs after unpacking")
+                    continue
+            if a.read_bytes() != b.read_bytes():
+                raise ValueError(f"{archive}: {name}: the bytes differ after unpacking")
+    return counts
+
+
 def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     info = tarfile.TarInfo(name)
     info.size = len(data)
@@ -106,9 +137,9 @@ def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("action", choices=["pack", "unpack"])
-    ap.add_argument("source", type=Path)
-    ap.add_argument("target", type=Path)
+    ap.add_argument("action", choices=["pack", "unpack", "verify"])
+    ap.add_argument("source", type=Path, help="pack, verify: the dataset folder; unpack: the archive")
+    ap.add_argument("target", type=Path, help="pack, verify: the archive; unpack: the folder")
     args = ap.parse_args(argv)
     try:
         if args.action == "pack":
@@ -117,9 +148,15 @@ def main(argv: list[str] | None = None) -> int:
             counts = pack(args.source, args.target)
             size = args.target.stat().st_size / 2**20
             print(f"{args.target}: {counts['files']} files ({counts['depth_images']} depth images), {size:.1f} MiB")
-        else:
+        elif args.action == "unpack":
             counts = unpack(args.source, args.target)
             print(f"{args.target}: {counts['files']} files unpacked ({counts['depth_images']} depth images)")
+        else:
+            if not args.source.is_dir():
+                raise ValueError(f"{args.source}: not a folder")
+            counts = verify(args.source, args.target)
+            print(f"{args.target}: the same {counts['files']} files as {args.source} "
+                  f"({counts['depth_images']} depth images, pixel for pixel)")
     except (OSError, ValueError, tarfile.TarError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
