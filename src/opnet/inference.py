@@ -36,6 +36,9 @@ torch operations.
 the grid, :mod:`opnet.parameterizations.dense_decoding`; the host only copies the depth in, the
 table out, and projects the averaged rotations). On the CPU it is off, with a log line when asked
 for (``true``).
+``inference.compile_pipeline`` (false): the whole-image graph's preprocessing and decoding are
+``torch.compile``'d (fused into a few kernels; about 40 s at the first image): measured on an H100, the
+paper network in bf16, 1.62 ms end to end against 2.47 ms (``scripts/profile_graph.py --fuse``).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
 cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
@@ -52,6 +55,7 @@ which is why fp32 stays the default and bf16 is a documented opt-in.
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -64,7 +68,8 @@ from opnet.hardware import cpu_has_native_bf16
 
 PRECISIONS = ("auto", "32", "bf16")
 AUTO_BOOL = ("auto", True, False)
-KEYS = ("precision", "fused", "channels_last", "compile", "max_batch", "workers", "device_side", "cuda_graph")
+KEYS = ("precision", "fused", "channels_last", "compile", "max_batch", "workers", "device_side", "cuda_graph",
+        "compile_pipeline")
 #: the fused form's automatic chunk keeps its largest block buffer within this many bytes
 CHUNK_BYTES = 8 << 20
 MAX_CHUNK = 8
@@ -87,6 +92,8 @@ class InferenceSettings:
     device_side: bool | str = "auto"
     #: batch-1 forwards replayed as a CUDA graph ("auto": on CUDA; the CPU falls back with a log line)
     cuda_graph: bool | str = "auto"
+    #: the whole-image graph's preprocessing and decoding compiled (GraphedPipeline(fuse=True))
+    compile_pipeline: bool = False
 
     @classmethod
     def from_config(cls, cfg: Any) -> InferenceSettings:
@@ -108,11 +115,12 @@ class InferenceSettings:
             raise ValueError(f"inference.max_batch={short_repr(value)}, expected a positive integer or auto")
         if cfg.get("workers", "auto") != "auto":
             check_threads(cfg["workers"], "inference.workers")
-        if not isinstance(cfg.get("compile", False), bool):
-            raise ValueError(f"inference.compile={short_repr(cfg['compile'])}, expected true or false")
+        for key in ("compile", "compile_pipeline"):
+            if not isinstance(cfg.get(key, False), bool):
+                raise ValueError(f"inference.{key}={short_repr(cfg[key])}, expected true or false")
         return cls(precision, cfg.get("channels_last", "auto"), bool(cfg.get("compile", False)),
                    cfg.get("max_batch", "auto"), cfg.get("fused", "auto"), cfg.get("workers", "auto"),
-                   cfg.get("device_side", "auto"), cfg.get("cuda_graph", "auto"))
+                   cfg.get("device_side", "auto"), cfg.get("cuda_graph", "auto"), cfg.get("compile_pipeline", False))
 
     def resolved(self, device: torch.device, backbone: torch.nn.Module | None = None) -> tuple[bool, bool, bool]:
         """(bf16, channels_last, fused) for ``device`` (and ``backbone``: whether it can be fused).
@@ -159,8 +167,11 @@ class InferenceSettings:
 
             per_image = largest_block_bytes(backbone)
         workers = self.threads(fused)
+        whole = self.graphed(device) and self.on_device(device)
         extras = [", CUDA graph at batch 1" if self.graphed(device) else "",
-                  ", preprocessing and averaging on the device" if self.on_device(device) else ""]
+                  ", preprocessing and averaging on the device" if self.on_device(device) else "",
+                  (", predict.py's images whole as one graph" + (" (pre- and postprocessing compiled)"
+                                                                 if self.compile_pipeline else "")) if whole else ""]
         return (f"{form}, {layout}{', compiled' if self.compile else ''}, chunks of {self.chunk(per_image)}"
                 f"{f' on {workers} workers' if workers > 1 else ''}{''.join(extras)} on {device.type}")
 
@@ -277,11 +288,13 @@ class GraphedPipeline:
         camera: the camera of the depth images (every image the same size).
         size, fit, canvas: the framing, as :func:`opnet.data.preprocess.to_network_input`.
         graph: capture a CUDA graph (default: on a CUDA device unless ``settings.cuda_graph`` is false).
+        fuse: ``torch.compile`` the preprocessing and the decoding (not the network): their hundreds
+            of small operations fused into a few kernels, compiled at the first image.
     """
 
     def __init__(self, backbone: torch.nn.Module, settings: InferenceSettings, param: Any, camera: Any,
                  size: int = 128, fit: str = "pad", canvas: tuple[int, int, int] | None = None,
-                 graph: bool | None = None) -> None:  # fmt: skip
+                 graph: bool | None = None, fuse: bool = False) -> None:  # fmt: skip
         from opnet.data.preprocess import square_canvas
         from opnet.parameterizations.dense_decoding import DenseDecoding
 
@@ -295,6 +308,18 @@ class GraphedPipeline:
         x0, y0, side = self.canvas
         self.net_camera = camera.cropped(x0, y0, side, side).resized(size, size)
         self.decoding = DenseDecoding(param, self.net_camera, 1, self.device)
+        self._preprocess: Callable[[torch.Tensor], torch.Tensor] | None = None  # compiled, with ``fuse``
+        self._decode: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]] | None = None
+        if fuse:  # the lazy tables (resize taps, group tensors) made first: the compiled code only reads them
+            shape = (1, param.out_channels, param.grid_size, param.grid_size)
+            with torch.no_grad():
+                self._network_input(torch.zeros((1, camera.height, camera.width), device=self.device))
+                self.decoding(torch.zeros(shape, device=self.device))
+            # the resize tables come from a cache that Dynamo traces through: deterministic, so constants
+            warnings.filterwarnings("ignore", message=r"Dynamo detected a call to a `functools.lru_cache`-wrapped "
+                                    r"function at 'preprocess_torch.py", category=UserWarning)  # fmt: skip
+            self._preprocess = torch.compile(self._network_input, dynamic=False)
+            self._decode = torch.compile(self.decoding.__call__, dynamic=False)
         self._graph: Any = None
         shape = (1, camera.height, camera.width)
         self._depth = torch.zeros(shape, dtype=torch.float32, device=self.device)
@@ -303,18 +328,20 @@ class GraphedPipeline:
         self._output: torch.Tensor | None = None
         self._host_result: torch.Tensor | None = None
 
-    @torch.inference_mode()
+    @torch.no_grad()  # not inference mode: compiled code guards numpy attributes, which that mode upsets
     def compute(self, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(1, H, W) depth on the device -> (the flat float64 result: the decoding's table, then
         three flags: the clustering settled, the depth holds infinite values, the network's output
         is not finite; the network output). Nothing is read back: capturable."""
-        from opnet.data import preprocess_torch
-
-        x = preprocess_torch.to_network_input(depth, self.camera, self.size, canvas=self.canvas, static=True)[0]
-        output = self.forward(x)
-        table, settled = self.decoding(output)
+        output = self.forward((self._preprocess or self._network_input)(depth))
+        table, settled = (self._decode or self.decoding)(output)
         flags = torch.stack((settled.all(), torch.isinf(depth).any(), ~torch.isfinite(output).all()))
         return torch.cat((table.reshape(-1), flags.to(torch.float64))), output
+
+    def _network_input(self, depth: torch.Tensor) -> torch.Tensor:
+        from opnet.data import preprocess_torch
+
+        return preprocess_torch.to_network_input(depth, self.camera, self.size, canvas=self.canvas, static=True)[0]
 
     def __call__(self, depth: Any) -> Any:
         """Hypotheses (:class:`opnet.metrics.records.HypothesisSet`, camera frame, metres) of one

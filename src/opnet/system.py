@@ -127,7 +127,8 @@ class OPNetSystem(L.LightningModule):
         if key not in self._pipelines:
             from opnet.inference import GraphedPipeline
 
-            self._pipelines[key] = GraphedPipeline(self.backbone, settings, self.parameterization, camera, size, fit)
+            self._pipelines[key] = GraphedPipeline(self.backbone, settings, self.parameterization, camera, size, fit,
+                                                   fuse=settings.compile_pipeline)
         return self._pipelines[key]
 
     def infer(self, images: torch.Tensor) -> torch.Tensor:

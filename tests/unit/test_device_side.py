@@ -490,6 +490,22 @@ def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape
     assert traffic.seen
 
 
+def test_the_compiled_pipeline_equals_the_plain_one(pile: list) -> None:
+    """``inference.compile_pipeline``: the preprocessing and decoding compiled (here for the CPU) give
+    the same hypotheses; a setting that is no boolean is refused naming the key."""
+    from opnet.inference import GraphedPipeline, InferenceSettings
+
+    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
+    camera = pile[0].camera
+    plain = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image")
+    fused = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image",
+                            fuse=True)  # fmt: skip
+    assert_same_hypotheses([plain(r.depth) for r in pile[:3]], [fused(r.depth) for r in pile[:3]], atol=1e-4)
+    assert InferenceSettings.from_config({"compile_pipeline": True}).compile_pipeline is True
+    with pytest.raises(ValueError, match="inference.compile_pipeline='yes'"):
+        InferenceSettings.from_config({"compile_pipeline": "yes"})
+
+
 def test_the_system_graphs_whole_images_only_on_a_gpu() -> None:
     system = _system(["parameterization=eve", "decoding=tuned"])
     camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)

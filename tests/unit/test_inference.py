@@ -103,7 +103,10 @@ def test_device_side_and_cuda_graph_resolve_by_device() -> None:
     assert not InferenceSettings(cuda_graph=False).graphed(cuda) and not InferenceSettings(compile=True).graphed(cuda)
     assert "CUDA graph" not in auto.describe(cpu, _net()) and "on the device" not in auto.describe(cpu, _net())
     assert auto.describe(cuda, _net()).endswith("fp32, channels-last, chunks of 8, CUDA graph at batch 1, preprocessing and "
-                                                "averaging on the device on cuda")
+                                                "averaging on the device, predict.py's images whole as one graph on cuda")
+    compiled = InferenceSettings(compile_pipeline=True).describe(cuda, _net())
+    assert compiled.endswith("images whole as one graph (pre- and postprocessing compiled) on cuda")
+    assert "whole" not in InferenceSettings(device_side=False).describe(cuda, _net())
 
 
 @pytest.mark.parametrize(("setting", "level", "message"), [

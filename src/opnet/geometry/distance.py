@@ -98,8 +98,11 @@ class PoseSpace:
     def to_torch(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
         """(Lambda (3, 3), group (K, 3, 3)) as tensors, made once per dtype and device (so a
         computation captured in a CUDA graph copies nothing from the host)."""
-        key = (dtype, torch.device(device))
-        cache = self.__dict__.setdefault("_tensors", {})  # not a field: neither compared nor pickled
+        key = f"{dtype} {torch.device(device)}"
+        cache = self.__dict__.get("_tensors")  # not a field: neither compared nor pickled
+        if cache is None:
+            cache = {}
+            object.__setattr__(self, "_tensors", cache)
         if key not in cache:
             cache[key] = (torch.as_tensor(self.Lambda, dtype=dtype, device=device),
                           torch.as_tensor(self.group, dtype=dtype, device=device))  # fmt: skip
