@@ -51,8 +51,9 @@ export PYTHONUNBUFFERED=1 PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
 if [ "${1:-}" = "prepare" ]; then
     # The packages that train.py, eval, the tests and the benchmarks import and the GPU machine's CPython 3.12 lacks
     # (it has torch, lightning, torchmetrics, numpy, scipy, scikit-learn, OpenCV, matplotlib, tensorboard, pyyaml,
-    # packaging, typing-extensions, pytest, hypothesis: /work/.library/device/KINDS.md), at the versions of
-    # requirements.lock. The generator's (mujoco, coacd, pyrender, PyOpenGL) stay here: nothing is generated there.
+    # packaging, typing-extensions, pytest, hypothesis, as that machine listed them), at the versions of
+    # requirements.lock (rtree: the r-tree behind trimesh's spatial queries, which the AP parameterization uses). The
+    # generator's (mujoco, coacd, pyrender, PyOpenGL) stay here: nothing is generated there.
     # antlr4-python3-runtime has no wheel on the registry: built here (pure Python).
     set -e
     mkdir -p "$WHEELS" .carry
@@ -60,7 +61,7 @@ if [ "${1:-}" = "prepare" ]; then
         grep -qxF "$line" .git/info/exclude 2>/dev/null || echo "$line" >>.git/info/exclude
     done
     need="hydra-core omegaconf trimesh albumentations albucore pydantic pydantic-core annotated-types
-          typing-inspection simsimd stringzilla"
+          typing-inspection simsimd stringzilla rtree"
     pins=()
     for name in $need; do
         pin=$(grep -i "^${name}==" requirements.lock) || { echo "prepare: $name is not in requirements.lock"; exit 2; }
