@@ -1,4 +1,5 @@
-"""The multi-task loss of OP-Net (method.md §5, paper "Loss Function"), and its balanced variant.
+"""The multi-task loss of OP-Net (docs/method.md#the-papers-formulation-or-our-measured-best, paper
+"Loss Function"), and its balanced variant.
 
 ``L = Σ_cells,slots ( λ1 L_p w_p + [ λ2 L_v + λ_pose λ3 (L_pos + λ4 L_ori) ] p )``, summed over
 cells and slots and averaged over the batch, with ``λ3 = 8 v³`` (``v`` for SI) and ``p``, ``v``

@@ -2,7 +2,7 @@
 
 Training encodes the ground truth with the parameterization (vectorized, on the model's device)
 and optimizes the paper's loss; validation and test decode the output into pose hypotheses and
-score them with the Brégier average precision (metric_and_formats.md §2).
+score them with the Brégier average precision (docs/method.md#matching-and-scores).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Property tests of the Brégier pose distance (PoseSpace), as the evaluator uses it
-(metric_and_formats.md §1): a metric on poses modulo the object's proper symmetries."""
+(docs/method.md#pose-distance): a metric on poses modulo the object's proper symmetries."""
 
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ from opnet.metrics import (
 from opnet.metrics.bregier import pose_distances_per_scene
 from opnet.objects import ObjectModel
 
-# the official tool's output on ../shared/data/sileane_bunny_sample (data/README.md)
+# the official tool's output on ../shared/data/sileane_bunny_sample (docs/method.md#evaluation)
 GOLDEN_PER_SCENE = {
     "bunny_3_070": 0.7647, "bunny_3_071": 0.9286, "bunny_3_072": 0.8333, "bunny_3_073": 0.7647,
     "bunny_3_074": 0.7500, "bunny_3_075": 0.8462, "bunny_3_076": 0.8125, "bunny_3_077": 0.7647,
@@ -44,7 +44,7 @@ SPACES = {
 }
 
 
-# ---- the literal reference of metric_and_formats.md §2.3 ----------------------------------------
+# ---- the literal reference of docs/method.md#matching-and-scores ------------------------------
 def reference_scene_curve(D: np.ndarray, score: np.ndarray, to_find: np.ndarray, delta: float, k: int = -1):
     """Loop over thresholds, re-matching from scratch each time, exactly as the pseudo-code reads."""
     M, N = D.shape
@@ -196,7 +196,7 @@ def test_a_later_closer_duplicate_takes_over() -> None:
 
 def test_stolen_match_lowers_recall_and_warns() -> None:
     """h1 is nearest to instance B (occluded, ignored) but closer to A than h0 is: h0 becomes a
-    duplicate and the true positive on A is lost (metric_and_formats.md §2.6)."""
+    duplicate and the true positive on A is lost (docs/method.md#matching-and-scores)."""
     scene = (line_gt([0.0, 0.8], [0.0, 0.9]), line_hyps([-0.5, 0.45], [2.0, 1.0]))
     c = evaluate_scene(*scene, LINE)
     assert c.recall.tolist() == [0.0, 1.0, 0.0] and c.precision.tolist() == [1.0, 1.0, 0.0]

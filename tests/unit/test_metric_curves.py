@@ -1,4 +1,4 @@
-"""Scalar summaries of PR curves (metric_and_formats.md §2.4), on hand-computed curves."""
+"""Scalar summaries of PR curves (docs/method.md#matching-and-scores), on hand-computed curves."""
 
 from __future__ import annotations
 

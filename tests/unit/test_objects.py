@@ -13,7 +13,7 @@ from opnet.geometry import Symmetry, axis_angle_rotation
 from opnet.objects import ObjectModel, builtin_names, builtin_object, load_object, object_from_config
 
 
-# ---- golden numbers from the official Siléane poseutils.json and shared/data/README.md ----------
+# ---- golden numbers from the official Siléane poseutils.json and the reference data (README.md#documentation)
 def test_bunny_reproduces_official_poseutils(meshes_dir: Path, bunny_sample: Path) -> None:
     obj = load_object("bunny", mesh=meshes_dir / "SileaneBunny.obj", symmetry="none")
     official = json.loads((bunny_sample / "poseutils.json").read_text())

@@ -4,7 +4,7 @@
                    [--max-occlusion 0.5] [--out summary.json] [--plot pr.png] [--skip-missing]
 
 Reads ``<gt>/*.json`` (or ``.JSON``) and the results file of the same name in ``<results>``
-(metric_and_formats.md §2.1). A scene without a results file counts as a scene with no
+(docs/formats.md#siléane-layout). A scene without a results file counts as a scene with no
 hypotheses (with a warning); ``--skip-missing`` drops it as the official tool does. Prints the
 metrics table, optionally writes the summary JSON (atomically) and a PR plot. Bad input exits with
 status 2 and a one-line message naming the file.

@@ -1,4 +1,4 @@
-"""Sim-to-real augmentations of the normalized depth input (method.md §2, paper "Sim-to-Real").
+"""Sim-to-real augmentations of the normalized depth input (docs/method.md#network-input, paper "Sim-to-Real").
 
 The paper applies "augmentations in a random order and with varying intensity, such as elastic
 transformations, blurring, and adding noise to the pixels"; depth-sensor artefacts (random missing

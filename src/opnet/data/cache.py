@@ -5,7 +5,7 @@ keeping the decoded records in memory made a training process grow with the data
 at 256² took 3.8 GB). The cache stores each scene once, already cropped to the square canvas of
 :func:`opnet.data.preprocess.square_canvas` and resized (NaN-aware ``INTER_AREA``) to ``size``
 pixels, by default twice the network input, so the random resize interpolation of the sim-to-real
-recipe (method.md §2) still has pixels to interpolate:
+recipe (docs/method.md#network-input) still has pixels to interpolate:
 
 ``<root>/cache_s<size>/``
     ``cache.json``          version, size, scene count, the source's scene keys, and a fingerprint

@@ -2,7 +2,7 @@
 
 Splits are by cycle for IPA-layout data (scenes of one cycle share objects, so a scene-level split
 would leak), by scene for Siléane data. Training samples get a random OpenCV resize interpolation
-and the depth augmentations (method.md §2); validation and test samples are resized with
+and the depth augmentations (docs/method.md#network-input); validation and test samples are resized with
 ``INTER_AREA`` and not augmented.
 """
 

@@ -1,4 +1,4 @@
-"""Network input preprocessing of a depth image (method.md §2, paper "Setup" and "Sim-to-Real").
+"""Network input preprocessing of a depth image (docs/method.md#network-input, paper "Setup" and "Sim-to-Real").
 
 Pipeline of :func:`to_network_input`: square canvas centred on the principal point -> NaN-aware
 resize to ``size x size`` -> fill of missing depth (linear between valid pixels) -> normalization
@@ -121,7 +121,7 @@ def _blend(
 
 
 def fill_missing_depth(depth: np.ndarray, fill_value: float | None = None) -> np.ndarray:
-    """Fill NaN pixels by linear interpolation between valid pixels (method.md §2, "bilinear").
+    """Fill NaN pixels by linear interpolation between valid pixels (docs/method.md#network-input, "bilinear").
 
     Each missing pixel gets the average of the linear interpolations along its row and along its
     column between the nearest valid pixels on both sides, weighted by the inverse distance between
@@ -278,7 +278,7 @@ def to_network_input(
     fit: str = "pad",
     canvas: tuple[int, int, int] | None = None,
 ) -> tuple[np.ndarray, Camera]:
-    """Turn a depth image into the network input and its camera (method.md §2).
+    """Turn a depth image into the network input and its camera (docs/method.md#network-input).
 
     Args:
         depth: (H, W) float depth in metres, camera frame z, NaN (or z <= 0) = missing; (H, W)

@@ -1,4 +1,4 @@
-"""From a scene record to a network sample, and batches of samples (method.md §2)."""
+"""From a scene record to a network sample, and batches of samples (docs/method.md#network-input)."""
 
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def make_sample(
 
 
 def random_interpolation(rng: np.random.Generator) -> int:
-    """One of OpenCV's resize interpolations, drawn uniformly (domain randomization, method.md §2)."""
+    """One of OpenCV's resize interpolations, drawn uniformly (domain randomization, docs/method.md#network-input)."""
     flags = list(RESIZE_INTERPOLATIONS.values())
     return int(flags[rng.integers(len(flags))])
 

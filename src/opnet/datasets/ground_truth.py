@@ -1,6 +1,6 @@
 """Scene records and dataset folders to evaluation ground truth (Siléane JSON, one file a scene).
 
-The official converter's rules (metric_and_formats.md §4.5): ``occlusion_rate = 1 - clip(visibility,
+The official converter's rules (docs/formats.md#siléane-layout): ``occlusion_rate = 1 - clip(visibility,
 0, 1)`` and ``segmentation_id`` = the instance id. Poses stay in the internal camera frame: the
 Brégier distance is invariant to a common change of frame, so camera-frame ground truth evaluates
 camera-frame hypotheses exactly as the world-frame originals would evaluate world-frame ones.

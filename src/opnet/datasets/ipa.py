@@ -1,4 +1,4 @@
-"""Fraunhofer IPA Bin-Picking layout: reading and writing scenes (metric_and_formats.md §4).
+"""Fraunhofer IPA Bin-Picking layout: reading and writing scenes (docs/formats.md#fraunhofer-ipa-layout).
 
 ```
 <root>/parameter.json
@@ -7,7 +7,7 @@
 <root>/p_segmentation/cycle_XXXX/NNN_segmentation.png  uint8, k = CSV id k, 0 = bin, 255 = nothing
 ```
 NNN is the number of objects in the scene (000 = the empty bin). Real and synthetic data go
-through the same reader (architecture.md, central decision 4). Records are in the internal camera
+through the same reader (docs/formats.md#fraunhofer-ipa-layout). Records are in the internal camera
 frame; the IPA frame (x and y negated) exists only inside :mod:`opnet.datasets.ipa_csv`.
 """
 

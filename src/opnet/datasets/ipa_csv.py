@@ -1,5 +1,5 @@
-"""Ground-truth CSV of a Fraunhofer IPA scene, ``gt/cycle_XXXX/NNN.csv`` (metric_and_formats.md
-§4.5).
+"""Ground-truth CSV of a Fraunhofer IPA scene, ``gt/cycle_XXXX/NNN.csv``
+(docs/formats.md#fraunhofer-ipa-layout).
 
 One row per instance after a header; row ``id`` 0 is the bin, rows 1..N the objects. Columns:
 ``id, class, x, y, z`` (metres), the object's x-, y- and z-axis vectors (``R = [x | y | z]``, i.e.

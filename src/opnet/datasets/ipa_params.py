@@ -1,7 +1,7 @@
 """``parameter.json`` of a Fraunhofer IPA dataset folder: the camera and the drop settings.
 
 The depth image is a crop of a square ``resolution_big`` canvas rendered with the horizontal and
-vertical field of view ``perspectiveAngle`` (metric_and_formats.md §4.3-4.4). Pixel ``(u, v)`` of
+vertical field of view ``perspectiveAngle`` (docs/formats.md#fraunhofer-ipa-layout). Pixel ``(u, v)`` of
 the image is pixel ``(u + pixelOffset_X, v + pixelOffset_Y)`` of the canvas.
 
 Half-pixel decision: the canvas' principal point is ``c = resolution_big / 2 - 0.5``, the centre of

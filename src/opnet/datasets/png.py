@@ -1,6 +1,6 @@
 """PNG images of the datasets: strict reading, deterministic writing, and the uint16 depth code.
 
-Both dataset layouts store depth the same way (metric_and_formats.md §3.5 and §4.4): a 16-bit PNG
+Both dataset layouts store depth the same way (docs/formats.md#fraunhofer-ipa-layout): a 16-bit PNG
 whose value ``v`` in [0, 65534] means ``z = clip_start + v / 65535 * (clip_end - clip_start)``
 metres, and 65535 means "no depth".
 """

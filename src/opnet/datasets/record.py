@@ -1,7 +1,7 @@
 """The scene record: one depth image with its camera and ground truth, whatever the source.
 
 Every reader (IPA, Siléane) and the synthetic generator produce this, in the internal OpenCV
-camera frame and metres (method.md §1), so everything downstream has one code path.
+camera frame and metres (docs/formats.md#frames), so everything downstream has one code path.
 """
 
 from __future__ import annotations

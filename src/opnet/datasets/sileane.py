@@ -1,4 +1,4 @@
-"""Siléane dataset layout: reading scenes (metric_and_formats.md §3).
+"""Siléane dataset layout: reading scenes (docs/formats.md#siléane-layout).
 
 ```
 <root>/camera_params.txt        one camera for the whole folder (pose: camera -> world)

@@ -1,5 +1,5 @@
 """Siléane / Brégier JSON files: per-scene ground truth and pose hypotheses
-(metric_and_formats.md §2.1).
+(docs/formats.md#siléane-layout).
 
 Ground truth, one file per scene: a JSON list of
 ``{"R": 3x3 nested rows, "t": [x, y, z], "occlusion_rate": float, "segmentation_id": int}``.
@@ -133,7 +133,7 @@ def read_scene_pairs(
 
     A scene with ground truth but no results file counts as a scene with no hypotheses (recall 0
     where there is something to find), with a :class:`SceneFileWarning`; ``skip_missing=True``
-    drops it instead, as the official tool does (metric_and_formats.md §2.6). A results file
+    drops it instead, as the official tool does (docs/method.md#evaluation). A results file
     without ground truth is ignored with a warning.
 
     Returns:

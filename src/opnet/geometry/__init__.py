@@ -1,6 +1,6 @@
 """One geometry module: rotations, Euler conventions, camera projection, frames, symmetry and the
 symmetry-aware pose distance. The metric, the loss, the clustering and the parameterizations all
-call it (architecture.md, central decision 5).
+call it (docs/code.md).
 
 Names are imported on first use (PEP 562), so that ``opnet.geometry.camera`` and the numpy-only
 modules load without PyTorch (the ONNX deployment path, :mod:`opnet.deploy`).

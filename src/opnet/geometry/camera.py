@@ -1,4 +1,4 @@
-"""Pinhole camera in the internal OpenCV frame (x right, y down, z forward; method.md §1).
+"""Pinhole camera in the internal OpenCV frame (x right, y down, z forward; docs/formats.md#frames).
 
 Pixel ``(u, v)`` = (column, row), 0-based, pixel centres at integers:
 ``u = fx * x / z + cx``, ``v = fy * y / z + cy``.
@@ -187,7 +187,7 @@ class Camera:
         return self.backproject(u, v, depth.astype(np.float64))
 
     def normalize_depth(self, z):  # noqa: ANN001, ANN201
-        """Depth in metres to ``(z - clip_start) / (clip_end - clip_start)`` (method.md §2)."""
+        """Depth in metres to ``(z - clip_start) / (clip_end - clip_start)`` (docs/method.md#network-input)."""
         return (z - self.clip_start) / (self.clip_end - self.clip_start)
 
     def denormalize_depth(self, d):  # noqa: ANN001, ANN201

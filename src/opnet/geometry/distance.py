@@ -1,4 +1,4 @@
-"""The symmetry-aware pose distance of Brégier et al. (metric_and_formats.md §1).
+"""The symmetry-aware pose distance of Brégier et al. (docs/method.md#pose-distance).
 
 ``d(P1, P2) = min_{g in G} sqrt(||t1 - t2||^2 + ||(R1 - R2 g) Lambda||_F^2)`` for finite groups, and
 ``sqrt(||t1 - t2||^2 + lam^2 ||R1 e_z - R2 e_z||^2)`` for revolution objects (minimised over the

@@ -1,9 +1,9 @@
 """Conversions between the internal OpenCV camera frame and the datasets' frames.
 
-Convert at the reader/writer boundary and nowhere else (method.md §1):
-- Fraunhofer IPA: poses in a camera frame with x and y negated (metric_and_formats.md §4.4).
+Convert at the reader/writer boundary and nowhere else (docs/formats.md#frames):
+- Fraunhofer IPA: poses in a camera frame with x and y negated (docs/formats.md#fraunhofer-ipa-layout).
 - Siléane: poses in a world frame; the camera pose ``(R_world_cam, t_world_cam)`` maps camera to
-  world coordinates, ``X_w = R_world_cam X_c + t_world_cam`` (metric_and_formats.md §3.4).
+  world coordinates, ``X_w = R_world_cam X_c + t_world_cam`` (docs/formats.md#siléane-layout).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Conventions:
 - A rotation matrix ``R`` maps object coordinates to camera/world coordinates: ``x' = R x``.
 - Quaternions are ``(w, x, y, z)``, scalar first (the Siléane ``camera_params.txt`` convention).
 - Euler angles are *intrinsic*; a convention string names the axes in order, e.g. ``"ZYZ"`` means
-  ``R = Rz(a) @ Ry(b) @ Rz(c)``. The project default is Z-Y-Z (method.md §3): the third angle then
+  ``R = Rz(a) @ Ry(b) @ Rz(c)``. The project default is Z-Y-Z (docs/method.md#orientation): the third angle then
   turns about the object's symmetry axis z.
 """
 
@@ -202,7 +202,7 @@ def rotation_from_6d(z_raw: torch.Tensor, x_raw: torch.Tensor) -> torch.Tensor:
     """Rotation from two unnormalized 3-vectors by Gram-Schmidt (Zhou et al., CVPR 2019).
 
     The z column comes first (it is exact: ``z = z_raw / |z_raw|``), so that the symmetry axis of
-    a symmetric object (its model z-axis, method.md §1) never depends on the x column. Continuous
+    a symmetric object (its model z-axis, docs/data.md#objects) never depends on the x column. Continuous
     and differentiable wherever ``z_raw`` and ``x_raw`` are not parallel.
 
     Args:

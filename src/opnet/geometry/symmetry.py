@@ -1,4 +1,4 @@
-"""Proper symmetry groups of rigid objects (method.md §1, metric_and_formats.md §1.2).
+"""Proper symmetry groups of rigid objects (docs/data.md#objects, docs/method.md#pose-distance).
 
 The symmetry axis of an object is its model z-axis. Classes:
 - ``none``: no proper symmetry (C1).

@@ -1,5 +1,5 @@
 """Brégier et al. evaluation: pure functions (per-scene matching, mean curve, AP) and a
-torchmetrics wrapper (metric_and_formats.md §2).
+torchmetrics wrapper (docs/method.md#evaluation).
 
 ``PoseAP`` (the torchmetrics ``Metric``) is imported on first use: torchmetrics is slow to import
 and the command-line evaluator does not need it.

@@ -1,5 +1,5 @@
-"""The Brégier et al. evaluation protocol (metric_and_formats.md §2): per-scene precision-recall
-curves with mutual-nearest-neighbour matching recomputed at every score threshold.
+"""The Brégier et al. evaluation protocol (docs/method.md#matching-and-scores): per-scene
+precision-recall curves with mutual-nearest-neighbour matching recomputed at every score threshold.
 
 Matching at a threshold s, with P = the hypotheses of score >= s and distances over *all* ground
 truth instances: a hypothesis is a true positive when its nearest instance j is within δ, is to be
@@ -59,7 +59,8 @@ class SceneCurve:
 def scene_curve_from_distances(
     distances: np.ndarray, score: np.ndarray, to_find: np.ndarray, delta: float, max_nb_results: int = -1
 ) -> SceneCurve:
-    """The matching of §2.3 at every threshold at once, from a precomputed distance matrix.
+    """The matching of docs/method.md#matching-and-scores at every threshold at once, from a
+    precomputed distance matrix.
 
     Args:
         distances: (M, N) float64 metres, pose distance of hypothesis i to ground truth j (all N).
@@ -127,7 +128,8 @@ def _true_positives(
 def instances_to_find(
     gt: GroundTruthSet, max_occlusion: float = 0.5, min_occlusion: float = -0.1
 ) -> np.ndarray:
-    """(N,) bool: ``min_occlusion <= occlusion_rate <= max_occlusion`` (inclusive, §2.2)."""
+    """(N,) bool: ``min_occlusion <= occlusion_rate <= max_occlusion`` (inclusive,
+    docs/method.md#matching-and-scores)."""
     occ = gt.occlusion_rate
     return (occ >= min_occlusion) & (occ <= max_occlusion)
 
@@ -193,7 +195,7 @@ def evaluate_scene(
     min_occlusion: float = -0.1,
     max_nb_results: int = -1,
 ) -> SceneCurve:
-    """Precision-recall curve of one scene (§2.3).
+    """Precision-recall curve of one scene (docs/method.md#matching-and-scores).
 
     Args:
         gt: the scene's ground truth; poses in the same frame as ``hyps``, metres.

@@ -1,5 +1,5 @@
 """Precision-recall curves and their scalar summaries, as the official Brégier tool computes them
-(metric_and_formats.md §2.4). Pure numpy functions on curves indexed by decreasing score threshold.
+(docs/method.md#matching-and-scores). Pure numpy functions on curves indexed by decreasing score threshold.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 scores low).
 
 With every hypothesis in (the lowest threshold of the curve), each instance that must be found is
-either matched (a true positive of the Brégier protocol, metric_and_formats.md §2.3) or missed for
+either matched (a true positive of the Brégier protocol, docs/method.md#matching-and-scores) or missed for
 one of four reasons, decided on the hypothesis nearest to it in pose distance:
 
 - ``no_hypothesis``: no hypothesis has its origin within ``near`` (half the object diameter) of the

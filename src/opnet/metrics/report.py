@@ -27,13 +27,13 @@ class NonMonotoneRecallWarning(UserWarning):
 
     This happens with mutual-nearest-neighbour matching: a new hypothesis can become the nearest
     of an instance while its own nearest instance is another one, so a true positive is lost
-    (metric_and_formats.md §2.6). The official tool stops with an assertion there.
+    (docs/method.md#matching-and-scores). The official tool stops with an assertion there.
     """
 
 
 @dataclass(frozen=True)
 class EvaluationSummary:
-    """Metrics of a set of scenes of one object (metric_and_formats.md §2.4).
+    """Metrics of a set of scenes of one object (docs/method.md#matching-and-scores).
 
     Attributes:
         ap: average precision of the scene-averaged curve (the headline "AP").

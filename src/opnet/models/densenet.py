@@ -1,4 +1,5 @@
-"""Fully convolutional DenseNet-BC backbone of OP-Net (method.md §7, paper "Setup").
+"""Fully convolutional DenseNet-BC backbone of OP-Net
+(docs/method.md#the-papers-formulation-or-our-measured-best, paper "Setup").
 
 The reference network (``depth=40, growth_rate=50``, 128 x 128 input, 16 x 16 output)::
 

@@ -1,7 +1,7 @@
 """Object models: a triangle mesh, its proper symmetry group, and what the metric derives from them.
 
 Λ, the surface centroid and the threshold δ = 0.1·D with D = 2 × max ‖vertex − centroid‖ follow
-metric_and_formats.md §1.3-1.5. The symmetry axis is the model z-axis (method.md §1).
+docs/method.md#pose-distance. The symmetry axis is the model z-axis (docs/data.md#objects).
 """
 
 from __future__ import annotations

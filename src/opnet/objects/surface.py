@@ -1,4 +1,4 @@
-"""Surface moments of triangle meshes (metric_and_formats.md §1.3)."""
+"""Surface moments of triangle meshes (docs/method.md#pose-distance)."""
 
 from __future__ import annotations
 

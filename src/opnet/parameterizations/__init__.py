@@ -1,5 +1,5 @@
 """Output parameterizations of OP-Net: encode ground truth into the output grid, decode network
-outputs into pose hypotheses (method.md §3-§6). Select one with the Hydra config group
+outputs into pose hypotheses (docs/method.md#the-six-parameterizations). Select one with the Hydra config group
 ``conf/parameterization/`` (``_target_`` names the class).
 
 Names are imported on first use (PEP 562): the averaging loads without PyTorch (opnet.deploy).

@@ -1,4 +1,4 @@
-"""OP-Net AP, additional reference points (method.md §4, paper "Additional Points").
+"""OP-Net AP, additional reference points (docs/method.md#the-six-parameterizations, paper "Additional Points").
 
 As vanilla, plus the cells containing the projections of additional reference points defined in
 the object frame. Default points (two for the built-in classes): revolution objects ``±a e_z`` on
@@ -22,7 +22,7 @@ reference points on the object", fixes the symmetry rules, and leaves the rest o
 
 Points never overwrite an origin cell; conflicts go to the highest visibility. An object is
 representable as soon as one of its cells is, even with its origin outside the image; the position
-is relative to the enlarged image and the hypotheses are averaged (method.md §6).
+is relative to the enlarged image and the hypotheses are averaged (docs/method.md#decoding).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Pose averaging for parameterizations with several predictions per object (method.md §6).
+"""Pose averaging for parameterizations with several predictions per object (docs/method.md#decoding).
 
 DBSCAN in pose space with the symmetry-aware Brégier distance (the metric's formula in numpy,
 :mod:`opnet.geometry.pose_numpy`: this module runs without PyTorch, for :mod:`opnet.deploy`), then one averaged pose per cluster: every
@@ -99,7 +99,7 @@ def smallest_connected(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PoseAveraging:
-    """Cluster pose hypotheses of one image and average each cluster (method.md §6).
+    """Cluster pose hypotheses of one image and average each cluster (docs/method.md#decoding).
 
     Attributes:
         space: the object's pose space (distance, symmetry group, δ).

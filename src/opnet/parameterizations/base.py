@@ -1,4 +1,4 @@
-"""The protocol every output parameterization implements (method.md §3-§6, architecture.md 1-2).
+"""The protocol every output parameterization implements (docs/method.md#the-six-parameterizations).
 
 A parameterization owns both directions: :meth:`Parameterization.encode` turns ground truth into
 the network's target tensor and :meth:`Parameterization.decode` turns a network output back into
@@ -159,10 +159,10 @@ class Parameterization(abc.ABC):
         rotation: the orientation channels (conf/rotation/); None: the paper's Euler angles in
             the convention ``euler``.
         euler: Euler convention of the orientation channels when ``rotation`` is None
-            (method.md §3).
-        threshold: presence threshold τ of a hypothesis (method.md §6).
+            (docs/method.md#orientation).
+        threshold: presence threshold τ of a hypothesis (docs/method.md#decoding).
         score: hypothesis score: "p" (p̂), "p*v" (p̂ v̂) or "v" (v̂).
-        averaging: cluster and average the hypotheses of each image (method.md §6).
+        averaging: cluster and average the hypotheses of each image (docs/method.md#decoding).
         averaging_eps: DBSCAN radius as a fraction of δ.
         averaging_min_samples: DBSCAN core-point threshold.
         averaging_score: cluster score, "max", "sum" or "mean".

@@ -1,4 +1,4 @@
-"""Bounded Euler-angle channels with symmetry canonicalization (method.md §3, paper §Loss).
+"""Bounded Euler-angle channels with symmetry canonicalization (docs/method.md#orientation, paper §Loss).
 
 A rotation is written with intrinsic Euler angles ``R = R_i(φ1) R_j(φ2) R_z(φ3)`` (default Z-Y-Z)
 and each angle is mapped linearly to ``[0, 1)``: ``φ1 / 2π``, ``φ2 / π`` (proper conventions, φ2 in
@@ -29,7 +29,7 @@ class EulerCodec(RotationCodec):
     Args:
         symmetry: the object's symmetry.
         convention: intrinsic Euler convention (``rotation.convention``), e.g. "ZYZ" (default,
-            method.md §3); the third axis must be Z for symmetric objects.
+            docs/method.md#orientation); the third axis must be Z for symmetric objects.
 
     Attributes:
         convention: e.g. "ZYZ".

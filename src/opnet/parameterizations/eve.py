@@ -1,10 +1,10 @@
-"""OP-Net EVE, extended volume elements (method.md §4, paper "Extended Volume Elements").
+"""OP-Net EVE, extended volume elements (docs/method.md#the-six-parameterizations, paper "Extended Volume Elements").
 
 As vanilla, plus the neighbouring cells (left/right, up/down and diagonal) whose shared border the
 origin lies within ``border`` (0.2 cell units) of. Extensions never overwrite another object's
 origin cell; among extensions the highest visibility wins. Several cells predict one object, so
 the position is regressed relative to the image enlarged by the object diameter, and the decoded
-hypotheses are clustered and averaged (method.md §6).
+hypotheses are clustered and averaged (docs/method.md#decoding).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""OP-Net MP, multiple poses per cell (method.md §4, paper "Multiple Poses").
+"""OP-Net MP, multiple poses per cell (docs/method.md#the-six-parameterizations, paper "Multiple Poses").
 
 An 8 x 8 grid with P = 3 pose slots per cell: the objects whose origins fall into a cell are ranked
 by visibility into slots 1..P (further ones are dropped). The presence of slot l+1 means "there is

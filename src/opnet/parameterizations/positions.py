@@ -3,7 +3,7 @@
 Pixel coordinates follow :class:`opnet.geometry.Camera` (pixel centres at integers, so the image
 spans ``[-0.5, W - 0.5]``). An ``S x S`` grid splits that span evenly; the continuous grid
 coordinate of a pixel ``u`` is ``s = (u + 0.5) S / W``, its cell ``floor(s)`` and its sub-cell
-offset ``s - floor(s)`` (method.md §3, vanilla / Z / MP). Variants that assign an object to
+offset ``s - floor(s)`` (docs/method.md#the-six-parameterizations, vanilla / Z / MP). Variants that assign an object to
 several cells (EVE, AP, SI) regress the origin relative to the image enlarged by the object
 diameter projected at the near clip plane, ``m = fx D / clip_start``: ``x = (u + m) / (W + 2m)``,
 likewise for ``y`` (with fy).

@@ -1,4 +1,4 @@
-"""OP-Net SI, assignment by the resized segmentation image (method.md §4, paper §SI).
+"""OP-Net SI, assignment by the resized segmentation image (docs/method.md#the-six-parameterizations, paper §SI).
 
 The instance segmentation at network-input resolution is resized to 32 x 32 by nearest
 neighbour (each cell takes the pixel nearest to its centre) and every cell showing instance k gets

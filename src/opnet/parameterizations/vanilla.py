@@ -1,4 +1,5 @@
-"""Vanilla OP-Net: one 16 x 16 grid, an object in the cell of its projected origin (method.md §4).
+"""Vanilla OP-Net: one 16 x 16 grid, an object in the cell of its projected origin
+(docs/method.md#the-six-parameterizations).
 
 If several origins fall into one cell, the object with the highest visibility wins. Position is
 cell-relative: the sub-cell offsets of the projected origin and its depth normalized between the

@@ -1,4 +1,4 @@
-"""OP-Net Z, discretization in depth (method.md §4, paper "Discretization in z-Direction").
+"""OP-Net Z, discretization in depth (docs/method.md#the-six-parameterizations, paper "Discretization in z-Direction").
 
 A 16 x 16 grid of the image times ``S_z`` = 16 depth slabs between the clip planes: an object goes
 to the voxel (cell, slab) of its origin, the highest visibility winning per voxel. x, y are the

@@ -1,4 +1,4 @@
-"""Settings of the synthetic bin-picking scenes: camera, bin, physics (method.md §1, paper §IV).
+"""Settings of the synthetic bin-picking scenes: camera, bin, physics (docs/data.md#synthetic-data, paper §IV).
 
 One flat dataclass so that every value is a Hydra override away (``scene.fov_deg=40``); ``None``
 means "derive it from the object and the number of drops" (see :mod:`opnet.synthesis.layout`).

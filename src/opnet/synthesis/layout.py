@@ -4,7 +4,7 @@ World frame: z up, origin at the centre of the top of the (un-jittered) bin floo
 is the plane z = -``bin_wall_thickness`` on which the bin stands. Bin frame: the same, attached to
 the bin (per-cycle jitter moves it on the ground: x, y and yaw). The nominal camera hangs
 ``camera_height`` above the world origin looking straight down; in the internal OpenCV camera frame
-(x right, y down, z forward, method.md §1) that is ``R_world_cam = diag(1, -1, -1)``.
+(x right, y down, z forward, docs/formats.md#frames) that is ``R_world_cam = diag(1, -1, -1)``.
 
 Automatic sizes (every one can be set in :class:`SceneConfig`):
 - bin floor side ``L = max(2 D, sqrt(drops * a / layers))``, ``D`` the object diameter and ``a``

@@ -1,4 +1,4 @@
-"""Generated datasets on disk: the IPA layout (metric_and_formats.md §4) plus our own root files.
+"""Generated datasets on disk: the IPA layout (docs/formats.md#fraunhofer-ipa-layout) plus our own root files.
 
 ```
 <root>/parameter.json          IPA camera and drop settings (opnet.datasets.ipa_params)
