@@ -55,7 +55,7 @@ def main() -> None:
         if not (run_dir / "test" / "summary.json").exists():
             print(f"training with data.fit={fit} ...", flush=True)
             _run(["train.py", "experiment=quickstart", f"object={args.object}", f"data.fit={fit}",
-                  f"+data.generate.scene.camera_file={cam_file}", f"hydra.run.dir={run_dir}", "example_predictions=0",
+                  f"scene.camera_file={cam_file}", f"hydra.run.dir={run_dir}", "example_predictions=0",
                   *overrides], env, work / "logs" / f"train_{fit}.log")
         ckpt = sorted((run_dir / "checkpoints").glob("epoch*.ckpt"))[-1]
         out = work / f"eval_{fit}"
@@ -78,7 +78,7 @@ def main() -> None:
     lines += [f"| {r['fit']} | {100 * r['input_share']:.0f} % | {100 * r['image_share']:.0f} % | "
               f"{r['image_px_per_input_px']:.2f} | {r['ap']:.4f} |" for r in rows]
     note = (f"{args.object}, camera 506 x 474, principal point (139.5, 236.5); quickstart recipe per row "
-            f"(`python train.py experiment=quickstart data.fit=<fit> +data.generate.scene.camera_file=<camera.yaml>`), "
+            f"(`python train.py experiment=quickstart data.fit=<fit> scene.camera_file=<camera.yaml>`), "
             f"AP on {rows[0]['scenes']} held-out scenes (seed 1). `python scripts/framing_table.py`")
     (args.out / "framing.md").write_text("\n".join(lines) + "\n\n" + note + "\n")
     print("\n".join(lines))

@@ -519,7 +519,7 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
         "command": QUICKSTART_COMMAND, "ap": summary["ap"], "map": summary["map"], "f1": summary["f1"],
         "recall_at_p50": summary["recall_at_p50"], "found": diag["matched"] / max(diag["to_find"], 1),
         "scenes": summary["scenes"], "wall_s": round(wall, 1), "object": cfg["object"]["name"],
-        "cycles": gen["cycles"], "drops": gen["drops"], "resolution": gen["scene"]["resolution"],
+        "cycles": gen["cycles"], "drops": gen["drops"], "resolution": (cfg.get("scene") or gen["scene"])["resolution"],
         "dataset_scenes": len(list((data_root / "p_depth").rglob("*.png"))), "model": "small",
         "params_m": params / 1e6, "parameterization": "vanilla", "epochs": cfg["trainer"]["max_epochs"],
         "machine": f"this {os.cpu_count()}-core CPU machine", "date": time.strftime("%Y-%m-%d"),

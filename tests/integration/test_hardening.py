@@ -172,7 +172,7 @@ def test_complete_dataset_is_used_without_a_single_write(tmp_path: Path, monkeyp
     root = tmp_path / "ds"
     cfg = compose_cfg("train", ["model=tiny", "object=zbracket", f"data.root={root}", "data.generate.cycles=3",
                                 "data.generate.drops=2", "data.generate.workers=1",
-                                "data.generate.scene.resolution=64"])  # fmt: skip
+                                "scene.resolution=64"])  # fmt: skip
     obj = build_components(cfg).obj
     build_datamodule(cfg, obj).prepare_data()  # generates and caches
     before = _mtimes(root)

@@ -256,7 +256,7 @@ def test_console_ends_with_the_summary_and_paths_each_line_once(tmp_path: Path) 
     run_dir = tmp_path / "run"
     proc = subprocess.run(
         [sys.executable, str(REPO_ROOT / "train.py"), "experiment=quickstart", "data.generate.cycles=10",
-         "data.generate.drops=3", "data.generate.workers=2", "data.generate.scene.resolution=128", "model=tiny",
+         "data.generate.drops=3", "data.generate.workers=2", "scene.resolution=128", "model=tiny",
          "trainer.max_epochs=1", "trainer.enable_progress_bar=false", "example_predictions=1",
          f"hydra.run.dir={run_dir}"],
         capture_output=True, text=True, timeout=400, env={**os.environ, "OPNET_ROOT": str(tmp_path)},

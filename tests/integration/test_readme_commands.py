@@ -28,7 +28,7 @@ from opnet.datasets.png import write_png
 from opnet.paths import REPO_ROOT
 
 TINY_DATA = ["data.generate.cycles=6", "data.generate.drops=3", "data.generate.workers=1",
-             "data.generate.scene.resolution=128"]
+             "scene.resolution=128"]
 TINY_FIT = ["trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
             "trainer.enable_progress_bar=false", "example_predictions=1"]
 

@@ -19,7 +19,7 @@ import pytest
 from opnet.paths import REPO_ROOT
 
 TINY = ["experiment=quickstart", "data.generate.cycles=4", "data.generate.drops=2", "data.generate.workers=1",
-        "data.generate.scene.resolution=128", "model=tiny", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
+        "scene.resolution=128", "model=tiny", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
         "+trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "example_predictions=0"]  # fmt: skip
 
 GENERATOR = ("pybullet", "mujoco", "coacd", "pyrender")

@@ -90,6 +90,20 @@ def check_input_grid(cfg: DictConfig) -> None:
     raise ValueError(message)
 
 
+def check_scene_address(cfg: DictConfig) -> None:
+    """Scene settings have one address, ``scene.*``, in ``train.py`` as in ``generate.py``;
+    ``data.generate.scene`` is that group (``${scene}``). Set apart (``+data.generate.scene.camera_file=...``)
+    it would replace every scene setting, the dataset's resolution among them, while the data folder is still
+    named after ``scene.resolution``: refused, naming the key to use."""
+    generate = (cfg.get("data") or {}).get("generate")
+    if not isinstance(generate, DictConfig) or "scene" not in generate or OmegaConf.is_interpolation(generate, "scene"):
+        return
+    given = OmegaConf.to_container(generate.scene, resolve=False) if isinstance(generate.scene, DictConfig) else {}
+    keys = ", ".join(f"scene.{k}=..." for k in given) or "scene.<key>=..."
+    raise ValueError(f"data.generate.scene is set apart from scene: scene settings have one address, scene.* (as in "
+                     f"generate.py); write {keys} instead of data.generate.scene.<key>")
+
+
 def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
     if not isinstance(cfg, DictConfig):

@@ -16,6 +16,7 @@ from opnet.cli.build import (
     absolutize_paths,
     build_components,
     build_datamodule,
+    check_scene_address,
     checkpoint_config,
     load_checkpoint,
     read_checkpoint,
@@ -74,6 +75,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     absolutize_paths(cfg)
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
+    check_scene_address(cfg)
     comps = build_components(cfg)
     datamodule = build_datamodule(cfg, comps.obj, train=True)
     trainer = build_trainer(cfg)
