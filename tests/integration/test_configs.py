@@ -1,15 +1,21 @@
-"""Every config composes, and every group option instantiates what it names."""
+"""Every config composes, and every group option instantiates what it names; each entry config
+(train, generate, eval, predict, export) holds what its command reads and resolves completely."""
 
 from __future__ import annotations
+
+import ast
+import re
+import shutil
+from pathlib import Path
 
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
-from hydra.utils import instantiate
+from hydra.utils import get_object, instantiate
 from omegaconf import OmegaConf
 
 from opnet.cli.build import build_components
-from opnet.paths import config_dir
+from opnet.paths import REPO_ROOT, config_dir
 
 CONF = config_dir()
 PARAMETERIZATIONS = sorted(p.stem for p in (CONF / "parameterization").glob("*.yaml"))
@@ -125,12 +131,128 @@ def test_trainer_configs_compose(trainer: str) -> None:
     assert cfg.trainer._target_ == "lightning.pytorch.Trainer"
 
 
-@pytest.mark.parametrize("name", ["eval", "predict", "generate"])
+#: the entry scripts at the top of the repository: config name -> the opnet.cli module whose run(cfg) it calls
+ENTRIES = {m.group(1): re.search(r"from opnet\.cli\.(\w+) import run", text).group(1)
+           for script in sorted(REPO_ROOT.glob("*.py"))
+           if (m := re.search(r'@hydra\.main\(.*config_name="(\w+)"', text := script.read_text()))}  # fmt: skip
+#: what each entry config leaves to the command line (``???``), with a value to give it
+REQUIRED = {"train": {}, "generate": {}, "eval": {"ckpt": "x.ckpt"}, "predict": {"ckpt": "x.ckpt", "input": "in"},
+            "export": {"ckpt": "x.ckpt"}}  # fmt: skip
+#: keys a command reads with ``cfg.get`` that its config leaves out on purpose (given with ``+key=...``)
+OPTIONAL = {"train": {"inference"}}
+_ABSENT = object()
+
+
+def cli_reads(source: Path) -> dict[str, int]:
+    """The config keys a command module reads from ``cfg`` (``cfg.a.b``, ``cfg["a"]``,
+    ``cfg.get("a")``, ``cfg.a.get("b")``), each with the first line that reads it."""
+    reads: dict[str, int] = {}
+    for node in ast.walk(ast.parse(source.read_text(), str(source))):
+        chain: list[str] = []
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
+                and node.args and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+            chain, node = [node.args[0].value], node.func.value
+        elif isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant) and isinstance(node.slice.value, str):
+            chain, node = [node.slice.value], node.value
+        elif not isinstance(node, ast.Attribute):
+            continue
+        line = node.lineno
+        while isinstance(node, ast.Attribute):
+            chain.insert(0, node.attr)
+            node = node.value
+        while chain and chain[-1] in ("get", "items", "keys", "values", "pop", "copy"):
+            chain.pop()  # a method of the node, not a key
+        if isinstance(node, ast.Name) and node.id == "cfg" and chain:
+            key = ".".join(chain)
+            reads[key] = min(reads.get(key, line), line)
+    return reads
+
+
+def _targets(node: object, where: str = "") -> list[tuple[str, str]]:
+    """(config key, ``_target_``) of every node of a resolved config that names one."""
+    found: list[tuple[str, str]] = []
+    if isinstance(node, dict):
+        if isinstance(node.get("_target_"), str):
+            found.append((where or "<root>", node["_target_"]))
+        for k, v in node.items():
+            found += _targets(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            found += _targets(v, f"{where}[{i}]")
+    return found
+
+
+def entry_config_problems(conf: Path, name: str, cli: Path, required: dict[str, str],
+                          optional: frozenset[str] = frozenset()) -> list[str]:  # fmt: skip
+    """What is wrong with the entry config ``conf/name.yaml`` for the command ``cli`` (empty: nothing):
+    it must compose; leave exactly ``required`` to the command line; resolve completely once they are
+    given (every interpolation, nothing missing); hold every key ``cli`` reads (but ``optional``); and
+    every ``_target_`` in it must import."""
+    paths = ["paths.root_dir=/tmp/opnet", "paths.output_dir=/tmp/opnet/run"]  # what the Hydra run gives
+    try:
+        with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+            bare = compose(config_name=name, overrides=paths)
+            cfg = compose(config_name=name, overrides=paths + [f"{k}={v}" for k, v in required.items()])
+    except Exception as e:  # noqa: BLE001 - the failure is the finding
+        return [f"conf/{name}.yaml does not compose: {type(e).__name__}: {e}"]
+    problems = []
+    try:
+        if (missing := OmegaConf.missing_keys(bare)) != set(required):
+            problems.append(f"conf/{name}.yaml leaves {sorted(missing)} to the command line, expected {sorted(required)}")
+        resolved = OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+    except Exception as e:  # noqa: BLE001
+        return [*problems, f"conf/{name}.yaml does not resolve with {required}: {type(e).__name__}: {e}"]
+    for key, line in sorted(cli_reads(cli).items()):
+        if key not in optional and OmegaConf.select(cfg, key, default=_ABSENT) is _ABSENT:
+            problems.append(f"{cli.name}:{line} reads cfg.{key}, which conf/{name}.yaml does not have")
+    for key, target in _targets(resolved):
+        try:
+            get_object(target)
+        except Exception as e:  # noqa: BLE001
+            problems.append(f"conf/{name}.yaml {key}._target_={target} does not import: {type(e).__name__}: {e}")
+    return problems
+
+
+def test_every_entry_script_has_its_config_checked() -> None:
+    assert set(ENTRIES) == set(REQUIRED), "a new entry script: say in REQUIRED what its config leaves to the command line"
+    assert ENTRIES == {name: name for name in REQUIRED}  # each script found, with the command it runs
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
 def test_entry_configs_compose(name: str) -> None:
-    if not (CONF / f"{name}.yaml").exists():
-        pytest.skip(f"conf/{name}.yaml not present")
-    cfg = _compose(name, ["paths.root_dir=/tmp/opnet"] + (["ckpt=x"] if name in ("eval", "predict") else []))
-    assert cfg is not None
+    cli = REPO_ROOT / "src" / "opnet" / "cli" / f"{ENTRIES[name]}.py"
+    assert len(cli_reads(cli)) >= 5  # the command's reads were found
+    assert entry_config_problems(CONF, name, cli, REQUIRED[name], frozenset(OPTIONAL.get(name, ()))) == []
+
+
+def test_the_entry_config_check_fails_on_a_broken_config(tmp_path: Path) -> None:
+    conf = shutil.copytree(CONF, tmp_path / "conf")
+    cli = REPO_ROOT / "src" / "opnet" / "cli"
+
+    def problems(name: str) -> list[str]:
+        return entry_config_problems(conf, name, cli / f"{ENTRIES[name]}.py", REQUIRED[name],
+                                     frozenset(OPTIONAL.get(name, ())))  # fmt: skip
+
+    def edit(name: str, old: str, new: str) -> None:
+        path = conf / name
+        assert old in path.read_text()
+        path.write_text(path.read_text().replace(old, new))
+
+    assert problems("export") == [] and problems("train") == []  # the copy is sound
+    edit("export.yaml", "format: onnx\n", "")  # a key the command reads, gone
+    edit("export.yaml", "check: true", "verify: true")  # read with cfg.get("check", True): its default would hide it
+    assert [p.split(", which")[0] for p in problems("export")] == [
+        f"export.py:{cli_reads(cli / 'export.py')['check']} reads cfg.check",
+        f"export.py:{cli_reads(cli / 'export.py')['format']} reads cfg.format"]  # fmt: skip
+    edit("export.yaml", "ckpt: ???", "ckpt: null")  # the required field, no longer asked for
+    assert "leaves [] to the command line, expected ['ckpt']" in problems("export")[0]
+    edit("generate.yaml", "out: ${paths.data_dir}", "out: ${paths.no_such_dir}")  # an interpolation to nowhere
+    assert "does not resolve" in problems("generate")[-1] and "no_such_dir" in problems("generate")[-1]
+    edit("data/synthetic.yaml", "OPNetDataModule", "OPNetDataModul")  # a _target_ that is no object
+    [found] = problems("train")
+    assert found.startswith("conf/train.yaml data._target_=opnet.data.datamodule.OPNetDataModul does not import")
+    edit("eval.yaml", "refine: none", "refine: nothing")  # an option that does not exist
+    assert problems("eval")[0].startswith("conf/eval.yaml does not compose")
 
 
 def test_slurm_launcher_config_names_submitit() -> None:

@@ -2,13 +2,9 @@
 
 :class:`BinSimulator` holds the rules below; an engine supplies a handful of primitives (make the
 world, add / remove / place a body, step, read velocities and poses, save and restore the state).
-Two engines (``scene.physics``):
-
-- ``mujoco`` (default; :mod:`opnet.synthesis.physics_mujoco`): wheels for CPython 3.10-3.14,
-  maintained. Concave parts collide as a CoACD convex decomposition.
-- ``pybullet`` (:mod:`opnet.synthesis.physics_pybullet`; the ``pybullet`` extra, wheels for
-  CPython 3.11 only, last release January 2025): the engine of the datasets made before MuJoCo;
-  concave parts as pybullet's V-HACD. Kept so that those datasets resume byte for byte.
+The engines (:mod:`~opnet.synthesis.physics.mujoco_engine`,
+:mod:`~opnet.synthesis.physics.pybullet_engine`) import this module and nothing else of the
+package; :func:`~opnet.synthesis.physics.make_simulator` picks one by name.
 
 Defaults (120 Hz, angular damping 0.5 so round parts stop rocking) settle a 20-part pile in about
 60-90 steps per drop.
@@ -44,9 +40,8 @@ from typing import Self
 
 import numpy as np
 
-from opnet._deps import require
 from opnet.synthesis.collision import CollisionModel
-from opnet.synthesis.config import PHYSICS_ENGINES, SceneConfig
+from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, homogeneous, inverse_pose, random_rotation
 
 GRAVITY = 9.81
@@ -84,7 +79,8 @@ class _DropFailed(Exception):
 class BinSimulator(ABC):
     """Drops parts into a bin, one cycle at a time (the engine-independent rules).
 
-    Make one with :func:`make_simulator`. Bodies are integer handles of the engine.
+    Make one with :func:`~opnet.synthesis.physics.make_simulator`. Bodies are integer handles of
+    the engine.
 
     Args:
         rig: the bin and camera set-up (only the bin and the part radius are used).
@@ -253,23 +249,3 @@ class BinSimulator(ABC):
         T_bin_world = inverse_pose(self._T_world_bin)
         com_bin = com_world @ T_bin_world[:3, :3].T + T_bin_world[:3, 3]
         return bool(self.rig.bin.inside(com_bin).all())
-
-
-def make_simulator(rig: Rig, collision: CollisionModel, cfg: SceneConfig) -> BinSimulator:
-    """The simulator of the engine ``cfg.physics`` names ("mujoco" or "pybullet").
-
-    Raises:
-        MissingDependencyError: that engine's package is not installed.
-    """
-    if cfg.physics == "pybullet":
-        require("pybullet", "scene.physics=pybullet", "pip install 'opnet[pybullet]' (CPython 3.11 wheels only), "
-                "or use scene.physics=mujoco")
-        from opnet.synthesis.physics_pybullet import PybulletSimulator
-
-        return PybulletSimulator(rig, collision, cfg)
-    if cfg.physics == "mujoco":
-        require("mujoco", "scene.physics=mujoco", "pip install mujoco")
-        from opnet.synthesis.physics_mujoco import MujocoSimulator
-
-        return MujocoSimulator(rig, collision, cfg)
-    raise ValueError(f"scene.physics={cfg.physics!r}: unknown physics engine; expected one of {PHYSICS_ENGINES}")

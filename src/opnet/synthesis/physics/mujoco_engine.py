@@ -35,7 +35,7 @@ from opnet.geometry.rotations import matrix_to_quaternion, quaternion_to_matrix
 from opnet.synthesis.collision import CollisionModel, convex_parts
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig
-from opnet.synthesis.physics import GRAVITY, BinSimulator
+from opnet.synthesis.physics.base import GRAVITY, BinSimulator
 
 #: where parked parts wait (metres below the ground, one metre apart): far from everything
 _PARK_DEPTH = 10.0

@@ -21,7 +21,7 @@ from opnet.geometry.rotations import matrix_to_quaternion
 from opnet.synthesis.collision import CollisionModel
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, homogeneous
-from opnet.synthesis.physics import GRAVITY, BinSimulator
+from opnet.synthesis.physics.base import GRAVITY, BinSimulator
 
 
 def _xyzw(R: np.ndarray) -> list[float]:
