@@ -6,6 +6,7 @@ fails the dataset check."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -110,7 +111,7 @@ def test_deploy_run_into_a_folder_another_run_writes_is_refused(fake_onnx: Path,
     assert _deploy(fake_onnx, a, out) == 0
     assert second == [2]
     err = capsys.readouterr().err
-    assert f"error: {out}: another run is writing into this folder" in err
+    assert f"error: {out}: another run (pid {os.getpid()}) is writing into this folder" in err  # this process's
     assert json.loads((out / "x.json").read_text())["image"] == str(a)
     assert sorted(p.name for p in out.iterdir()) == ["results", "x.json"]  # the lock is gone
     assert _deploy(fake_onnx, b, out) == 2  # afterwards: the outputs exist, overwrite is needed
@@ -166,7 +167,8 @@ def test_predict_run_into_a_folder_another_run_writes_is_refused(checkpoint: Pat
 
     monkeypatch.setattr(predict_cli, "write_prediction", write_and_race)
     assert run(a) == 0
-    assert errors[0].startswith(f"{out}: another run is writing into this folder") and "\n" not in errors[0]
+    assert errors[0].startswith(f"{out}: another run (pid {os.getpid()}) is writing into this folder")
+    assert "\n" not in errors[0]
     assert json.loads((out / "x.json").read_text())["image"] == str(a)
 
 

@@ -94,7 +94,8 @@ def test_a_second_eval_into_the_out_of_a_running_one_stops_at_once(checkpoint: P
 
 
 def test_the_lock_names_its_holder_and_a_crashed_holder_blocks_nobody(tmp_path: Path) -> None:
-    from opnet.cli.locks import holder_pid, writer_lock
+    from opnet.cli.locks import writer_lock
+    from opnet.datasets.outputs import holder_pid
 
     folder = tmp_path / "out"
     code = ("import sys\nfrom opnet.cli.locks import writer_lock\nwith writer_lock(sys.argv[1], 'out='):\n"

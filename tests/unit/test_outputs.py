@@ -19,7 +19,8 @@ def test_lock_held_by_another_process_and_released_when_it_is_killed(tmp_path: P
         stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
-        with pytest.raises(ValueError, match=f"^{tmp_path}: another run is writing into this folder"):
+        with pytest.raises(ValueError, match=rf"^{tmp_path}: another run \(pid {holder.pid}\) is writing into this folder; "
+                           "wait for it to finish, or choose another output folder$"):
             with folder_lock(tmp_path):
                 pass
     finally:

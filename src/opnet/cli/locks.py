@@ -24,33 +24,12 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from opnet.datasets.outputs import LOCK_NAME, folder_lock
+from opnet.datasets.outputs import folder_lock
 
 log = logging.getLogger(__name__)
 
 #: errno values of a folder this process may not write into: nothing of its run can be written there
 _READ_ONLY = (errno.EACCES, errno.EPERM, errno.EROFS)
-
-
-def holder_pid(folder: str | Path) -> int | None:
-    """The process id recorded in ``folder``'s lock file while that process lives; None where the
-    file names none (a run of an older version, Windows, where the held file cannot be read) or a
-    process that has ended."""
-    if os.name == "nt":  # os.kill would end the process, not test it
-        return None
-    try:
-        pid = int((Path(folder) / LOCK_NAME).read_text().strip())
-    except (OSError, ValueError):
-        return None
-    if pid <= 0:
-        return None
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return None
-    except PermissionError:  # alive, another user's
-        pass
-    return pid
 
 
 @contextlib.contextmanager
@@ -74,21 +53,13 @@ def writer_lock(folder: str | Path, option: str) -> Iterator[None]:
     made = not folder.exists()
     held = contextlib.ExitStack()
     try:
-        held.enter_context(folder_lock(folder))
-    except ValueError:
-        pid = holder_pid(folder)
-        if pid is None:
-            raise
-        raise ValueError(f"{folder}: another run (pid {pid}) is writing into this folder; wait for it to finish, "
-                         f"or choose another {option}") from None
+        held.enter_context(folder_lock(folder, option))
     except OSError as e:
         if e.errno not in _READ_ONLY:
             raise
         log.debug("%s: not writable (%s): not locked", folder, e.strerror)
     try:
         with held:
-            with contextlib.suppress(OSError):  # the id only names the holder; the lock is the file's lock
-                (folder / LOCK_NAME).write_text(f"{os.getpid()}\n")
             yield
     finally:
         if made:

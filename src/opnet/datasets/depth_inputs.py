@@ -344,7 +344,7 @@ def claimed_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool,
     (:func:`check_outputs`), and yield the results-file scene name of every input."""
     require_output_folder(out, [*(p for p, _ in inputs), *other_inputs], option)
     planned_outputs(out, inputs, suffixes)  # name clashes: refused before anything is created
-    with folder_lock(out):
+    with folder_lock(out, option):
         check_outputs(out, inputs, overwrite, suffixes, option)
         yield scene_names(inputs)
 

@@ -123,12 +123,37 @@ def _try_lock(fd: int) -> bool:
         return False
 
 
-def _busy(folder: Path) -> ValueError:
-    return ValueError(f"{folder}: another run is writing into this folder (it holds {LOCK_NAME}); wait for it "
-                      "to finish, or choose another output folder")
+def holder_pid(folder: str | Path) -> int | None:
+    """The process id recorded in ``folder``'s lock file while that process lives; None where the
+    file names none (a run of an older version, Windows, where the held file cannot be read) or a
+    process that has ended."""
+    if os.name == "nt":  # os.kill would end the process, not test it
+        return None
+    try:
+        pid = int((Path(folder) / LOCK_NAME).read_text().strip())
+    except (OSError, ValueError):
+        return None
+    if pid <= 0:
+        return None
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return None
+    except PermissionError:  # alive, another user's
+        pass
+    return pid
 
 
-def _acquire(folder: Path) -> int | None:
+def _busy(folder: Path, option: str) -> ValueError:
+    pid = holder_pid(folder)
+    if pid is None:
+        return ValueError(f"{folder}: another run is writing into this folder (it holds {LOCK_NAME}); wait for it "
+                          f"to finish, or choose another {option}")
+    return ValueError(f"{folder}: another run (pid {pid}) is writing into this folder; wait for it to finish, "
+                      f"or choose another {option}")
+
+
+def _acquire(folder: Path, option: str) -> int | None:
     """The descriptor of the held lock file, or None where the file system has no locks."""
     path = folder / LOCK_NAME
     for _ in range(100):
@@ -143,30 +168,37 @@ def _acquire(folder: Path) -> int | None:
             raise
         if not locked:
             os.close(fd)
-            raise _busy(folder)
+            raise _busy(folder, option)
         try:  # the holder before us may have deleted the file while we opened it: lock the current one
             if os.path.samestat(os.fstat(fd), os.stat(path)):
                 return fd
         except FileNotFoundError:
             pass
         os.close(fd)
-    raise _busy(folder)
+    raise _busy(folder, option)
 
 
 @contextlib.contextmanager
-def folder_lock(folder: str | Path) -> Iterator[None]:
-    """Hold an exclusive lock on ``folder`` (created if needed) while the block runs.
+def folder_lock(folder: str | Path, option: str = "output folder") -> Iterator[None]:
+    """Hold an exclusive lock on ``folder`` (created if needed) while the block runs; the lock file
+    records this process's id, so that a refused run can name the holder.
 
+    Args:
+        option: how the user names the folder (``out=``, ``--out``), for the message.
     Raises:
-        ValueError: another process (or another run in this one) holds it; the message names the
-            folder.
+        ValueError: another process (or another run in this one) holds it; one line naming the
+            folder and, where the lock file records a live one, the holder's process id.
     """
     folder = Path(folder)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:  # a file at the path or above it
         raise ValueError(f"{folder}: cannot be made an output folder ({e.strerror})") from None
-    fd = _acquire(folder)
+    fd = _acquire(folder, option)
+    if fd is not None:
+        with contextlib.suppress(OSError):  # the id only names the holder; the lock is the kernel's
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
     try:
         yield
     finally:
