@@ -106,9 +106,8 @@ def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> di
 
     from opnet.cli.build import build_datamodule, load_checkpoint
     from opnet.data.sample import collate
-    from opnet.metrics.bregier import evaluate_scenes
-    from opnet.metrics.diagnostics import diagnose
-    from opnet.system import predict_split
+    from opnet.evaluation import evaluate as run_evaluators
+    from opnet.evaluation import scoring
 
     system, cfg = load_checkpoint(ckpt)
     if settings is not None:
@@ -117,10 +116,7 @@ def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> di
     dm = build_datamodule(cfg, system.parameterization.obj, train=False)
     dm.setup("test")
     loader = DataLoader(dm.splits["test"], batch_size=16, collate_fn=collate)
-    scenes = predict_split(system, loader)
-    obj = system.parameterization.obj
-    summary = evaluate_scenes(scenes, obj.pose_space, max_occlusion=system.hparams.max_occlusion)
-    diag = diagnose(scenes, obj.pose_space, obj.diameter, max_occlusion=system.hparams.max_occlusion)
+    summary, diag = run_evaluators(system, loader, scoring(system))
     return {"summary": summary.to_dict(), "diagnostics": diag.to_dict()}
 
 

@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
 import itertools
 import os
 import sys
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,8 +39,9 @@ import torch  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
 from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
+from opnet.data.sample import Batch
+from opnet.evaluation import AveragePrecision, Evaluator, evaluate
 from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E402
-from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.records import GroundTruthSet  # noqa: E402
 from opnet.parameterizations.averaging import PoseAveraging  # noqa: E402
 from opnet.parameterizations.base import Parameterization  # noqa: E402
@@ -65,21 +68,14 @@ class RecordedSplit:
     max_occlusion: float
 
     @classmethod
-    @torch.no_grad()
     def record(cls, ckpt: str, split: str, stride: int = 1) -> RecordedSplit:
+        """Run the checkpoint's network once over every ``stride``-th scene of ``split``
+        (:func:`opnet.evaluation.evaluate` with an :class:`Outputs` evaluator: nothing decoded)."""
         system, cfg = load_checkpoint(ckpt)
         dm = build_datamodule(cfg, system.parameterization.obj, train=False)
         dm.setup("test")
-        outputs, cameras, gts = [], [], []
-        seen = 0
-        for batch in getattr(dm, f"{split}_dataloader")():
-            keep = [j for j in range(len(batch)) if (seen + j) % stride == 0]
-            seen += len(batch)
-            if keep:
-                outputs.append(system(batch.images[keep]))
-                cameras.append([batch.cameras[j] for j in keep])
-                gts.append([batch.gt_sets[j] for j in keep])
-        return cls(system.parameterization, outputs, cameras, gts, system.hparams.max_occlusion)
+        recorded, = evaluate(system, every_kth(getattr(dm, f"{split}_dataloader")(), stride), [Outputs()])
+        return cls(system.parameterization, *recorded, system.hparams.max_occlusion)
 
     def scenes(self, settings: dict[str, Any]) -> dict[str, tuple[GroundTruthSet, Any]]:
         """Scene name -> (ground truth, hypotheses) decoded with ``settings``."""
@@ -92,7 +88,54 @@ class RecordedSplit:
 
     def ap(self, settings: dict[str, Any]) -> float:
         space = self.parameterization.obj.pose_space
-        return evaluate_scenes(self.scenes(settings), space, max_occlusion=self.max_occlusion).ap
+        return AveragePrecision(space, self.max_occlusion).evaluate(self.scenes(settings)).ap
+
+
+class Outputs(Evaluator):
+    """The evaluator of :meth:`RecordedSplit.record`: keeps each batch's network output, cameras and
+    ground truth, decoding nothing; its result is (outputs, cameras, ground truths), one entry a batch."""
+
+    decodes = False
+
+    def __init__(self) -> None:
+        self.outputs: list[torch.Tensor] = []
+        self.cameras: list[list[Any]] = []
+        self.gts: list[list[GroundTruthSet]] = []
+
+    def process(self, batch: Batch, output: torch.Tensor, hyps: Any) -> None:
+        self.outputs.append(output)
+        self.cameras.append(list(batch.cameras))
+        self.gts.append(list(batch.gt_sets))
+
+    def evaluate(self, scenes: Any) -> tuple[list[torch.Tensor], list[list[Any]], list[list[GroundTruthSet]]]:
+        return self.outputs, self.cameras, self.gts
+
+
+def every_kth(batches: Iterable[Batch], stride: int) -> Iterator[Batch]:
+    """The batches of a loader holding only every ``stride``-th image of the split (counted across
+    batches; a batch left with none is skipped, one left whole passes as it is)."""
+    seen = 0
+    for batch in batches:
+        keep = [j for j in range(len(batch)) if (seen + j) % stride == 0]
+        seen += len(batch)
+        if len(keep) == len(batch):
+            yield batch
+        elif keep:
+            yield _rows(batch, keep)
+
+
+def _rows(batch: Batch, keep: list[int]) -> Batch:
+    """The images ``keep`` (ascending) of a batch, with their ground truth."""
+    index = torch.tensor(keep)
+    gt = batch.gt
+    pick = torch.isin(gt.batch_index, index.to(gt.batch_index.device))
+    sub = dataclasses.replace(
+        gt, batch_index=torch.searchsorted(index.to(gt.batch_index.device), gt.batch_index[pick]),
+        R_cam_obj=gt.R_cam_obj[pick], t_cam_obj=gt.t_cam_obj[pick], visibility=gt.visibility[pick],
+        instance_id=gt.instance_id[pick], batch_size=len(keep),
+        segmentation=None if gt.segmentation is None else gt.segmentation[index.to(gt.segmentation.device)])
+    return Batch(batch.images[index.to(batch.images.device)], [batch.cameras[j] for j in keep], sub,
+                 [batch.gt_sets[j] for j in keep], [batch.names[j] for j in keep])
 
 
 def decoder(param: Parameterization, settings: dict[str, Any]) -> Parameterization:

@@ -77,19 +77,17 @@ class LearningCurve(L.Callback):
         # training goes on after a mid-epoch validation: restart the clock
         self._epoch_start = time.perf_counter() if trainer.state.fn == "fit" else None
 
-    @torch.no_grad()
     def _test_ap(self, trainer: L.Trainer, pl_module: L.LightningModule) -> float:
-        from opnet.metrics.bregier import evaluate_scenes
-        from opnet.system import predict_split
+        from opnet.evaluation import AveragePrecision, evaluate
 
-        dm = trainer.datamodule
         was_training = pl_module.training
         ema = next((c for c in trainer.callbacks if isinstance(c, WeightEMA)), None)  # type: ignore[attr-defined]
-        with ema.applied(pl_module) if ema is not None else nullcontext():  # the weights validation scored
-            scenes = predict_split(pl_module, dm.test_dataloader())
-        pl_module.train(was_training)
         space = pl_module.parameterization.obj.pose_space
-        return float(evaluate_scenes(scenes, space, max_occlusion=pl_module.hparams.max_occlusion).ap)
+        with ema.applied(pl_module) if ema is not None else nullcontext():  # the weights validation scored
+            summary, = evaluate(pl_module, trainer.datamodule.test_dataloader(),
+                                [AveragePrecision(space, pl_module.hparams.max_occlusion)])
+        pl_module.train(was_training)
+        return float(summary.ap)
 
     def _write(self) -> None:
         buf = io.StringIO()

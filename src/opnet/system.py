@@ -1,8 +1,9 @@
 """The single LightningModule: DenseNet-BC backbone + output parameterization + multi-task loss.
 
 Training encodes the ground truth with the parameterization (vectorized, on the model's device)
-and optimizes the paper's loss; validation and test decode the output into pose hypotheses and
-score them with the Brégier average precision (docs/method.md#matching-and-scores).
+and optimizes the paper's loss; validation decodes the output into pose hypotheses and scores them
+with the Brégier average precision (docs/method.md#matching-and-scores). The test split is scored
+outside Lightning's loop, by :func:`opnet.evaluation.evaluate` (train.py, eval.py, the learning curve).
 """
 
 from __future__ import annotations
@@ -58,7 +59,6 @@ class OPNetSystem(L.LightningModule):
         self.loss = loss
         space, diameter = parameterization.obj.pose_space, parameterization.obj.diameter
         self.val_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
-        self.test_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
         self._val_images: list[torch.Tensor] = []
 
     def on_fit_start(self) -> None:
@@ -171,12 +171,6 @@ class OPNetSystem(L.LightningModule):
         if tb is not None and self._val_images:
             tb.add_images("val/positions", torch.stack(self._val_images), self.global_step)
         self._val_images = []
-
-    def test_step(self, batch: Batch, batch_idx: int) -> None:
-        self._eval_step(batch, self.test_ap, "test")
-
-    def on_test_epoch_end(self) -> None:
-        self._log_metric(self.test_ap, "test")
 
     def _log_metric(self, metric: PoseAP, stage: str) -> None:
         values = metric.compute()

@@ -18,13 +18,12 @@ from opnet.cli.console import report, result_summary
 from opnet.cli.locks import writer_lock
 from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
+from opnet.evaluation import OnScenes, Scenes, evaluate, scoring
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.geometry.camera import trained_clip
 from opnet.geometry.icp import STAGES, STATUSES, ICPSettings, Refiner, settings_from_config
-from opnet.metrics.bregier import evaluate_scenes
-from opnet.metrics.diagnostics import diagnose
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
-from opnet.system import OPNetSystem, predict_split
+from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
 
 log = logging.getLogger(__name__)
@@ -32,7 +31,9 @@ log = logging.getLogger(__name__)
 
 def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Path, examples: int = 0,
                    icp: ICPSettings | None = None) -> dict[str, Any]:  # fmt: skip
-    """Predict a split, write ``gt/`` and ``results/`` (Siléane JSON), ``summary.json``, ``ap_table.md``.
+    """Predict a split, write ``gt/`` and ``results/`` (Siléane JSON), ``summary.json``, ``ap_table.md``
+    (eval.py and train.py's test; one :func:`opnet.evaluation.evaluate` with the refinement, the
+    result writers, the AP and the diagnostics as its evaluators).
 
     Args:
         icp: refine every hypothesis against its scene's depth image (:mod:`opnet.geometry.icp`);
@@ -41,27 +42,31 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
     """
     datamodule.setup("test")
     loader = getattr(datamodule, f"{split}_dataloader")()
-    scenes = predict_split(system, loader)
-    icp_report = refine_scenes(scenes, datamodule.splits[split], system.parameterization.obj, icp) if icp else None
+    samples, obj = datamodule.splits[split], system.parameterization.obj
+    refine = [OnScenes(lambda scenes: refine_scenes(scenes, samples, obj, icp))] if icp else []
+    writers = [OnScenes(lambda scenes: _write_scene_files(scenes, out_dir)),
+               OnScenes(lambda scenes: _write_bop_results(datamodule, split, scenes, out_dir / "bop_results.csv"))]
+    if examples:
+        writers.append(OnScenes(lambda scenes: write_examples(system, samples, scenes, out_dir / "predictions",
+                                                              examples)))
+    *done, count, summary, diagnostics = evaluate(system, loader, [*refine, *writers, OnScenes(len), *scoring(system)])
+    result = summary.to_dict()
+    result["diagnostics"] = diagnostics.to_dict()
+    result.update(split=split, scenes=count, object=obj.name,
+                  parameterization=type(system.parameterization).__name__)
+    if icp:
+        result["icp"] = done[0]
+    write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
+    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n")
+    return result
+
+
+def _write_scene_files(scenes: Scenes, out_dir: Path) -> None:
+    """``gt/`` and ``results/`` under ``out_dir``: each scene's ground truth and hypotheses (Siléane JSON)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, (gt, hyps) in scenes.items():
         write_gt_json(out_dir / "gt" / f"{name}.json", gt)
         write_results_json(out_dir / "results" / f"{name}.json", hyps)
-    obj = system.parameterization.obj
-    summary = evaluate_scenes(scenes, obj.pose_space, max_occlusion=system.hparams.max_occlusion)
-    diagnostics = diagnose(scenes, obj.pose_space, obj.diameter, max_occlusion=system.hparams.max_occlusion)
-    result = summary.to_dict()
-    result["diagnostics"] = diagnostics.to_dict()
-    result.update(split=split, scenes=len(scenes), object=system.parameterization.obj.name,
-                  parameterization=type(system.parameterization).__name__)
-    if icp_report is not None:
-        result["icp"] = icp_report
-    write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
-    _write_bop_results(datamodule, split, scenes, out_dir / "bop_results.csv")
-    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n")
-    if examples:
-        write_examples(system, datamodule.splits[split], scenes, out_dir / "predictions", examples)
-    return result
 
 
 def refine_scenes(scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], samples: Any, obj: Any,
