@@ -8,6 +8,7 @@ outside Lightning's loop, by :func:`opnet.evaluation.evaluate` (train.py, eval.p
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
@@ -23,6 +24,11 @@ from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.metrics.torchmetric import PoseAP
 from opnet.parameterizations.base import Parameterization
 from opnet.visualize import draw_positions
+
+log = logging.getLogger(__name__)
+
+#: whole-image CUDA graphs kept per system, one per camera and framing (each holds its own GPU memory)
+MAX_GRAPHED_CAMERAS = 4
 
 
 class OPNetSystem(L.LightningModule):
@@ -125,6 +131,12 @@ class OPNetSystem(L.LightningModule):
             return None
         key = (camera, size, fit)
         if key not in self._pipelines:
+            if len(self._pipelines) >= MAX_GRAPHED_CAMERAS:  # each graph holds its own GPU memory
+                if not getattr(self, "_graphs_full", False):
+                    log.info("inference: more than %d cameras (a region of interest per image?): images of further "
+                             "cameras run without a whole-image graph", MAX_GRAPHED_CAMERAS)
+                    self._graphs_full = True
+                return None
             from opnet.inference import GraphedPipeline
 
             self._pipelines[key] = GraphedPipeline(self.backbone, settings, self.parameterization, camera, size, fit,

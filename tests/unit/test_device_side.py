@@ -506,6 +506,21 @@ def test_the_compiled_pipeline_equals_the_plain_one(pile: list) -> None:
         InferenceSettings.from_config({"compile_pipeline": "yes"})
 
 
+def test_the_system_keeps_a_few_whole_image_graphs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One pipeline per camera and framing, at most MAX_GRAPHED_CAMERAS (a region of interest per image
+    makes a camera per image: further ones run the ordinary way instead of holding ever more GPU memory)."""
+    from opnet.inference import InferenceSettings
+    from opnet.system import MAX_GRAPHED_CAMERAS
+
+    monkeypatch.setattr(InferenceSettings, "graphed", lambda self, device: True)  # as on a GPU
+    system = _system(["parameterization=eve", "decoding=tuned"])
+    system.configure_inference({"device_side": True})
+    cameras = [Camera.from_fov(50.0, 300 + k, 236, 0.6, 1.2) for k in range(MAX_GRAPHED_CAMERAS + 2)]
+    made = [system.graphed_pipeline(c, 128, "pad") for c in cameras]
+    assert all(m is not None for m in made[:MAX_GRAPHED_CAMERAS]) and made[MAX_GRAPHED_CAMERAS:] == [None, None]
+    assert system.graphed_pipeline(cameras[0], 128, "pad") is made[0]  # kept
+
+
 def test_the_system_graphs_whole_images_only_on_a_gpu() -> None:
     system = _system(["parameterization=eve", "decoding=tuned"])
     camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)
