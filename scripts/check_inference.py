@@ -23,7 +23,7 @@ from opnet.cli.build import build_datamodule, load_checkpoint
 from opnet.fileio.atomic import append_csv_rows
 from opnet.inference import InferenceSettings
 from opnet.metrics.bregier import evaluate_scenes
-from opnet.system import predict_split
+from opnet.evaluation import predict_scenes
 
 PATHS = {
     "fp32 eager (reference)": None,
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             system.configure_inference(settings)
         start = time.perf_counter()
-        results[name] = predict_split(system, loader)
+        results[name] = predict_scenes(system, loader)
         seconds = time.perf_counter() - start
         ap_value = evaluate_scenes(results[name], space, max_occlusion=occ).ap
         dt, dr, n_ref, n = pair_differences(results["fp32 eager (reference)"], results[name])

@@ -38,10 +38,10 @@ from omegaconf import OmegaConf  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
 from opnet.cli.eval import refine_scenes, with_decoding_overrides  # noqa: E402
+from opnet.evaluation import predict_scenes  # noqa: E402
 from opnet.geometry.icp import ICPSettings, settings_from_config  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.diagnostics import scene_outcomes  # noqa: E402
-from opnet.system import predict_split  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -124,7 +124,7 @@ def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search
     obj = system.parameterization.obj
     dm = build_datamodule(cfg, obj, train=False)
     dm.setup("test")
-    scenes = predict_split(system, getattr(dm, f"{split}_dataloader")())
+    scenes = predict_scenes(system, getattr(dm, f"{split}_dataloader")())
     max_occ = system.hparams.max_occlusion
     name = ckpt.resolve().parent.parent.name
     shown = ",".join(f"{k}={v}" for k, v in (decoding or {}).items()) or "as trained"

@@ -109,4 +109,10 @@ def evaluate(system: Any, batches: Iterable[Batch], evaluators: Sequence[Evaluat
     return [e.evaluate(scenes) for e in evaluators]
 
 
-__all__ = ["AveragePrecision", "Diagnostics", "Evaluator", "OnScenes", "Scenes", "evaluate", "scoring"]
+def predict_scenes(system: Any, batches: Iterable[Batch]) -> Scenes:
+    """Every scene of a split decoded: scene name -> (ground truth, hypotheses), camera frame
+    (:func:`evaluate` with one evaluator that keeps the scenes)."""
+    return evaluate(system, batches, [OnScenes(dict)])[0]
+
+
+__all__ = ["AveragePrecision", "Diagnostics", "Evaluator", "OnScenes", "Scenes", "evaluate", "predict_scenes", "scoring"]

@@ -20,7 +20,7 @@ from opnet.data.sample import Batch
 from opnet.losses import MultiTaskLoss
 from opnet.metrics.diagnostics import MISS_REASONS
 from opnet.metrics.plot import pr_curve_figure
-from opnet.metrics.records import GroundTruthSet, HypothesisSet
+from opnet.metrics.records import HypothesisSet
 from opnet.metrics.torchmetric import PoseAP
 from opnet.parameterizations.base import Parameterization
 from opnet.visualize import draw_positions
@@ -224,16 +224,3 @@ class OPNetSystem(L.LightningModule):
 
         sched = torch.optim.lr_scheduler.LambdaLR(opt, factor)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
-
-
-@torch.no_grad()
-def predict_split(system: OPNetSystem, loader: Any) -> dict[str, tuple[GroundTruthSet, HypothesisSet]]:
-    """Decode every scene of a loader: scene name -> (ground truth, hypotheses), camera frame."""
-    system.eval()
-    out: dict[str, tuple[GroundTruthSet, HypothesisSet]] = {}
-    for batch in loader:
-        batch: Batch = batch.to(system.device)
-        hyps = system.predict_poses(batch)
-        for name, gt, h in zip(batch.names, batch.gt_sets, hyps):
-            out[name] = (gt, h)
-    return out

@@ -17,9 +17,9 @@ from torch.utils.data import DataLoader
 from opnet.cli.build import build_components, build_datamodule
 from opnet.data.datamodule import SceneSamples
 from opnet.data.sample import collate
+from opnet.evaluation import predict_scenes
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.paths import config_dir
-from opnet.system import predict_split
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,7 @@ def test_tiny_network_memorizes_a_handful_of_scenes(parameterization: str, handf
     train = dm.splits["train"]
     assert len(train) == 12
     samples = SceneSamples(train.source, train.indices)  # the same scenes, without augmentation
-    scenes = predict_split(comps.system, DataLoader(samples, batch_size=6, collate_fn=collate))
+    scenes = predict_scenes(comps.system, DataLoader(samples, batch_size=6, collate_fn=collate))
     summary = evaluate_scenes(scenes, comps.obj.pose_space)
     assert summary.ap >= 0.9, f"train-split AP {summary.ap:.3f} after 300 steps"
     torch.set_grad_enabled(True)
