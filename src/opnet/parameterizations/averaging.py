@@ -97,6 +97,27 @@ def smallest_connected(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         label = hooked
 
 
+#: the averaging settings' keys in a training config (conf/decoding/, under parameterization) ...
+TRAINING_KEYS = {"eps": "parameterization.averaging_eps", "min_samples": "parameterization.averaging_min_samples",
+                 "cluster_score": "parameterization.averaging_score"}
+#: ... and as eval.py / predict.py overrides take them
+OVERRIDE_KEYS = {"eps": "decoding.averaging.eps", "min_samples": "decoding.averaging.min_samples",
+                 "cluster_score": "decoding.averaging.cluster_score"}
+
+
+def check_averaging(eps: Any, min_samples: Any, cluster_score: Any, keys: dict[str, str] = TRAINING_KEYS) -> None:
+    """The averaging settings' types and bounds; a bad value raises a ValueError naming its key as
+    the user wrote it (``keys``: :data:`TRAINING_KEYS` or :data:`OVERRIDE_KEYS`)."""
+    if isinstance(eps, bool) or not isinstance(eps, int | float | np.number) or not np.isfinite(eps) or not eps > 0:
+        raise ValueError(f"{keys['eps']} must be a positive number (a fraction of delta), got {eps!r}")
+    if isinstance(min_samples, bool) or not isinstance(min_samples, int | np.integer):
+        raise ValueError(f"{keys['min_samples']} must be a whole number >= 1, got {min_samples!r}")
+    if cluster_score not in CLUSTER_SCORES:
+        raise ValueError(f"{keys['cluster_score']} must be one of {CLUSTER_SCORES}, got {cluster_score!r}")
+    if min_samples < 1:
+        raise ValueError(f"{keys['min_samples']} must be >= 1, got {min_samples}")
+
+
 @dataclass(frozen=True)
 class PoseAveraging:
     """Cluster pose hypotheses of one image and average each cluster (docs/method.md#decoding).
@@ -116,20 +137,7 @@ class PoseAveraging:
     keep_noise: bool = False
 
     def __post_init__(self) -> None:
-        eps, samples = self.eps, self.min_samples
-        if isinstance(eps, bool) or not isinstance(eps, int | float | np.number) or not np.isfinite(eps) or not eps > 0:
-            raise ValueError(
-                f"parameterization.averaging_eps must be a positive number (a fraction of delta), got {eps!r}"
-            )
-        if isinstance(samples, bool) or not isinstance(samples, int | np.integer):
-            raise ValueError(f"parameterization.averaging_min_samples must be a whole number >= 1, got {samples!r}")
-        if self.cluster_score not in CLUSTER_SCORES:
-            raise ValueError(
-                f"parameterization.averaging_score must be one of {CLUSTER_SCORES}, "
-                f"got {self.cluster_score!r}"
-            )
-        if self.min_samples < 1:
-            raise ValueError(f"parameterization.averaging_min_samples must be >= 1, got {self.min_samples}")
+        check_averaging(self.eps, self.min_samples, self.cluster_score, TRAINING_KEYS)
 
     def cluster(self, hyps: HypothesisSet) -> np.ndarray:
         """(N,) int64 DBSCAN labels of the hypotheses (-1 = noise).

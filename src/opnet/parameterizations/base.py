@@ -27,7 +27,7 @@ from opnet.geometry.camera import Camera
 from opnet.metrics.records import HypothesisSet
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import Candidates, resolve
-from opnet.parameterizations.averaging import PoseAveraging
+from opnet.parameterizations.averaging import OVERRIDE_KEYS, PoseAveraging, check_averaging
 from opnet.parameterizations.averaging_torch import average_batch
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import RotationCodec
@@ -417,6 +417,8 @@ class Parameterization(abc.ABC):
             if unknown:
                 raise ValueError(f"with_decoding: unknown averaging settings {sorted(unknown)}")
             base = self.averaging or PoseAveraging(self.obj.pose_space)
+            given = {k: averaging.get(k, getattr(base, k)) for k in OVERRIDE_KEYS}
+            check_averaging(given["eps"], given["min_samples"], given["cluster_score"], OVERRIDE_KEYS)
             new.averaging = dataclasses.replace(base, **dict(averaging))
         return new
 
