@@ -31,7 +31,7 @@ from bench_infer import _setup, depth_image
 from opnet.data import preprocess_torch
 from opnet.data.preprocess import to_network_input
 from opnet.geometry import Camera
-from opnet.inference import GraphedPipeline, InferenceSettings
+from opnet.inference import GraphedPipeline, InferenceSettings, capture_graph
 from opnet.objects import builtin_object
 
 
@@ -49,15 +49,8 @@ def host_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
 
 def graph_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
     """(best, median) GPU milliseconds of ``fn`` captured as a CUDA graph of its own (CUDA events)."""
-    side = torch.cuda.Stream()
-    side.wait_stream(torch.cuda.current_stream())
-    with torch.cuda.stream(side), torch.no_grad():  # as GraphedPipeline.compute (compiled code: no inference mode)
-        for _ in range(3):
-            fn()
-    torch.cuda.current_stream().wait_stream(side)
-    graph = torch.cuda.CUDAGraph()
-    with torch.cuda.graph(graph), torch.no_grad():
-        fn()
+    with torch.no_grad():  # as GraphedPipeline.compute (compiled code: no inference mode)
+        graph, _ = capture_graph(fn, torch.device("cuda"))
     times = []
     for r in range(repeats + 5):
         start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)

@@ -386,17 +386,24 @@ class GraphedPipeline:
 
     def _capture(self) -> None:
         self._depth.copy_(self._host_depth)
-        side = torch.cuda.Stream(self.device)
-        side.wait_stream(torch.cuda.current_stream(self.device))
-        with torch.cuda.stream(side):  # warm-up: lazy tables and cuBLAS handles made outside the capture
-            for _ in range(3):
-                self.compute(self._depth)
-        torch.cuda.current_stream(self.device).wait_stream(side)
-        graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
-            self._result, self._output = self.compute(self._depth)
+        self._graph, (self._result, self._output) = capture_graph(lambda: self.compute(self._depth), self.device)
         self._host_result = torch.empty_like(self._result, device="cpu").pin_memory()
-        self._graph = graph
+
+
+def capture_graph(fn: Callable[[], Any], device: torch.device) -> tuple[Any, Any]:
+    """``(graph, outputs)``: ``fn`` captured as a CUDA graph on ``device`` after three warm-up calls on
+    a side stream (lazy tables, cuBLAS handles and the allocator's blocks made outside the capture);
+    ``outputs`` are the graph's own buffers, refilled by every ``graph.replay()``."""
+    side = torch.cuda.Stream(device)
+    side.wait_stream(torch.cuda.current_stream(device))
+    with torch.cuda.stream(side):
+        for _ in range(3):
+            fn()
+    torch.cuda.current_stream(device).wait_stream(side)
+    graph = torch.cuda.CUDAGraph()
+    with torch.cuda.graph(graph):
+        outputs = fn()
+    return graph, outputs
 
 
 class CudaGraphForward:
@@ -419,15 +426,7 @@ class CudaGraphForward:
 
     def _capture(self, x: torch.Tensor) -> tuple[Any, torch.Tensor, torch.Tensor]:
         static_in = x.clone()
-        side = torch.cuda.Stream(x.device)
-        side.wait_stream(torch.cuda.current_stream(x.device))
-        with torch.cuda.stream(side):
-            for _ in range(3):
-                self.forward(static_in)
-        torch.cuda.current_stream(x.device).wait_stream(side)
-        graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
-            static_out = self.forward(static_in)
+        graph, static_out = capture_graph(lambda: self.forward(static_in), x.device)
         return graph, static_in, static_out
 
 
