@@ -37,6 +37,11 @@
 # (each arm's optimizer steps: 400 on a GPU).
 # On the GPU machine run it as one command, with .whl and .carry beside the working tree and a time limit above
 # BUDGET_S.
+#   7. arms, when ARMS_DATA is given: Table I of the object ARMS_OBJECT at the experiment=table1 budget (every
+#      parameterization x 3 seeds, 1350 steps each, ARMS_JOBS = 18 at once on the one GPU, each tuned on its validation
+#      split; scripts/table1.py --jobs) -> arms_<object>.tar.gz, which `scripts/table1.py --collect --runs-dir <the
+#      unpacked folder> --objects <object>` turns into a table here.
+# ONLY="install unpack arms" (step names, a prefix before "_" included) runs just those steps.
 # Files written (at most 8, for $OUT): gpu_check.log (the tests' output included), summary.md, latency.csv,
 # infer.csv, train_throughput.csv, quickstart.csv, table1.csv. The exit status is the number of failed steps.
 set -uo pipefail
@@ -186,6 +191,9 @@ printf '# gpu_check (%s)\n\n| step | status | seconds |\n|---|---|---|\n' "$MODE
 step() {
     local name=$1 limit=$2
     shift 2
+    if [ -n "${ONLY:-}" ] && [[ " $ONLY " != *" ${name%%_*} "* ]] && [[ " $ONLY " != *" $name "* ]]; then
+        return 0  # not asked for (ONLY)
+    fi
     local left=$((BUDGET_S - $(elapsed)))
     if [ "$left" -lt 10 ]; then
         say "== $name: skipped, the budget is spent"
@@ -432,6 +440,45 @@ if [ -n "$BUNNY" ]; then
         [ "$TABLE1_S" -gt "$left" ] && TABLE1_S=$left
         step table1 "$TABLE1_S" table1 "$PY" "$(cd "$BUNNY" && pwd)" "$MESH" "$TABLE1_S" "$TABLE1_STEPS" \
             "$WORK/table1" "$DEST/table1.csv" "$MODE" "${TABLE1[@]}"
+    fi
+fi
+
+# ---- 7. arms: Table I of another object, experiment=table1 (scripts/table1.py), JOBS arms at once ------------------
+# ARMS_DATA: the object's experiment=table1 dataset (a folder or a carry_dataset.py archive), ARMS_OBJECT its name;
+# its mesh under $OPNET_SHARED as the object's config names it. The arms' small files (configs, test summaries, tuned
+# decodings, learning curves, consoles) come back as arms_<object>.tar.gz.
+if [ -n "${ARMS_DATA:-}" ]; then
+    ARMS_OBJECT=${ARMS_OBJECT:?ARMS_OBJECT: the object of ARMS_DATA}
+    if [ -f "$ARMS_DATA" ]; then
+        step unpack_arms 120 "$PY" scripts/carry_dataset.py unpack "$ARMS_DATA" "$WORK/arms_data"
+        ARMS_DATA=$WORK/arms_data
+    fi
+    ARMS_RUNS=$WORK/arms
+    ARMS_S=${ARMS_S:-600}
+    # a guard, not the budget: fitting stops after ARMS_S less 150 s (start-up, test and tuning after it), so that a
+    # slow call still brings its arms back scored; learning_curve.csv then shows steps short of ARMS_STEPS
+    fit_s=$((ARMS_S - 150))
+    [ "$fit_s" -lt 30 ] && fit_s=30
+    if [ "$MODE" = gpu ]; then
+        ARMS_EXTRA=(trainer=gpu "+trainer.max_time=\"$(printf '00:%02d:%02d:%02d' $((fit_s / 3600)) $((fit_s / 60 % 60)) \
+            $((fit_s % 60)))\"")
+        ARMS_STEPS=${ARMS_STEPS:-1350} ARMS_SEEDS=${ARMS_SEEDS:-0 1 2} ARMS_JOBS=${ARMS_JOBS:-18}
+    else  # two arms of a few steps
+        ARMS_EXTRA=(trainer=cpu model=tiny data.train_groups=2 data.cache_workers=1)
+        ARMS_STEPS=${ARMS_STEPS:-2} ARMS_SEEDS=${ARMS_SEEDS:-0} ARMS_JOBS=${ARMS_JOBS:-2}
+        ARMS_PARAMS=${ARMS_PARAMS:-vanilla,si}
+    fi
+    # shellcheck disable=SC2086  # the seeds are words
+    step arms "$ARMS_S" "$PY" scripts/table1.py --objects "$ARMS_OBJECT" \
+        --parameterizations "${ARMS_PARAMS:-vanilla,eve,ap,z,mp,si}" --seeds $ARMS_SEEDS --steps "$ARMS_STEPS" \
+        --jobs "$ARMS_JOBS" --runs-dir "$ARMS_RUNS" --out "$WORK/arms_table" \
+        --extra "data.root=$ARMS_DATA" data.generate=null example_predictions=0 "${ARMS_EXTRA[@]}"
+    [ -f "$WORK/arms_table/README.md" ] && cat "$WORK/arms_table/README.md" >>"$LOG"
+    if [ -d "$ARMS_RUNS" ]; then
+        (cd "$ARMS_RUNS" && find . \( -path '*/.hydra/*' -o -path '*/test/summary.json' -o -path '*/test/ap_table.md' \
+            -o -name decoding_tuned.json -o -name learning_curve.csv -o -name '*.log' \) -type f -print \
+            | tar czf "$DEST/arms_$ARMS_OBJECT.tar.gz" -T -)
+        say "arms: $(find "$ARMS_RUNS" -path '*/test/summary.json' | wc -l) arm(s) scored -> arms_$ARMS_OBJECT.tar.gz"
     fi
 fi
 

@@ -22,6 +22,7 @@ spec.loader.exec_module(table1)
     (["--seeds"], r"--seeds: none given"),
     (["--seeds", "0", "0"], r"--seeds \[0, 0\]: expected distinct integers >= 0"),
     (["--steps", "0"], r"--steps 0: expected an integer >= 1"),
+    (["--jobs", "0"], r"--jobs 0: expected an integer >= 1"),
 ])
 def test_a_bad_request_is_one_line(argv: list[str], message: str, capsys: pytest.CaptureFixture) -> None:
     assert table1.main([*argv, "--dry-run"]) == 2
@@ -47,6 +48,25 @@ def _arm(root: Path, param: str, obj: str, seed: int, ap: float) -> None:
     (run / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"seed": seed}))
     diag = {"to_find": 100, "matched": round(100 * ap), "t_err_mm_p50": 2.0, "r_err_deg_p50": 4.0}
     (run / "test" / "summary.json").write_text(json.dumps({"ap": ap, "map": ap, "f1": ap, "diagnostics": diag}))
+
+
+def test_arms_at_once_each_build_their_own_cache_and_all_run(tmp_path: Path) -> None:
+    """``--jobs``: concurrent arms get a scene cache each (one shared cache would be built by all at once);
+    every arm runs once, a finished one is skipped, and a failed one is named."""
+    args = table1.parse(["--objects", "bunny", "--parameterizations", "vanilla,ap,si", "--seeds", "0",
+                         "--runs-dir", str(tmp_path), "--jobs", "3"])
+    todo = table1.arms(args)
+    assert [c for _, cmd in todo for c in cmd if c.startswith("data.cache_dir=")] == [
+        f"data.cache_dir={run / 'cache'}" for run, _ in todo]
+    script = ("import pathlib, sys, time; time.sleep(0.3); run = pathlib.Path(sys.argv[1]); "
+              "(run / 'test').mkdir(); (run / 'test' / 'summary.json').write_text('{}'); "
+              "(run / 'started').write_text(str(time.time())); sys.exit(run.name.startswith('si'))")
+    fake = [(run, [table1.sys.executable, "-c", script, str(run)]) for run, _ in todo]
+    (tmp_path / "vanilla_bunny_s0" / "test").mkdir(parents=True)
+    (tmp_path / "vanilla_bunny_s0" / "test" / "summary.json").write_text("{}")  # finished before: not run again
+    assert table1.run_arms(fake, jobs=3) == ["si_bunny_s0"]
+    assert not (tmp_path / "vanilla_bunny_s0" / "started").exists()
+    assert (tmp_path / "ap_bunny_s0" / "started").exists() and (tmp_path / "si_bunny_s0" / "console.log").exists()
 
 
 def test_collect_writes_mean_sd_paper_and_the_checks(tmp_path: Path) -> None:
