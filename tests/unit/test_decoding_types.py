@@ -11,15 +11,15 @@ from opnet.parameterizations.eve import EVEParameterization
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
-    ({"threshold": True}, r"parameterization.threshold must lie in \[0, 1\), got True"),
-    ({"min_visibility": False}, r"parameterization.min_visibility must lie in \[0, 1\), got False"),
-    ({"min_visibility": "0.2"}, r"parameterization.min_visibility must lie in \[0, 1\), got '0.2'"),
-    ({"averaging": "yes"}, r"parameterization.averaging must be true or false, got 'yes'"),
-    ({"averaging": 1}, r"parameterization.averaging must be true or false, got 1"),
-    ({"averaging": True, "averaging_eps": True}, r"averaging_eps must be a positive number .*got True"),
-    ({"averaging": True, "averaging_eps": float("inf")}, r"averaging_eps must be a positive number .*got inf"),
-    ({"averaging": True, "averaging_min_samples": 2.5}, r"averaging_min_samples must be a whole number >= 1, got 2.5"),
-    ({"averaging": True, "averaging_min_samples": True}, r"averaging_min_samples must be a whole number >= 1, got True"),
+    ({"threshold": True}, r"^parameterization.threshold=True: expected a number in \[0, 1\)$"),
+    ({"min_visibility": False}, r"^parameterization.min_visibility=False: expected a number in \[0, 1\)$"),
+    ({"min_visibility": "0.2"}, r"^parameterization.min_visibility='0.2': expected a number in \[0, 1\)$"),
+    ({"averaging": "yes"}, r"^parameterization.averaging='yes': expected true or false$"),
+    ({"averaging": 1}, r"^parameterization.averaging=1: expected true or false$"),
+    ({"averaging": True, "averaging_eps": True}, r"^parameterization.averaging_eps=True: expected a fraction of delta in \(0, 100\]$"),
+    ({"averaging": True, "averaging_eps": float("inf")}, r"^parameterization.averaging_eps=inf: expected a fraction of delta in \(0, 100\]$"),
+    ({"averaging": True, "averaging_min_samples": 2.5}, r"^parameterization.averaging_min_samples=2.5: expected a whole number in \[1, 10000\]$"),
+    ({"averaging": True, "averaging_min_samples": True}, r"^parameterization.averaging_min_samples=True: expected a whole number in \[1, 10000\]$"),
 ])  # fmt: skip
 def test_decoding_settings_of_another_type_are_refused(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
@@ -33,11 +33,11 @@ def test_valid_decoding_settings_still_build() -> None:
 
 
 @pytest.mark.parametrize(("averaging", "message"), [
-    ({"eps": -1}, r"^decoding\.averaging\.eps must be a positive number \(a fraction of delta\), got -1$"),
-    ({"eps": True}, r"^decoding\.averaging\.eps must be a positive number .*got True$"),
-    ({"min_samples": 0}, r"^decoding\.averaging\.min_samples must be >= 1, got 0$"),
-    ({"min_samples": 2.5}, r"^decoding\.averaging\.min_samples must be a whole number >= 1, got 2.5$"),
-    ({"cluster_score": "median"}, r"^decoding\.averaging\.cluster_score must be one of .*got 'median'$"),
+    ({"eps": -1}, r"^decoding\.averaging\.eps=-1: expected a fraction of delta in \(0, 100\]$"),
+    ({"eps": True}, r"^decoding\.averaging\.eps=True: expected a fraction of delta in \(0, 100\]$"),
+    ({"min_samples": 0}, r"^decoding\.averaging\.min_samples=0: expected a whole number in \[1, 10000\]$"),
+    ({"min_samples": 2.5}, r"^decoding\.averaging\.min_samples=2.5: expected a whole number in \[1, 10000\]$"),
+    ({"cluster_score": "median"}, r"^decoding\.averaging\.cluster_score='median': expected one of max, sum, mean$"),
 ])  # fmt: skip
 def test_an_override_is_named_as_the_user_wrote_it(averaging: dict, message: str) -> None:
     """eval.py / predict.py's +decoding.averaging.* overrides are refused naming that key (they named the

@@ -26,7 +26,7 @@ from opnet.analysis.toy_scenes import random_scene_batch
 from opnet.cli.build import build_components, load_checkpoint
 from opnet.cli.predict import predict_image
 from opnet.data import preprocess_torch
-from opnet.data.preprocess import CANVAS_FITS, network_camera, to_network_input
+from opnet.data.preprocess import network_camera, to_network_input
 from opnet.data.sample import collate, make_sample
 from opnet.datasets.depth_inputs import DepthImage
 from opnet.datasets.ipa import IPADataset
@@ -37,6 +37,7 @@ from opnet.metrics.records import HypothesisSet
 from opnet.objects import builtin_object
 from opnet.parameterizations.averaging_torch import dbscan_graph, neighbour_pairs
 from opnet.paths import REPO_ROOT, config_dir
+from opnet.settings_schema import CANVAS_FITS
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 ZBRACKET = builtin_object("zbracket")

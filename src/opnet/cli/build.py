@@ -15,11 +15,11 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from opnet.cli.trusted import saved_config, short
-from opnet.geometry.camera import trained_clip
 from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.base import Parameterization
+from opnet.settings_schema import TRAINING, check_value, read_settings
 from opnet.system import OPNetSystem
 
 
@@ -63,10 +63,9 @@ def config_group(group: str) -> Iterator[None]:
 
 
 def check_pixels(key: str, value: Any) -> None:
-    """An input side: a whole number of pixels in 8..:data:`MAX_INPUT_SIZE` (never a boolean); ValueError naming
-    ``key`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= MAX_INPUT_SIZE:
-        raise ValueError(f"{key}={short(repr(value))}, expected a whole number of pixels in 8..{MAX_INPUT_SIZE}")
+    """An input side: the schema's ``input_size`` (a whole number of pixels in 8..4096, never a boolean);
+    a ``SettingError`` naming ``key`` otherwise."""
+    check_value("input_size", value, key)
 
 
 def check_input_grid(cfg: DictConfig) -> None:
@@ -188,38 +187,22 @@ def checkpoint_config(ckpt: dict[str, Any], path: str | Path) -> DictConfig:
     return cfg
 
 
-#: the largest network input side a checkpoint may ask for (the ONNX metadata's bound too)
-MAX_INPUT_SIZE = 4096
-
-
-def check_framing(cfg: DictConfig, path: str | Path) -> None:
-    """The saved ``data.input_size`` and ``data.fit`` that predict.py and export.py frame images
-    with: a whole number of pixels in 8..:data:`MAX_INPUT_SIZE` and one of the canvas fits.
+def check_saved_settings(cfg: DictConfig, path: str | Path) -> None:
+    """The values of a checkpoint's config that other sources set too (decoding, framing, region of
+    interest, ``trained_clip``), checked by the schema (:mod:`opnet.settings_schema`) before anything
+    is built from them.
 
     Raises:
-        ValueError: naming ``path`` and the key.
+        SettingError: ``<path>: the checkpoint's config <key>=<value>: expected ...``.
     """
-    from opnet.data.preprocess import CANVAS_FITS
-    from opnet.data.roi import parse_roi
-
-    data = cfg.get("data") or {}
-    fit = data.get("fit", "pad")
-    try:
-        check_pixels("data.input_size", data.get("input_size", 128))
-        parse_roi(data.get("roi"), "data.roi")
-    except ValueError as e:
-        raise ValueError(f"{path}: the checkpoint's config {e}") from None
-    if fit not in CANVAS_FITS:
-        raise ValueError(f"{path}: the checkpoint's config data.fit={short(repr(fit))}, expected one of "
-                         f"{', '.join(CANVAS_FITS)}")
-    trained_clip(cfg, path)
+    read_settings(cfg, TRAINING, f"{path}: the checkpoint's config")
 
 
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
     """Rebuild a trained system from a checkpoint written by ``train.py``."""
     ckpt = read_checkpoint(path, map_location)
     cfg = checkpoint_config(ckpt, path)
-    check_framing(cfg, path)
+    check_saved_settings(cfg, path)
     if not isinstance(ckpt.get("state_dict"), dict):
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     try:

@@ -6,6 +6,7 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,7 @@ from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.geometry.camera import trained_clip
 from opnet.geometry.icp import STAGES, STATUSES, ICPSettings, Refiner, settings_from_config
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
+from opnet.settings_schema import SettingError
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
 
@@ -144,14 +146,14 @@ def write_examples(
 def with_decoding_overrides(param: Any, overrides: Any) -> Any:
     """The checkpoint's parameterization with the decoding settings of ``decoding=`` overridden
     (threshold, score, min_visibility; averaging: false, or a mapping of eps, min_samples,
-    cluster_score); nothing given: unchanged. A wrong key is one error naming it."""
+    cluster_score); nothing given: unchanged. A bad value or an unknown key is one ``SettingError`` naming
+    it as written (``decoding.averaging.eps``, :mod:`opnet.settings_schema`)."""
     if not overrides:
         return param
+    if not isinstance(overrides, Mapping):
+        raise SettingError("decoding", overrides, "expected a mapping of threshold, score, min_visibility, averaging")
     settings = OmegaConf.to_container(overrides) if isinstance(overrides, DictConfig) else dict(overrides)
-    try:
-        return param.with_decoding(**settings)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"decoding={settings}: {e}") from None
+    return param.with_decoding(**settings)
 
 
 def warn_other_clip(samples: Any, trained: tuple[float, float] | None) -> None:

@@ -22,7 +22,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from opnet.data.augment import DepthAugmenter
 from opnet.data.cache import build_scene_cache, default_cache_dir
-from opnet.data.preprocess import CANVAS_FITS, square_canvas
+from opnet.data.preprocess import square_canvas
 from opnet.data.roi import ROIScenes, parse_roi, roi_tag
 from opnet.data.rotate import exact_without_segmentation
 from opnet.data.sample import Batch, Sample, collate, make_sample, random_interpolation
@@ -30,6 +30,7 @@ from opnet.datasets import open_dataset
 from opnet.datasets.record import SceneRecord
 from opnet.geometry.camera import Camera
 from opnet.objects.model import ObjectModel
+from opnet.settings_schema import check_value
 
 log = logging.getLogger(__name__)
 CHECK_MODES = ("fast", "full", "off")
@@ -207,7 +208,7 @@ class OPNetDataModule(L.LightningDataModule):
         train_groups: train on the first N groups (piles of a generated dataset, else cycles or
             scenes; sorted by dataset and group) of the training split only, the validation and
             test splits unchanged: the data-scaling curve at fixed held-out data. None: all.
-        fit: how an image becomes the square network input (:data:`opnet.data.preprocess.CANVAS_FITS`):
+        fit: how an image becomes the square network input (:data:`opnet.settings_schema.CANVAS_FITS`):
             ``image`` (centred on the image, short side padded: the configs' default), ``pad``
             (centred on the principal point: this argument's default, the framing of checkpoints
             without the key), ``crop``, ``image_crop``. The checkpoint keeps it: eval.py,
@@ -248,9 +249,7 @@ class OPNetDataModule(L.LightningDataModule):
     ) -> None:
         super().__init__()
         self.roi = parse_roi(roi)
-        if fit not in CANVAS_FITS:
-            raise ValueError(f"data.fit={fit!r}, expected one of {CANVAS_FITS}")
-        self.fit = fit
+        self.fit = check_value("fit", fit, "data.fit")
         if check not in CHECK_MODES:
             raise ValueError(f"data.check={check!r}, expected one of {CHECK_MODES}")
         self.check = check

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from opnet.geometry import Camera
+from opnet.settings_schema import check_value
 
 RESIZE_INTERPOLATIONS: dict[str, int] = {
     "nearest": cv2.INTER_NEAREST,
@@ -44,8 +45,6 @@ RESIZE_INTERPOLATIONS: dict[str, int] = {
     "linear-exact": cv2.INTER_LINEAR_EXACT,
 }
 """The OpenCV resize options drawn at random during training (paper "Sim-to-Real")."""
-
-CANVAS_FITS = ("pad", "crop", "image", "image_crop")
 
 # A resized pixel is valid when at least this fraction of its (interpolation-weighted) support is.
 _MIN_VALID_WEIGHT = 0.5
@@ -175,8 +174,7 @@ def square_canvas(camera: Camera, fit: str = "pad") -> tuple[int, int, int]:
         ValueError: for an unknown ``fit``, or ``fit="crop"`` with the principal point outside
             the image.
     """
-    if fit not in CANVAS_FITS:
-        raise ValueError(f"square canvas: fit={fit!r}, expected one of {CANVAS_FITS}")
+    check_value("fit", fit)
     if fit in ("image", "image_crop"):  # centred on the image, not on the principal point
         W, H = camera.width, camera.height
         side = max(W, H) if fit == "image" else min(W, H)
@@ -286,7 +284,7 @@ def to_network_input(
         camera: the camera of ``depth`` (clip planes define the normalization).
         size: side of the square network input (128 in the paper).
         interpolation: OpenCV resize flag, e.g. a value of :data:`RESIZE_INTERPOLATIONS`.
-        fit: square canvas rule, one of :data:`CANVAS_FITS` (see :func:`square_canvas`).
+        fit: square canvas rule, one of :data:`opnet.settings_schema.CANVAS_FITS` (see :func:`square_canvas`).
         canvas: ``(x0, y0, side)`` to use instead of the rule (e.g. a random zoom window of the
             training augmentation; its centre need not be the principal point).
 

@@ -24,21 +24,12 @@ visible pixels over unoccluded pixels, and the box only removes visible pixels).
 from __future__ import annotations
 
 import dataclasses
-import math
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from opnet.geometry.camera import Camera
-
-AUTO = "auto"
-#: the largest side ``auto:S`` takes, metres
-MAX_AUTO_SIDE = 20.0
-#: the smallest side of a fixed box, pixels (a smaller one holds less than a pixel per output cell of a 16-cell grid)
-MIN_BOX_SIDE = 16
-
-Box = tuple[int, int, int, int]
+from opnet.settings_schema import AUTO, MAX_AUTO_SIDE, MIN_BOX_SIDE, Box, check_value
 
 
 def is_auto(roi: Any) -> bool:
@@ -51,53 +42,11 @@ def auto_side(roi: str) -> float | None:
     return None if roi == AUTO else float(roi.split(":", 1)[1])
 
 
-def _parse_auto(value: str, where: str) -> str:
-    side = value.split(":", 1)[1].strip()
-    try:
-        metres = float(side)
-    except ValueError:
-        metres = math.nan
-    if not (math.isfinite(metres) and 0 < metres <= MAX_AUTO_SIDE):
-        raise ValueError(f"{where}={value!r}: auto:S takes the side S of the box in metres, a number in "
-                         f"(0, {MAX_AUTO_SIDE:g}]")  # fmt: skip
-    return f"{AUTO}:{metres:g}"
-
-
 def parse_roi(value: Any, where: str = "data.roi") -> Box | str | None:
     """A config value -> None, ``"auto"``, ``"auto:S"`` (S in metres, written as ``%g``) or an
-    ``(x0, y0, x1, y1)`` box; ValueError (one line, naming ``where``) for anything else."""
-    if value is None or value == "null":
-        return None
-    if isinstance(value, str):
-        if value == AUTO:
-            return AUTO
-        if value.startswith(AUTO + ":"):
-            return _parse_auto(value, where)
-        parts = value.replace("[", "").replace("]", "").split(",")
-        try:
-            box = [int(p) for p in parts] if len(parts) == 4 else None
-        except ValueError:
-            box = None
-        if box is not None:  # a box of whole numbers: what is wrong with it (not "expected a box")
-            return parse_roi(box, where)
-        raise ValueError(f"{where}={value!r}: expected null, auto, auto:<metres> or [x0, y0, x1, y1] pixels")
-    if not isinstance(value, Sequence) or len(value) != 4:
-        raise ValueError(f"{where}={value!r}: expected null, auto, auto:<metres> or [x0, y0, x1, y1] pixels")
-    if any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in value):
-        raise ValueError(f"{where}={list(value)!r}: the box needs whole pixel numbers")
-    box = [x0, y0, x1, y1] = [int(v) for v in value]
-    if x0 < 0 or y0 < 0:
-        raise ValueError(f"{where}={box}: the box starts at pixel ({x0}, {y0}), outside the image; pixels count from "
-                         "0 at the image's top-left corner")  # fmt: skip
-    if x1 < x0 or y1 < y0:
-        raise ValueError(f"{where}={box}: the corners are reversed; give [x0, y0, x1, y1] with the top-left corner "
-                         "(x0, y0) first, then the bottom-right one (x1, y1, exclusive)")  # fmt: skip
-    if x1 == x0 or y1 == y0:
-        raise ValueError(f"{where}={box}: an empty box; expected x0 < x1 and y0 < y1")
-    if min(x1 - x0, y1 - y0) < MIN_BOX_SIDE:
-        raise ValueError(f"{where}={box}: a box of {x1 - x0} x {y1 - y0} pixels; the network needs at least "
-                         f"{MIN_BOX_SIDE} a side (its input would blow each pixel up into a block)")  # fmt: skip
-    return (x0, y0, x1, y1)
+    ``(x0, y0, x1, y1)`` box; a one-line ``SettingError`` naming ``where`` for anything else (the
+    schema's ``roi``, :mod:`opnet.settings_schema`)."""
+    return check_value("roi", value, where)
 
 
 def resolve_box(roi: Box | str | None, depth: np.ndarray | None, camera: Camera, where: str = "data.roi",
@@ -188,4 +137,4 @@ class ROIScenes:
         return getattr(self.source, name)
 
 
-__all__ = ["AUTO", "ROIScenes", "auto_side", "is_auto", "crop_camera", "crop_image", "crop_record", "parse_roi", "resolve_box", "roi_tag"]
+__all__ = ["AUTO", "MAX_AUTO_SIDE", "MIN_BOX_SIDE", "ROIScenes", "auto_side", "crop_camera", "crop_image", "crop_record", "is_auto", "parse_roi", "resolve_box", "roi_tag"]

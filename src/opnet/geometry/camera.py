@@ -7,11 +7,12 @@ Pixel ``(u, v)`` = (column, row), 0-based, pixel centres at integers:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from opnet.settings_schema import MAX_CLIP_END_M, SETTINGS, read_settings
 
 if TYPE_CHECKING:
     import torch
@@ -19,8 +20,6 @@ if TYPE_CHECKING:
 
 #: no depth camera has more pixels a side; larger values are typos that would allocate gigabytes
 MAX_IMAGE_SIDE = 16384
-#: clip planes beyond this are surely not metres (bin-picking cameras work at 0.2 .. 5 m)
-MAX_CLIP_END_M = 50.0
 #: field of view (degrees, per image axis) of any real depth camera: a focal length outside it is a
 #: typo (1e-9 px puts the parts 1e10 m away; 1e12 px makes overlays hang while drawing)
 MIN_FOV_DEG = 0.5
@@ -29,21 +28,9 @@ MAX_FOV_DEG = 175.0
 
 def parse_clip(value: object, option: str = "clip") -> tuple[float, float] | None:
     """``[near, far]`` working clip planes (metres) given by a user (a list, a tuple or an OmegaConf
-    list), or None; one error naming the option and what is wrong."""
-    if value is None:
-        return None
-    try:
-        if isinstance(value, str | bytes) or not isinstance(value, Sequence) or len(value) != 2:
-            raise TypeError
-        if any(isinstance(v, bool | str | bytes) for v in value):  # true is no distance; "1.5" is no number
-            raise TypeError
-        near, far = (float(v) for v in value)
-    except (TypeError, ValueError):
-        shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
-        raise ValueError(f"{option}={shown}: expected [near, far] in metres") from None
-    if not (0 < near < far <= MAX_CLIP_END_M):
-        raise ValueError(f"{option}=[{near:g}, {far:g}]: expected 0 < near < far <= {MAX_CLIP_END_M:g} metres")
-    return near, far
+    list), or None; one ``SettingError`` naming the option and what is wrong (the schema's
+    ``trained_clip``, :mod:`opnet.settings_schema`)."""
+    return SETTINGS["trained_clip"].check(value, option)
 
 
 #: ``clip`` values of predict.py and the ONNX runtime that are no planes: the model's training
@@ -69,12 +56,9 @@ def trained_clip(config: Any, source: object) -> tuple[float, float] | None:
     ``source``) records as ``trained_clip`` (train.py records them), or None.
 
     Raises:
-        ValueError: naming ``source``: not [near, far] metres.
+        SettingError: naming ``source``: not [near, far] metres.
     """
-    try:
-        return parse_clip(config.get("trained_clip"), "trained_clip")
-    except ValueError as e:
-        raise ValueError(f"{source}: the checkpoint's config {e}") from None
+    return read_settings(config, {"trained_clip": "trained_clip"}, f"{source}: the checkpoint's config").get("trained_clip")
 
 
 def describe_clip(clip: tuple[float, float] | None, trained: tuple[float, float] | None) -> str:

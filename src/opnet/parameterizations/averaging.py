@@ -19,12 +19,10 @@ from scipy.spatial import cKDTree
 
 from opnet.geometry.pose_numpy import axis_rotation, closest_equivalent, pose_distance, project_to_so3
 from opnet.metrics.records import HypothesisSet
+from opnet.settings_schema import TRAINING, check_settings
 
 if TYPE_CHECKING:
     from opnet.geometry.distance import PoseSpace
-
-CLUSTER_SCORES = ("max", "sum", "mean")
-
 
 def dbscan_labels(distance: np.ndarray, eps: float, min_samples: int = 1) -> np.ndarray:
     """DBSCAN on a precomputed (N, N) distance matrix, labelled exactly as scikit-learn does.
@@ -97,27 +95,6 @@ def smallest_connected(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         label = hooked
 
 
-#: the averaging settings' keys in a training config (conf/decoding/, under parameterization) ...
-TRAINING_KEYS = {"eps": "parameterization.averaging_eps", "min_samples": "parameterization.averaging_min_samples",
-                 "cluster_score": "parameterization.averaging_score"}
-#: ... and as eval.py / predict.py overrides take them
-OVERRIDE_KEYS = {"eps": "decoding.averaging.eps", "min_samples": "decoding.averaging.min_samples",
-                 "cluster_score": "decoding.averaging.cluster_score"}
-
-
-def check_averaging(eps: Any, min_samples: Any, cluster_score: Any, keys: dict[str, str] = TRAINING_KEYS) -> None:
-    """The averaging settings' types and bounds; a bad value raises a ValueError naming its key as
-    the user wrote it (``keys``: :data:`TRAINING_KEYS` or :data:`OVERRIDE_KEYS`)."""
-    if isinstance(eps, bool) or not isinstance(eps, int | float | np.number) or not np.isfinite(eps) or not eps > 0:
-        raise ValueError(f"{keys['eps']} must be a positive number (a fraction of delta), got {eps!r}")
-    if isinstance(min_samples, bool) or not isinstance(min_samples, int | np.integer):
-        raise ValueError(f"{keys['min_samples']} must be a whole number >= 1, got {min_samples!r}")
-    if cluster_score not in CLUSTER_SCORES:
-        raise ValueError(f"{keys['cluster_score']} must be one of {CLUSTER_SCORES}, got {cluster_score!r}")
-    if min_samples < 1:
-        raise ValueError(f"{keys['min_samples']} must be >= 1, got {min_samples}")
-
-
 @dataclass(frozen=True)
 class PoseAveraging:
     """Cluster pose hypotheses of one image and average each cluster (docs/method.md#decoding).
@@ -126,7 +103,7 @@ class PoseAveraging:
         space: the object's pose space (distance, symmetry group, δ).
         eps: DBSCAN radius as a fraction of δ (default 0.5 δ).
         min_samples: DBSCAN core-point threshold (1: clusters = connected components).
-        cluster_score: "max" (default), "sum" or "mean" of the member scores.
+        cluster_score: "max" (default), "sum" or "mean" of the member scores (:data:`opnet.settings_schema.CLUSTER_SCORES`).
         keep_noise: keep DBSCAN noise points (only with min_samples > 1) as single hypotheses.
     """
 
@@ -137,7 +114,8 @@ class PoseAveraging:
     keep_noise: bool = False
 
     def __post_init__(self) -> None:
-        check_averaging(self.eps, self.min_samples, self.cluster_score, TRAINING_KEYS)
+        check_settings({"averaging.eps": self.eps, "averaging.min_samples": self.min_samples,
+                        "averaging.cluster_score": self.cluster_score}, TRAINING)
 
     def cluster(self, hyps: HypothesisSet) -> np.ndarray:
         """(N,) int64 DBSCAN labels of the hypotheses (-1 = noise).

@@ -14,9 +14,7 @@ from __future__ import annotations
 import abc
 import copy
 import dataclasses
-import math
-import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,7 +25,7 @@ from opnet.geometry.camera import Camera
 from opnet.metrics.records import HypothesisSet
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import Candidates, resolve
-from opnet.parameterizations.averaging import OVERRIDE_KEYS, PoseAveraging, check_averaging
+from opnet.parameterizations.averaging import PoseAveraging
 from opnet.parameterizations.averaging_torch import average_batch
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import RotationCodec
@@ -38,8 +36,8 @@ from opnet.parameterizations.positions import (
     ObjectProjection,
     project_origins,
 )
+from opnet.settings_schema import OVERRIDE, TRAINING, check_settings, read_settings
 
-SCORES = ("p", "p*v", "v")
 POSE_WEIGHTINGS = ("cubic", "linear")
 POSE_CHANNEL_NAMES = ("p", "v", "x", "y", "z")
 
@@ -199,19 +197,10 @@ class Parameterization(abc.ABC):
         min_visibility: float = 0.0,
         min_target_visibility: float = 0.0,
     ) -> None:
-        if int(grid) != grid or grid < 1:
-            raise ValueError(f"parameterization grid must be a positive integer, got {grid!r}")
-        if int(slots) != slots or slots < 1:
-            raise ValueError(f"parameterization slots must be a positive integer, got {slots!r}")
-        for key, value in (("threshold", threshold), ("min_visibility", min_visibility)):  # booleans are no numbers
-            if isinstance(value, bool) or not isinstance(value, int | float | np.number) or not 0 <= value < 1:
-                raise ValueError(f"parameterization.{key} must lie in [0, 1), got {value!r}")
-        if not isinstance(averaging, bool | np.bool_):
-            raise ValueError(f"parameterization.averaging must be true or false, got {averaging!r}")
-        if isinstance(min_target_visibility, bool) or not 0 <= min_target_visibility < 1:
-            raise ValueError(f"parameterization.min_target_visibility must lie in [0, 1), got {min_target_visibility!r}")
-        if score not in SCORES:
-            raise ValueError(f"parameterization score must be one of {SCORES}, got {score!r}")
+        check_settings({"grid": grid, "slots": slots, "threshold": threshold, "min_visibility": min_visibility,
+                        "score": score, "averaging": averaging, "averaging.eps": averaging_eps,
+                        "averaging.min_samples": averaging_min_samples, "averaging.cluster_score": averaging_score,
+                        "min_target_visibility": min_target_visibility}, TRAINING)  # fmt: skip
         assert self.pose_weighting in POSE_WEIGHTINGS
         self.obj = obj
         self.grid_size = int(grid)
@@ -390,36 +379,19 @@ class Parameterization(abc.ABC):
         """A copy with other decoding settings (the encoding is unchanged), for tuning on data.
 
         Keys: ``threshold``, ``score``, ``min_visibility``, and ``averaging`` (False, or a dict of
-        ``eps``, ``min_samples``, ``cluster_score``, overriding the current ones).
+        ``eps``, ``min_samples``, ``cluster_score``, overriding the current ones), checked by the schema
+        (:mod:`opnet.settings_schema`): a bad or unknown one raises a ``SettingError`` naming ``decoding.<key>``.
         """
+        given = read_settings({"decoding": settings}, OVERRIDE, closed=("decoding", "decoding.averaging"))
         new = copy.copy(self)
-        averaging = settings.pop("averaging", None)
-        for key, value in settings.items():
-            if key not in ("threshold", "score", "min_visibility"):
-                raise ValueError(f"with_decoding: unknown setting {key!r}")
-            if key != "score":  # checked as the same value from a checkpoint is: a number in [0, 1), never a boolean
-                ok = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_) and math.isfinite(value)
-                if not (ok and 0 <= value < 1):
-                    raise ValueError(f"decoding.{key}={value!r}: expected a number in [0, 1)")
-                value = float(value)
-            setattr(new, key, value)
-        if new.score not in SCORES:
-            raise ValueError(f"decoding.score={new.score!r}: expected one of {', '.join(SCORES)}")
-        if averaging is not None and not isinstance(averaging, bool | Mapping):
-            raise ValueError(f"decoding.averaging={averaging!r}: expected true, false or a mapping of eps, "
-                             "min_samples, cluster_score")  # fmt: skip
-        if averaging is False:
+        for key in ("threshold", "score", "min_visibility"):
+            if key in given:
+                setattr(new, key, given[key])
+        if given.get("averaging") is False:
             new.averaging = None
-        elif averaging is True:
-            new.averaging = self.averaging or PoseAveraging(self.obj.pose_space)
-        elif averaging is not None:
-            unknown = set(averaging) - {"eps", "min_samples", "cluster_score"}
-            if unknown:
-                raise ValueError(f"with_decoding: unknown averaging settings {sorted(unknown)}")
-            base = self.averaging or PoseAveraging(self.obj.pose_space)
-            given = {k: averaging.get(k, getattr(base, k)) for k in OVERRIDE_KEYS}
-            check_averaging(given["eps"], given["min_samples"], given["cluster_score"], OVERRIDE_KEYS)
-            new.averaging = dataclasses.replace(base, **dict(averaging))
+        elif given.get("averaging"):
+            changes = {name.split(".")[1]: value for name, value in given.items() if name.startswith("averaging.")}
+            new.averaging = dataclasses.replace(self.averaging or PoseAveraging(self.obj.pose_space), **changes)
         return new
 
     def _present(self, presence: torch.Tensor) -> torch.Tensor:
