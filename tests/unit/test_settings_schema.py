@@ -173,3 +173,12 @@ def test_a_training_config_is_checked_by_the_same_schema() -> None:
         VanillaParameterization(obj, grid=True)  # was read as a 1 x 1 grid
     with pytest.raises(ValueError, match=r"^parameterization.averaging_eps=1000.0: expected a fraction of delta"):
         PoseAveraging(obj.pose_space, eps=1000.0)
+
+
+@pytest.mark.parametrize("clip", [[True, 2], [0.5, "2"], [2.0, 0.5]])
+def test_data_clip_is_checked_like_the_trained_planes(clip: list) -> None:
+    """eval.py's data.clip (the planes BOP scenes are normalized with) took [true, 2] as [1, 2] m."""
+    from opnet.data.datamodule import OPNetDataModule
+
+    with pytest.raises(ValueError, match=r"^data.clip=.*: expected (\[near, far\] in metres|0 < near < far)"):
+        OPNetDataModule(None, "/nonexistent", clip=clip)

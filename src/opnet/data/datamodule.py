@@ -254,7 +254,7 @@ class OPNetDataModule(L.LightningDataModule):
             raise ValueError(f"data.check={check!r}, expected one of {CHECK_MODES}")
         self.check = check
         self.object_id = int(object_id) if object_id is not None else None
-        self.clip = (float(clip[0]), float(clip[1])) if clip is not None else None
+        self.clip = check_value("trained_clip", clip, "data.clip")  # [near, far] metres, as a checkpoint's planes
         self.obj = obj
         self.roots = as_paths(root)
         if not self.roots:
