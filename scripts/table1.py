@@ -19,6 +19,15 @@ settings tuned once on bunny-vanilla, ``decoding=tuned``), and with the decoding
 its own validation split (``scripts/tune_decoding.py``, cached in the arm's ``decoding_tuned.json``;
 ``--no-tune`` skips it), then scored on the held-out test split.
 
+On a lent GPU machine (``results/table1/pepper_tless20``): each object's dataset is generated here
+(``python train.py experiment=table1 object=pepper trainer.max_steps=1 test=false``) and packed
+(``scripts/carry_dataset.py``); there ``ONLY="install import unpack arms" ARMS_DATA=<archive>
+ARMS_OBJECT=pepper ARMS_S=380 OPNET_SHARED=<a folder with the meshes> scripts/gpu_check.sh`` trains
+its 18 arms at once and brings back ``arms_pepper.tar.gz``; here ``--collect --runs-dir <unpacked>
+--objects pepper,tless20 --machine "<the GPU>"`` makes the table. ``ARMS_S`` also stops the arms'
+fitting 150 s before it ends (``trainer.max_time``): an arm stopped that way is marked in
+``arms.csv`` (``time_limited``, ``steps``: its last validation) and counted in the README.
+
 ``--combine DIR ...`` makes ``--out`` from tables this script wrote earlier (each ``DIR`` with its
 ``table1.csv`` and the machine line of its ``README.md``; a table made on another machine or day
 keeps its source named beside every row): one table in the paper's order, the first ``DIR`` that
@@ -39,6 +48,7 @@ import csv
 import io
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -101,6 +111,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--jobs", type=int, default=1,
                     help="arms trained at once (one GPU shared; each builds its own scene cache and gets "
                          "cores / jobs threads); with tuning, each arm is tuned as soon as it is trained")
+    ap.add_argument("--machine", default=None,
+                    help="where the arms ran, for a table collected from arms trained on another machine "
+                         "(default: this machine's CPU)")
     ap.add_argument("--tune-run", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--combine", nargs="+", type=Path, default=None, metavar="DIR",
                     help="only merge tables written earlier (DIR/table1.csv) into --out")
@@ -169,6 +182,20 @@ def run_arms(todo: list[tuple[Path, list[str]]], jobs: int = 1, tune: bool = Fal
     return [name for name in results if name]
 
 
+#: what Lightning logs when ``trainer.max_time`` stops an arm before its steps
+TIME_LIMITED = "Time limit reached"
+
+
+def steps_done(run: Path) -> int | None:
+    """The optimizer step of the arm's last validation (``learning_curve.csv``): the model its test
+    scored was chosen among those; short of the budget when a time limit stopped the arm."""
+    curve = run / "learning_curve.csv"
+    if not curve.is_file():
+        return None
+    last = list(csv.DictReader(curve.open()))[-1:]
+    return int(last[0]["step"]) if last and str(last[0].get("step", "")).isdigit() else None
+
+
 def _mean(values: list[float | None]) -> float | None:
     known = [v for v in values if v is not None]
     return statistics.fmean(known) if known else None
@@ -214,6 +241,16 @@ def with_tuned(rows: list[dict[str, object]], runs_dir: Path) -> list[dict[str, 
     return out
 
 
+def short_of_budget(rows: list[dict[str, object]], steps: int) -> str:
+    """The README's sentence on arms whose last validation came before ``steps`` (a time limit)."""
+    short = sorted(int(r["steps"] or 0) for r in rows if r.get("time_limited"))  # type: ignore[call-overload]
+    if not short:
+        return ""
+    return (f" **{len(short)} of {len(rows)} arms stopped short of the {steps} steps (a time limit): their last "
+            f"validation, whose checkpoints the test chose among, came at {short[0]}-{short[-1]} steps (median "
+            f"{statistics.median(short):.0f}); `arms.csv` has each arm's.**")
+
+
 def report(rows: list[dict[str, object]], steps: int, requested: int | None = None,
            tuned: list[dict[str, object]] | None = None) -> tuple[str, str]:
     """(README.md text, table1.csv text) of the finished arms (``requested``: arms asked for;
@@ -222,7 +259,8 @@ def report(rows: list[dict[str, object]], steps: int, requested: int | None = No
              (f"Held-out test AP (Brégier, max occlusion 0.5) per parameterization and object, mean ± sample sd over the "
               f"seeds (runs); each arm `experiment=table1`, {steps} steps; the paper's Table I value in brackets. "
               "Made by `python scripts/table1.py` (its docstring has the command and the budget)."
-              + (f" **Arms finished: {len(rows)} of {requested}.**" if requested and len(rows) < requested else "")), ""]
+              + (f" **Arms finished: {len(rows)} of {requested}.**" if requested and len(rows) < requested else "")
+              + short_of_budget(rows, steps)), ""]
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["decoding", "parameterization", "object", "runs", "ap_mean", "ap_sd", "paper", "found", "t_err_mm_p50",
@@ -283,8 +321,15 @@ def checks(cells: dict[tuple[str, str], list[float]], objects: list[str]) -> lis
     return out
 
 
+#: ``--machine``: where the collected arms ran, when not on this machine
+MACHINE: str | None = None
+
+
 def machine() -> str:
-    """The CPU the arms ran on, and whether it computes bf16 natively (the training's precision path)."""
+    """The CPU the arms ran on, and whether it computes bf16 natively (the training's precision path);
+    ``--machine`` when they ran elsewhere."""
+    if MACHINE:
+        return MACHINE
     import platform
 
     from opnet.hardware import cpu_has_native_bf16
@@ -304,13 +349,14 @@ def arms_csv(rows: list[dict[str, object]], tuned: list[dict[str, object]] | Non
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["parameterization", "object", "seed", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ap_tuned",
-                "found_tuned", "run", "machine"])
+                "found_tuned", "run", "machine", "steps", "time_limited"])
     where = machine()
     fmt = lambda v: "" if v is None else f"{float(v):.6f}"  # noqa: E731
     for r in sorted(rows, key=lambda r: (str(r["object"]), str(r["parameterization"]), str(r["seed"]))):
         t = by_run.get(str(r["run"]), {})
         w.writerow([r["parameterization"], r["object"], r["seed"], fmt(r["ap"]), fmt(r["found"]), fmt(r["t_err_mm_p50"]),
-                    fmt(r["r_err_deg_p50"]), fmt(t.get("ap")), fmt(t.get("found")), r["run"], where])
+                    fmt(r["r_err_deg_p50"]), fmt(t.get("ap")), fmt(t.get("found")), r["run"], where,
+                    "" if r.get("steps") is None else r["steps"], int(bool(r.get("time_limited")))])
     return buf.getvalue()
 
 
@@ -318,7 +364,9 @@ def _source_machine(folder: Path) -> str:
     readme = folder / "README.md"
     lines = readme.read_text().splitlines() if readme.is_file() else []
     found = next((line for line in lines if line.startswith("Machine:")), None)
-    return found.removeprefix("Machine:").split("(the arms'")[0].strip().rstrip(",") if found else "not recorded"
+    where = found.removeprefix("Machine:").split("(the arms'")[0].strip().rstrip(",") if found else "not recorded"
+    short = re.search(r"\*\*(\d+ of \d+ arms stopped short of the \d+ steps[^*]*?)(; `arms.csv`[^*]*)?\*\*", "\n".join(lines))
+    return f"{where}; **{short.group(1)}**" if short else where
 
 
 def combine(folders: list[Path], rel_to: Path) -> tuple[str, str]:
@@ -395,6 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         _write(args.out, {"README.md": text, "table1.csv": table_csv})
         print(text)
         return 0
+    global MACHINE
+    MACHINE = args.machine
     if args.tune_run is not None:  # one arm's tuning, in a process of its own (--jobs)
         tuned_decoding(args.tune_run)
         return 0
@@ -406,6 +456,10 @@ def main(argv: list[str] | None = None) -> int:
     failed = [] if args.collect else run_arms(todo, args.jobs, args.tune)
     wanted = {run.name for run, _ in todo}
     rows = [r for r in compare_runs.collect(args.runs_dir) if str(r["run"]) in wanted] if args.runs_dir.is_dir() else []
+    for r in rows:
+        run = args.runs_dir / str(r["run"])
+        r["steps"] = steps_done(run)
+        r["time_limited"] = (run / "console.log").is_file() and TIME_LIMITED in (run / "console.log").read_text()
     if not rows:
         print(f"error: {args.runs_dir}: no finished arm of this table", file=sys.stderr)
         return 2

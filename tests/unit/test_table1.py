@@ -91,6 +91,29 @@ def test_collect_writes_mean_sd_paper_and_the_checks(tmp_path: Path) -> None:
     assert "tuned per arm" not in text  # no arm has a checkpoint to tune: the block is left out
 
 
+def test_an_arm_a_time_limit_stopped_is_marked_and_the_merge_keeps_the_mark(tmp_path: Path) -> None:
+    """An arm that ``trainer.max_time`` stopped is not at the budget: arms.csv marks it with the step of
+    its last validation, the README counts it, ``--machine`` names where the arms ran, and a merged
+    table repeats the count beside its source."""
+    runs, out = tmp_path / "runs", tmp_path / "gpu"
+    for seed, step in ((0, 1320), (1, 1021)):
+        _arm(runs, "eve", "pepper", seed, 0.7)
+        run = runs / f"eve_pepper_s{seed}"
+        (run / "learning_curve.csv").write_text(f"epoch,step,train_minutes\n0,60,0.1\n20,{step},2.8\n")
+        (run / "console.log").write_text("...\nTime limit reached. Elapsed time is 0:03:50.\n" if seed else "...\n")
+    assert table1.main(["--objects", "pepper", "--parameterizations", "eve", "--seeds", "0", "1", "--runs-dir",
+                        str(runs), "--out", str(out), "--collect", "--machine", "a lent GPU"]) == 0
+    arms = (out / "arms.csv").read_text().splitlines()
+    assert arms[0].endswith(",machine,steps,time_limited")
+    assert arms[1].endswith(",a lent GPU,1320,0") and arms[2].endswith(",a lent GPU,1021,1")
+    text = (out / "README.md").read_text()
+    assert "**1 of 2 arms stopped short of the 1350 steps (a time limit)" in text and "came at 1021-1021 steps" in text
+    assert "Machine: a lent GPU" in text
+    table1.main(["--combine", str(out), "--out", str(tmp_path / "merged")])
+    merged = (tmp_path / "merged" / "README.md").read_text()
+    assert "machine: a lent GPU; **1 of 2 arms stopped short of the 1350 steps" in merged
+
+
 def test_decoding_tuned_per_arm_is_a_second_table_with_its_own_checks(tmp_path: Path) -> None:
     runs, out = tmp_path / "runs", tmp_path / "results"
     for seed in range(2):
