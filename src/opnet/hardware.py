@@ -7,14 +7,29 @@ A low module (imports torch only): ``opnet.inference`` and ``opnet.cli`` both us
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import torch
 
+#: ``OPNET_CPU_BF16=0`` runs every ``auto`` precision (training and inference) as on a CPU without native
+#: bf16, fp32 throughout; ``=1`` as on one with it. Unset: what the CPU reports. For checking on one
+#: machine what another kind of CPU computes (the test suite is run both ways).
+CPU_BF16_ENV = "OPNET_CPU_BF16"
+
 
 def cpu_has_native_bf16() -> bool:
     """The CPU computes bf16 natively (AVX512-BF16 or AMX): bf16 autocast is then faster than fp32.
-    Elsewhere bf16 is emulated and slower."""
+    Elsewhere bf16 is emulated and slower. ``OPNET_CPU_BF16`` (0 or 1) overrides the probe.
+
+    Raises:
+        ValueError: ``OPNET_CPU_BF16`` set to anything but 0 or 1.
+    """
+    forced = os.environ.get(CPU_BF16_ENV, "").strip()
+    if forced:
+        if forced not in ("0", "1"):
+            raise ValueError(f"{CPU_BF16_ENV}={forced!r}: expected 0 (no native bf16: fp32) or 1, or unset")
+        return forced == "1"
     probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
     return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in probes)
 
@@ -57,4 +72,4 @@ def precision_path(precision: Any, accelerator: str) -> str:
     return "precision path: fp32 (this CPU has no native bf16; trainer.precision=auto)"
 
 
-__all__ = ["configure_matmul_precision", "cpu_has_native_bf16", "on_cuda", "precision_path", "resolve_precision"]
+__all__ = ["CPU_BF16_ENV", "configure_matmul_precision", "cpu_has_native_bf16", "on_cuda", "precision_path", "resolve_precision"]

@@ -51,3 +51,25 @@ def test_the_trainer_of_train_py_sets_it_for_a_gpu_only(trainer: str, expected: 
     made: Any = train_cli.build_trainer(cfg)
     assert made["cfg"].accelerator == trainer
     assert matmul_precision == expected
+
+
+@pytest.mark.parametrize(("forced", "bf16"), [("0", False), ("1", True)])
+def test_the_environment_runs_auto_as_another_kind_of_cpu_would(forced: str, bf16: bool,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """``OPNET_CPU_BF16`` makes every ``auto`` precision, training's and inference's, what a CPU with
+    (1) or without (0) native bf16 computes, whatever this CPU is (the suite is run both ways)."""
+    from opnet.hardware import CPU_BF16_ENV, cpu_has_native_bf16, resolve_precision
+    from opnet.inference import InferenceSettings
+
+    monkeypatch.setenv(CPU_BF16_ENV, forced)
+    assert cpu_has_native_bf16() is bf16
+    assert resolve_precision("auto", "cpu") == ("bf16-mixed" if bf16 else "32-true")
+    assert InferenceSettings("auto").resolved(torch.device("cpu"))[0] is bf16
+
+
+def test_a_bad_value_of_the_environment_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    from opnet.hardware import CPU_BF16_ENV, cpu_has_native_bf16
+
+    monkeypatch.setenv(CPU_BF16_ENV, "yes")
+    with pytest.raises(ValueError, match=r"^OPNET_CPU_BF16='yes': expected 0 \(no native bf16: fp32\) or 1, or unset$"):
+        cpu_has_native_bf16()
