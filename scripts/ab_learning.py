@@ -8,7 +8,7 @@ Arms (``ARMS``; each is ``train.py`` with the listed overrides, fp32 unless it s
 the paper's formulation, then one change at a time (balanced loss, continuous 6-D rotation,
 tuned decoding, cell-offset positions for AP, bf16 at the same steps and at the same minutes,
 random viewing conditions). A ``tuned`` arm re-uses the model of its base arm and decodes the
-test split with the decoding settings that ``scripts/tune_decoding.py``'s search finds best on
+test split with the decoding settings that ``opnet-tune-decoding``'s search finds best on
 the *validation* split. ``--foreign`` adds a column: AP on scenes of another camera set-up.
 Finished arms (same overrides, ``test/summary.json`` present) are not trained again. Writes
 ``ab.md`` and ``ab.csv`` to ``--out``.
@@ -102,12 +102,12 @@ def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> di
     ``settings`` (None: as configured)."""
     from omegaconf import OmegaConf
     from torch.utils.data import DataLoader
-    from tune_decoding import decoder
 
     from opnet.cli.build import build_datamodule, load_checkpoint
     from opnet.data.sample import collate
     from opnet.evaluation import evaluate as run_evaluators
     from opnet.evaluation import scoring
+    from opnet.tools.tune_decoding import decoder
 
     system, cfg = load_checkpoint(ckpt)
     if settings is not None:
@@ -178,7 +178,8 @@ def run_choice(run: Path, group: str) -> str:
 def collect(spec_path: Path, runs_dir: Path, out: Path) -> list[dict[str, Any]]:
     """The A/B table of finished runs listed in ``spec_path`` (see the module docstring)."""
     import yaml
-    from tune_decoding import RecordedSplit, search
+
+    from opnet.tools.tune_decoding import RecordedSplit, search
 
     spec = yaml.safe_load(spec_path.read_text())
     rows = []
@@ -238,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.train is None or args.test is None:
         parser.error("--train and --test are required (or --collect)")
-    from tune_decoding import RecordedSplit, search
+    from opnet.tools.tune_decoding import RecordedSplit, search
 
     base = [f"object={args.object}", "data=ipa", f"data.root={args.train.resolve()}",
             f"data.test_root={args.test.resolve()}", "data.num_workers=0", "trainer.max_epochs=100000",

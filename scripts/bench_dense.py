@@ -127,9 +127,9 @@ def extra_tests(ckpt: Path, run_dir: Path, tests: list[str], tag: str = "") -> s
 
 def tuned_decoding(run_dir: Path, tests: list[str], stride: int = 8) -> str:
     """The decoding tuned on the run's validation split (every ``stride``-th scene;
-    ``scripts/tune_decoding.py``); where it differs from the configured one, ``checkpoints/tuned.ckpt``
+    ``opnet-tune-decoding``); where it differs from the configured one, ``checkpoints/tuned.ckpt``
     decodes with it and is scored on the test split and ``tests``. A line for the table."""
-    import tune_decoding as td
+    from opnet.tools import tune_decoding as td
 
     ckpt = best_checkpoint(run_dir)
     assert ckpt is not None

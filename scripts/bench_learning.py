@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import io
 import json
 import os
 import subprocess
@@ -35,6 +34,8 @@ from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+from opnet.studies import diagnostic_shares, fmt, merge_csv
 
 REPO = Path(__file__).resolve().parents[1]
 OBJECTS = ("bunny", "ring_screw", "gear_shaft", "zbracket")
@@ -105,20 +106,6 @@ def choice(cfg: dict[str, Any], group: str) -> str:
     return str(cfg.get(group, ""))
 
 
-def diagnostic_shares(summary: dict[str, Any]) -> dict[str, float]:
-    """An eval summary's diagnostics as the tables give them: shares of the parts to find (found, no
-    hypothesis, position, orientation, conflict), per-scene counts and the median errors."""
-    d = summary["diagnostics"]
-    n, scenes = max(d["to_find"], 1), max(summary["num_scenes"], 1)
-    return {
-        "found": d["matched"] / n, "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n,
-        "orientation": d["orientation"] / n, "conflict": d["conflict"] / n,
-        "confident_fp_per_scene": d["confident_false_positives"] / scenes,
-        "duplicates_per_scene": d["duplicates"] / scenes,
-        "t_err_mm_p50": d["t_err_mm_p50"], "r_err_deg_p50": d["r_err_deg_p50"],
-    }  # fmt: skip
-
-
 def summarize(obj: str, config: str, run_dir: Path, steps: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The result row and curve rows of a finished run."""
     import yaml
@@ -136,34 +123,6 @@ def summarize(obj: str, config: str, run_dir: Path, steps: int) -> tuple[dict[st
     }  # fmt: skip
     curves = [{"object": obj, "config": config, **{k: r[k] for k in CURVE_FIELDS[2:]}} for r in curve]
     return row, curves
-
-
-def merge_csv(path: Path, fields: tuple[str, ...], new: list[dict[str, Any]], key: tuple[str, ...]) -> list[dict[str, Any]]:
-    """Rows of ``path`` whose key is not among the new rows', then the new rows; written back."""
-    old = list(csv.DictReader(path.open())) if path.is_file() else []
-    keys = {tuple(str(r[k]) for k in key) for r in new}
-    rows = [r for r in old if tuple(str(r[k]) for k in key) not in keys] + new
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
-    writer.writeheader()
-    writer.writerows(rows)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    from opnet.fileio.atomic import write_text_atomic
-
-    write_text_atomic(path, buf.getvalue())  # a table cut short by a kill would lose earlier rows
-    return rows
-
-
-def fmt(value: Any, kind: str = "f3") -> str:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    if v != v:  # NaN: nothing to report (e.g. no matched pair)
-        return "–"
-    if kind == "int":
-        return f"{int(v)}"
-    return f"{100 * v:.1f}" if kind == "pct" else f"{v:.{kind[1]}f}"
 
 
 def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:

@@ -1,5 +1,5 @@
-"""The checkpoint tools users are told to run (``scripts/tune_decoding.py``,
-``scripts/record_trained_clip.py``, export.py) handle errors as the entry points do: a refused
+"""The checkpoint tools users are told to run (``opnet-tune-decoding``,
+``opnet-record-trained-clip``, export.py) handle errors as the entry points do: a refused
 checkpoint (not a checkpoint, a pickle holding code), a missing dataset, a folder or a read-only
 folder as the target give one line ``error: <file>: <problem>`` and exit status 2, leave no
 temporary file and the files there as they were (they used to give tracebacks, and a folder as
@@ -7,34 +7,20 @@ the target left the whole checkpoint behind as ``.<name>.tmp``)."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 import torch
 
 from opnet.cli.build import read_checkpoint
 from opnet.paths import REPO_ROOT
-
-SCRIPTS = REPO_ROOT / "scripts"
-
-
-def _script(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # tune_decoding's dataclass looks its module up
-    spec.loader.exec_module(module)
-    return module
-
-
-tune = _script("tune_decoding")
-record = _script("record_trained_clip")
+from opnet.tools import record_trained_clip as record
+from opnet.tools import tune_decoding as tune
 
 
 class _Code:
@@ -132,10 +118,10 @@ def test_record_trained_clip_errors_are_one_line_and_leave_everything_as_it_was(
 def test_the_tools_exit_2_as_processes(files: dict[str, Path], tmp_path: Path) -> None:
     before = _snapshot(tmp_path)
     for script, args, named in [
-        ("tune_decoding.py", ["--ckpt", files["code"]], files["code"]),
-        ("record_trained_clip.py", [files["good"], "--write", files["folder"]], files["folder"]),
+        ("opnet.tools.tune_decoding", ["--ckpt", files["code"]], files["code"]),
+        ("opnet.tools.record_trained_clip", [files["good"], "--write", files["folder"]], files["folder"]),
     ]:
-        proc = subprocess.run([sys.executable, str(SCRIPTS / script), *map(str, args)], capture_output=True, text=True,
+        proc = subprocess.run([sys.executable, "-m", script, *map(str, args)], capture_output=True, text=True,
                               timeout=300)
         assert proc.returncode == 2, proc.stderr[-2000:]
         _one_error_line(proc.stderr, named, "")

@@ -23,7 +23,6 @@ from opnet.datasets.ipa import write_ipa_scene
 from opnet.datasets.ipa_params import IPAParameters, write_parameters
 from opnet.geometry import Camera
 from opnet.objects import builtin_object
-from opnet.paths import REPO_ROOT
 
 # a full-resolution camera that is not square: the network input pads it to a square canvas
 CAMERA = Camera.from_fov(60.0, 256, 192, 0.5, 1.5)
@@ -101,9 +100,9 @@ def _ipa_dataset(tmp_path: Path, scenes: int) -> Path:
 def test_oracle_script_on_an_ipa_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     root = _ipa_dataset(tmp_path, 4)
     out = tmp_path / "ceiling"
-    argv = ["oracle.py", "--data", str(root), "--out", str(out), "--max-scenes", "3"]
+    argv = ["opnet-oracle", "--data", str(root), "--out", str(out), "--max-scenes", "3"]
     monkeypatch.setattr(sys, "argv", argv)
-    runpy.run_path(str(REPO_ROOT / "scripts" / "oracle.py"), run_name="__main__")
+    runpy.run_module("opnet.tools.oracle", run_name="__main__")
     with open(out / "ceiling.csv") as f:
         rows = list(csv.DictReader(f))
     assert [r["parameterization"] for r in rows] == sorted(parameterization_configs())
@@ -121,15 +120,14 @@ def test_oracle_variants_set_config_keys_and_refuse_unknown_ones(tmp_path: Path,
                                                                  capsys: pytest.CaptureFixture):
     root = _ipa_dataset(tmp_path, 3)
     out = tmp_path / "ceiling"
-    script = str(REPO_ROOT / "scripts" / "oracle.py")
-    base = ["oracle.py", "--data", str(root), "--out", str(out)]
+    base = ["opnet-oracle", "--data", str(root), "--out", str(out)]
     monkeypatch.setattr(sys, "argv", [*base, "--variant", "ap", "--variant", "ap:placement=extent"])
-    runpy.run_path(script, run_name="__main__")
+    runpy.run_module("opnet.tools.oracle", run_name="__main__")
     with open(out / "ceiling.csv") as f:
         assert [r["parameterization"] for r in csv.DictReader(f)] == ["ap", "ap:placement=extent"]
     for bad, message in (("teapot", "unknown parameterization 'teapot'"),
                          ("ap:colour=red", "'colour=red' is not a setting of ap")):
         monkeypatch.setattr(sys, "argv", [*base, "--variant", bad])
         with pytest.raises(SystemExit):
-            runpy.run_path(script, run_name="__main__")
+            runpy.run_module("opnet.tools.oracle", run_name="__main__")
         assert message in capsys.readouterr().err

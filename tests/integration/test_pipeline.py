@@ -191,7 +191,7 @@ def test_sweep_and_compare_runs(tiny_dataset: Path, tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-2000:]
     arms = sorted(p.name for p in sweep.iterdir() if p.is_dir())
     assert arms == ["0_vanilla_zbracket_tiny", "1_eve_zbracket_tiny"]
-    cmp = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "compare_runs.py"), str(sweep)],
+    cmp = subprocess.run([sys.executable, "-m", "opnet.tools.compare_runs", str(sweep)],
                          capture_output=True, text=True, timeout=120)
     assert cmp.returncode == 0, cmp.stderr
     rows = (sweep / "comparison.csv").read_text().splitlines()

@@ -4,7 +4,6 @@ whatever planes its camera gives (``clip=camera`` / ``--camera-clip``: the camer
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -13,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from conftest import compose_cfg
+
 from opnet.cli import eval as eval_cli
 from opnet.cli import predict as predict_cli
 from opnet.cli.build import load_checkpoint, read_checkpoint
@@ -79,9 +78,7 @@ def test_a_checkpoint_without_planes_or_with_bad_ones(checkpoint: Path, tiny_dat
 
 def test_record_trained_clip_reads_the_planes_of_an_old_checkpoints_datasets(checkpoint: Path, tiny_dataset: Path,
                                                                              tmp_path: Path, capsys) -> None:
-    spec = importlib.util.spec_from_file_location("record_trained_clip", REPO_ROOT / "scripts" / "record_trained_clip.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from opnet.tools import record_trained_clip as script
     ckpt = read_checkpoint(checkpoint)
     del ckpt["hyper_parameters"]["config"]["trained_clip"]
     old = tmp_path / "old.ckpt"

@@ -1,20 +1,13 @@
-"""scripts/tune_decoding.py --write: the tuned decoding travels in a checkpoint that every command reads."""
+"""opnet-tune-decoding --write: the tuned decoding travels in a checkpoint that every command reads."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
 from opnet.cli.build import load_checkpoint
-from opnet.paths import REPO_ROOT
-
-spec = importlib.util.spec_from_file_location("tune_decoding", REPO_ROOT / "scripts" / "tune_decoding.py")
-tune = importlib.util.module_from_spec(spec)
-sys.modules["tune_decoding"] = tune  # its dataclass looks its module up
-spec.loader.exec_module(tune)
+from opnet.tools import tune_decoding as tune
 
 
 def test_a_written_checkpoint_decodes_with_the_tuned_settings_and_keeps_its_weights(checkpoint: Path,

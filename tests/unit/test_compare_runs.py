@@ -1,20 +1,16 @@
-"""scripts/compare_runs.py: arms of a multirun that differ only in their seed become one cell, mean ± sd."""
+"""opnet-compare-runs (:mod:`opnet.tools.compare_runs`): arms of a multirun that differ only in their seed
+become one cell, mean ± sd."""
 
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 import yaml
 
-from opnet.paths import REPO_ROOT
-
-spec = importlib.util.spec_from_file_location("compare_runs", REPO_ROOT / "scripts" / "compare_runs.py")
-compare_runs = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(compare_runs)
+from opnet.tools import compare_runs
 
 
 def _arm(root: Path, name: str, param: str, obj: str, seed: int, ap: float) -> None:

@@ -1,4 +1,4 @@
-"""Ceiling study: the AP each parameterization reaches with a perfect network (scripts/oracle.py).
+"""Ceiling study: the AP each parameterization reaches with a perfect network (opnet-oracle).
 
 Every scene is brought to the network input, encoded, and its target decoded as if it were the
 network output; the Brégier evaluator then scores the hypotheses. The only losses are the

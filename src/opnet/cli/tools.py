@@ -1,4 +1,4 @@
-"""What the checkpoint tools (``scripts/tune_decoding.py``, ``scripts/record_trained_clip.py``,
+"""What the checkpoint tools (``opnet-tune-decoding``, ``opnet-record-trained-clip``,
 export.py) share with the entry points: a user error is one line ``error: <file>: <problem>`` and
 exit status 2, a target that cannot be written is refused before the work, and a checkpoint is
 written atomically (a failure leaves the target as it was and no temporary file).

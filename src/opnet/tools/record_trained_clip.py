@@ -1,6 +1,6 @@
 """Record the training scenes' clip planes in a checkpoint written before train.py recorded them.
 
-    python scripts/record_trained_clip.py <ckpt> [--data ROOT ...] (--write <file.ckpt> | --in-place)
+    opnet-record-trained-clip <ckpt> [--data ROOT ...] (--write <file.ckpt> | --in-place)
 
 train.py stores the clip planes of its training scenes' cameras in the run config of every
 checkpoint (``trained_clip``): predict.py and the ONNX runtime normalize a new image's depth with

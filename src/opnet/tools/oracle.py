@@ -1,7 +1,7 @@
 """Ceiling study: the AP every parameterization reaches with a perfect network, per dataset.
 
-    python scripts/oracle.py --data <dir> [--data <dir> ...] --out <dir>
-                             [--max-scenes N] [--object name] [--variant NAME[:key=value,...] ...]
+    opnet-oracle --data <dir> [--data <dir> ...] --out <dir>
+                 [--max-scenes N] [--object name] [--variant NAME[:key=value,...] ...]
 
 ``--variant`` (repeatable) studies only the named parameterizations, each optionally with settings
 of its config, e.g. ``--variant ap --variant ap:placement=extent`` (the row is named
@@ -18,7 +18,6 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-
 import yaml
 from omegaconf import DictConfig
 

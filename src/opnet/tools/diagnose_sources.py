@@ -1,6 +1,6 @@
 """Where the hypotheses of a trained model come from and what each source is worth.
 
-    python scripts/diagnose_sources.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/last.ckpt \\
+    opnet-diagnose-sources --ckpt outputs/table1/ap_bunny_s0/checkpoints/last.ckpt \\
         --ckpt outputs/table1/vanilla_bunny_s0/checkpoints/last.ckpt [--split test] [--out DIR]
 
 The network runs once over the split (held-out test scenes by default). Every cell of the
@@ -47,8 +47,7 @@ from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.diagnostics import MISS_REASONS, diagnose, rotation_errors_deg, scene_outcomes  # noqa: E402
 from opnet.parameterizations.positions import CameraBatch  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
+from opnet.paths import REPO_ROOT
 
 
 def run_name(ckpt: Path) -> str:
@@ -236,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", action="append", required=True, type=Path, help="checkpoint (repeat)")
     parser.add_argument("--split", default="test", choices=("val", "test", "train"))
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "table1" / "diagnostics")
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "table1" / "diagnostics")
     args = parser.parse_args(argv)
     for ckpt in args.ckpt:
         if not ckpt.is_file():

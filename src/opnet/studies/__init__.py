@@ -1,0 +1,97 @@
+"""What the benchmark, study and maintenance scripts of ``scripts/`` and the tools of
+:mod:`opnet.tools` share: run a command of the framework with its console in a log file, read a
+run's test summary, mean ± sample sd, the checkpoint a run's test scored, tables kept across
+invocations. Sweeps in the layout of the paper's Table I: :mod:`opnet.studies.sweeps`; training
+runs of a fixed budget: :mod:`opnet.studies.training`."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import statistics
+import subprocess
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from opnet.paths import REPO_ROOT, best_checkpoint
+
+
+def run_logged(cmd: list[str], log: Path, cwd: Path = REPO_ROOT, env: dict[str, str] | None = None) -> None:
+    """Run ``cmd`` (a command of the framework: ``[python, script, overrides...]``) in ``cwd`` with its
+    console in ``log``, echoing it without the interpreter; a failure exits naming the log."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    print(f"$ {' '.join(cmd[1:])}", flush=True)
+    with log.open("w") as f:
+        code = subprocess.run(cmd, cwd=cwd, env=env, stdout=f, stderr=subprocess.STDOUT, check=False).returncode
+    if code:
+        raise SystemExit(f"error: exit {code}; see {log}")
+
+
+def read_summary(run: str | Path, folder: str = "test") -> dict[str, Any] | None:
+    """``<run>/<folder>/summary.json`` (what train.py's test or eval.py wrote), or None if it is missing."""
+    path = Path(run) / folder / "summary.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def mean_sd(values: Iterable[float], single: float = 0.0) -> tuple[float, float]:
+    """Mean and sample standard deviation; the sd of one value is ``single``."""
+    values = [float(v) for v in values]
+    return statistics.fmean(values), statistics.stdev(values) if len(values) > 1 else single
+
+
+def mean_sd_text(values: Iterable[float], digits: int = 3) -> str:
+    """``mean ± sd`` of ``values`` with ``digits`` decimals (the sd of one value is 0)."""
+    mean, sd = mean_sd(values)
+    return f"{mean:.{digits}f} ± {sd:.{digits}f}"
+
+
+def diagnostic_shares(summary: dict[str, Any]) -> dict[str, float]:
+    """A test summary's diagnostics as the tables give them: shares of the parts to find (found, no
+    hypothesis, position, orientation, conflict), per-scene counts and the median errors."""
+    d = summary["diagnostics"]
+    n, scenes = max(d["to_find"], 1), max(summary["num_scenes"], 1)
+    return {
+        "found": d["matched"] / n, "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n,
+        "orientation": d["orientation"] / n, "conflict": d["conflict"] / n,
+        "confident_fp_per_scene": d["confident_false_positives"] / scenes,
+        "duplicates_per_scene": d["duplicates"] / scenes,
+        "t_err_mm_p50": d["t_err_mm_p50"], "r_err_deg_p50": d["r_err_deg_p50"],
+    }  # fmt: skip
+
+
+def merge_csv(path: Path, fields: tuple[str, ...], new: list[dict[str, Any]], key: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Rows of ``path`` whose key is not among the new rows', then the new rows; written back atomically
+    (a table cut short by a kill would lose earlier rows)."""
+    from opnet.fileio.atomic import write_text_atomic
+
+    old = list(csv.DictReader(path.open())) if path.is_file() else []
+    keys = {tuple(str(r[k]) for k in key) for r in new}
+    rows = [r for r in old if tuple(str(r[k]) for k in key) not in keys] + new
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, buf.getvalue())
+    return rows
+
+
+def fmt(value: Any, kind: str = "f3") -> str:
+    """A table cell: ``f<digits>`` decimals, ``pct`` a share in percent (one decimal), ``int``; ``–``
+    for NaN, the text itself for what is not a number."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if math.isnan(v):  # NaN: nothing to report (e.g. no matched pair)
+        return "–"
+    if kind == "int":
+        return f"{int(v)}"
+    return f"{100 * v:.1f}" if kind == "pct" else f"{v:.{kind[1]}f}"
+
+
+__all__ = ["best_checkpoint", "diagnostic_shares", "fmt", "mean_sd", "mean_sd_text", "merge_csv", "read_summary",
+           "run_logged"]

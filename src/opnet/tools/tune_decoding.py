@@ -1,0 +1,263 @@
+"""Tune the decoding of a trained model on its validation split: score, minimum visibility and the
+pose-averaging settings (DBSCAN eps, min_samples, cluster score), measured, not guessed.
+
+    opnet-tune-decoding --ckpt <run>/checkpoints/last.ckpt [--split val] [--out <dir>]
+
+The network runs once over the split; every setting then only re-decodes the stored outputs and
+re-scores them with the Brégier AP. The search is coordinate-wise (each setting in turn over its
+candidates, the others at their current best; two rounds). Prints a table and writes
+``decoding_sweep.csv`` and ``decoding_sweep.md`` to ``--out`` (default: the run's
+``tune_<split>/``). Several checkpoints (``--ckpt a --ckpt b``) are tuned jointly: the mean AP over
+them decides, so that the chosen defaults hold for more than one model.
+
+``--write <file.ckpt>`` saves a copy of the (first) checkpoint whose config decodes with the tuned
+settings, so that eval.py, predict.py and export.py use them. ``--stride K`` tunes on every K-th
+scene of the split (the scenes of one pile are much alike; dense piles decode slowly).
+
+A refused checkpoint, a missing dataset or a target that cannot be written is one line
+``error: <file>: <problem>`` with exit status 2; the targets are checked before the network runs,
+and the files are written atomically (a failure leaves no temporary file and the old file as it was).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import itertools
+import os
+import sys
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import torch  # noqa: E402
+
+from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
+from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
+from opnet.data.sample import Batch
+from opnet.evaluation import AveragePrecision, Evaluator, evaluate
+from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E402
+from opnet.metrics.records import GroundTruthSet  # noqa: E402
+from opnet.parameterizations.averaging import PoseAveraging  # noqa: E402
+from opnet.parameterizations.base import Parameterization  # noqa: E402
+
+SEARCH: dict[str, list[Any]] = {
+    "averaging": [False, True],
+    "score": ["p", "p*v"],
+    "min_visibility": [0.0, 0.1, 0.2, 0.3, 0.4],
+    "eps": [0.25, 0.5, 0.75, 1.0, 1.5, 2.0],
+    "min_samples": [1, 2, 3],
+    "cluster_score": ["max", "sum", "mean"],
+}
+AVERAGING_KEYS = ("eps", "min_samples", "cluster_score")
+
+
+@dataclass
+class RecordedSplit:
+    """Network outputs of a split, kept to be decoded many times."""
+
+    parameterization: Parameterization
+    outputs: list[torch.Tensor]
+    cameras: list[list[Any]]
+    gts: list[list[GroundTruthSet]]
+    max_occlusion: float
+
+    @classmethod
+    def record(cls, ckpt: str, split: str, stride: int = 1) -> RecordedSplit:
+        """Run the checkpoint's network once over every ``stride``-th scene of ``split``
+        (:func:`opnet.evaluation.evaluate` with an :class:`Outputs` evaluator: nothing decoded)."""
+        system, cfg = load_checkpoint(ckpt)
+        dm = build_datamodule(cfg, system.parameterization.obj, train=False)
+        dm.setup("test")
+        recorded, = evaluate(system, every_kth(getattr(dm, f"{split}_dataloader")(), stride), [Outputs()])
+        return cls(system.parameterization, *recorded, system.hparams.max_occlusion)
+
+    def scenes(self, settings: dict[str, Any]) -> dict[str, tuple[GroundTruthSet, Any]]:
+        """Scene name -> (ground truth, hypotheses) decoded with ``settings``."""
+        param = decoder(self.parameterization, settings)
+        scenes = {}
+        for out, cams, gt in zip(self.outputs, self.cameras, self.gts, strict=True):
+            for h, g in zip(param.decode(out, cams), gt, strict=True):
+                scenes[f"s{len(scenes):06d}"] = (g, h)
+        return scenes
+
+    def ap(self, settings: dict[str, Any]) -> float:
+        space = self.parameterization.obj.pose_space
+        return AveragePrecision(space, self.max_occlusion).evaluate(self.scenes(settings)).ap
+
+
+class Outputs(Evaluator):
+    """The evaluator of :meth:`RecordedSplit.record`: keeps each batch's network output, cameras and
+    ground truth, decoding nothing; its result is (outputs, cameras, ground truths), one entry a batch."""
+
+    decodes = False
+
+    def __init__(self) -> None:
+        self.outputs: list[torch.Tensor] = []
+        self.cameras: list[list[Any]] = []
+        self.gts: list[list[GroundTruthSet]] = []
+
+    def process(self, batch: Batch, output: torch.Tensor, hyps: Any) -> None:
+        self.outputs.append(output)
+        self.cameras.append(list(batch.cameras))
+        self.gts.append(list(batch.gt_sets))
+
+    def evaluate(self, scenes: Any) -> tuple[list[torch.Tensor], list[list[Any]], list[list[GroundTruthSet]]]:
+        return self.outputs, self.cameras, self.gts
+
+
+def every_kth(batches: Iterable[Batch], stride: int) -> Iterator[Batch]:
+    """The batches of a loader holding only every ``stride``-th image of the split (counted across
+    batches; a batch left with none is skipped, one left whole passes as it is)."""
+    seen = 0
+    for batch in batches:
+        keep = [j for j in range(len(batch)) if (seen + j) % stride == 0]
+        seen += len(batch)
+        if len(keep) == len(batch):
+            yield batch
+        elif keep:
+            yield _rows(batch, keep)
+
+
+def _rows(batch: Batch, keep: list[int]) -> Batch:
+    """The images ``keep`` (ascending) of a batch, with their ground truth."""
+    index = torch.tensor(keep)
+    gt = batch.gt
+    pick = torch.isin(gt.batch_index, index.to(gt.batch_index.device))
+    sub = dataclasses.replace(
+        gt, batch_index=torch.searchsorted(index.to(gt.batch_index.device), gt.batch_index[pick]),
+        R_cam_obj=gt.R_cam_obj[pick], t_cam_obj=gt.t_cam_obj[pick], visibility=gt.visibility[pick],
+        instance_id=gt.instance_id[pick], batch_size=len(keep),
+        segmentation=None if gt.segmentation is None else gt.segmentation[index.to(gt.segmentation.device)])
+    return Batch(batch.images[index.to(batch.images.device)], [batch.cameras[j] for j in keep], sub,
+                 [batch.gt_sets[j] for j in keep], [batch.names[j] for j in keep])
+
+
+def decoder(param: Parameterization, settings: dict[str, Any]) -> Parameterization:
+    """The parameterization with the decoding ``settings`` (keys of :data:`SEARCH`)."""
+    plain = {k: v for k, v in settings.items() if k not in (*AVERAGING_KEYS, "averaging")}
+    plain["averaging"] = {k: v for k, v in settings.items() if k in AVERAGING_KEYS} if settings["averaging"] else False
+    return param.with_decoding(**plain)
+
+
+def current_settings(param: Parameterization) -> dict[str, Any]:
+    """The configured decoding (averaging settings at their defaults where averaging is off)."""
+    averaging = param.averaging or PoseAveraging(param.obj.pose_space)
+    return {"averaging": param.averaging is not None, "score": param.score, "min_visibility": param.min_visibility,
+            "eps": averaging.eps, "min_samples": averaging.min_samples, "cluster_score": averaging.cluster_score}
+
+
+def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Coordinate-wise search from the configured settings; returns (best settings, every row)."""
+    best = current_settings(splits[0].parameterization)
+    keys = [k for k in SEARCH if k in best]
+    rows: list[dict[str, Any]] = []
+    seen: dict[tuple[Any, ...], float] = {}
+
+    def score(settings: dict[str, Any]) -> float:
+        key = tuple(settings[k] for k in keys)
+        if key not in seen:
+            aps = [s.ap(settings) for s in splits]
+            seen[key] = sum(aps) / len(aps)
+            rows.append({**settings, "ap": seen[key], **{f"ap_{i}": a for i, a in enumerate(aps)}})
+            print("  " + "  ".join(f"{k}={settings[k]}" for k in keys) + f"  ->  AP {seen[key]:.4f}", flush=True)
+        return seen[key]
+
+    default_ap = score(best)
+    for _, key in itertools.product(range(rounds), keys):
+        candidates = [{**best, key: value} for value in SEARCH[key]]
+        best = max(candidates, key=score)
+    rows[0]["default"] = True
+    print(f"configured: AP {default_ap:.4f};  best: AP {score(best):.4f}  {best}")
+    return best, rows
+
+
+#: the saved config's keys (conf/decoding/tuned.yaml) of each setting of :data:`SEARCH`
+CONFIG_KEYS = {"averaging": "averaging", "score": "score", "min_visibility": "min_visibility", "eps": "averaging_eps",
+               "min_samples": "averaging_min_samples", "cluster_score": "averaging_score"}
+
+
+def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]) -> None:
+    """A copy of checkpoint ``src`` whose saved config decodes with ``settings``, written atomically
+    to ``dest`` and read back: its parameterization must decode as tuned.
+
+    Raises:
+        ValueError: ``dest`` is ``src`` or cannot be written, or the copy does not load with the tuned decoding.
+    """
+    from opnet.cli.build import read_checkpoint
+
+    if Path(src).resolve() == dest.resolve():
+        raise ValueError(f"--write {dest}: is the checkpoint being tuned; write a new file")
+    ckpt = read_checkpoint(src)
+    param = ckpt["hyper_parameters"]["config"]["parameterization"]
+    for key, value in settings.items():
+        param[CONFIG_KEYS[key]] = value
+    save_checkpoint(ckpt, dest)
+    system, _ = load_checkpoint(dest)
+    loaded = current_settings(system.parameterization)
+    compared = [k for k in settings if settings["averaging"] or k not in AVERAGING_KEYS]  # unused without averaging
+    if any(loaded[k] != settings[k] for k in compared):
+        dest.unlink()
+        raise ValueError(f"{dest}: the written checkpoint does not decode with the tuned settings {settings}")
+
+
+def write_table(rows: list[dict[str, Any]], out: Path) -> None:
+    """``decoding_sweep.csv`` and ``decoding_sweep.md`` of the search's ``rows`` in ``out``, each atomically."""
+    fields = sorted({k for r in rows for k in r}, key=lambda k: (k.startswith("ap"), k))
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(rows)
+    with write_errors_named(out / "decoding_sweep.csv"):
+        write_text_atomic(out / "decoding_sweep.csv", buf.getvalue())
+    ranked = sorted(rows, key=lambda r: -r["ap"])
+    lines = ["| " + " | ".join(fields) + " |", "|" + "---|" * len(fields)]
+    lines += ["| " + " | ".join(f"{r.get(k, '')}" if not isinstance(r.get(k), float) else f"{r[k]:.4f}"
+                                for k in fields) + " |" for r in ranked]  # fmt: skip
+    with write_errors_named(out / "decoding_sweep.md"):
+        write_text_atomic(out / "decoding_sweep.md", "\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--ckpt", action="append", required=True, help="checkpoint (repeat to tune jointly)")
+    parser.add_argument("--split", default="val", choices=("val", "test", "train"))
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--stride", type=int, default=1, help="tune on every K-th scene of the split")
+    parser.add_argument("--write", type=Path, default=None,
+                        help="save a copy of the (first) checkpoint that decodes with the tuned settings")
+    args = parser.parse_args(argv)
+    if args.stride < 1:
+        print(f"error: --stride {args.stride}: expected an integer >= 1", file=sys.stderr)
+        return 2
+    return tool_main(lambda: tune(args))
+
+
+def tune(args: argparse.Namespace) -> int:
+    """The tuning :func:`main` asks for: record, search, write."""
+    out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
+    require_writable(out / "decoding_sweep.csv", "--out")  # before the network runs, not after
+    if args.write is not None:
+        require_writable(args.write, "--write")
+    torch.set_grad_enabled(False)
+    splits = []
+    for ckpt in args.ckpt:
+        print(f"recording {args.split} outputs of {ckpt}", flush=True)
+        splits.append(RecordedSplit.record(ckpt, args.split, args.stride))
+    best, rows = search(splits, args.rounds)
+    write_table(rows, out)
+    print(f"written {out}/decoding_sweep.csv, {out}/decoding_sweep.md")
+    if args.write is not None:
+        write_tuned_checkpoint(args.ckpt[0], args.write, best)
+        print(f"written {args.write}: {args.ckpt[0]} decoding with {best}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
