@@ -23,10 +23,10 @@ from pathlib import Path
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_generate import scene_overrides, scene_preset  # noqa: E402
 from pile_stats import VIS_LABELS, pile_stats  # noqa: E402
 
 from opnet.cli.evaluate import resolve_object  # noqa: E402
+from opnet.studies.scenes import scene_overrides, scene_preset  # noqa: E402
 from opnet.synthesis import SceneConfig, generate_dataset  # noqa: E402
 from opnet.synthesis.collision import build_collision_model, convex_parts  # noqa: E402
 from opnet.synthesis.cycle import cycle_rngs  # noqa: E402

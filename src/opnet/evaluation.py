@@ -3,7 +3,7 @@ list of evaluators (after detectron2's ``inference_on_dataset(model, data_loader
 
 Every caller goes through it: eval.py and train.py's test (:func:`opnet.cli.eval.evaluate_split`:
 refinement, result files, AP and diagnostics), the learning curve's test scores
-(:class:`opnet.callbacks.LearningCurve`), ``scripts/ab_learning.py`` and ``opnet-tune-decoding``
+(:class:`opnet.callbacks.LearningCurve`), ``scripts/experiments/learning/ab_learning.py`` and ``opnet-tune-decoding``
 (whose evaluator keeps the network outputs to decode them many times).
 
 An evaluator sees every batch (:meth:`Evaluator.process`: the batch, the network output and, unless

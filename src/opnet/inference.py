@@ -2,7 +2,7 @@
 precision, compilation.
 
 Measured on this 2-core CPU (AVX512-BF16), paper network, batch 1, same run
-(``scripts/bench_infer.py``, docs/deployment.md "Inference speed"): fp32 eager ≈ 68 ms, fp32 channels-last
+(``scripts/bench/bench_infer.py``, docs/deployment.md "Inference speed"): fp32 eager ≈ 68 ms, fp32 channels-last
 ≈ 67 ms, the fused fp32 form ≈ 50-56 ms (≈ 1.0 x the matrix-product roofline time of its 10
 GFLOP), bf16 autocast channels-last ≈ 36 ms.
 
@@ -26,7 +26,7 @@ preprocessing (:mod:`opnet.data.preprocess_torch`) and the pose averaging of pre
 and validation (:mod:`opnet.parameterizations.averaging_torch`) run as torch operations on the
 model's device, every image of a batch at once, and the poses come to the host in one transfer;
 off: OpenCV / numpy on the host, image by image. Both give the same input and poses to float
-rounding (tests). On this 2-core CPU the host is the faster of the two (``scripts/bench_infer.py``,
+rounding (tests). On this 2-core CPU the host is the faster of the two (``scripts/bench/bench_infer.py``,
 docs/deployment.md "Device-side inference"): OpenCV's resize and the k-d tree beat tens of small
 torch operations.
 ``inference.cuda_graph``: ``auto`` = on for a CUDA device: a batch of one image runs as a CUDA graph
@@ -38,7 +38,7 @@ table out, and projects the averaged rotations). On the CPU it is off, with a lo
 for (``true``).
 ``inference.compile_pipeline`` (false): the whole-image graph's preprocessing and decoding are
 ``torch.compile``'d (fused into a few kernels; about 40 s at the first image): measured on an H100, the
-paper network in bf16, 1.62 ms end to end against 2.47 ms (``scripts/profile_graph.py --fuse``).
+paper network in bf16, 1.62 ms end to end against 2.47 ms (``scripts/bench/profile_graph.py --fuse``).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
 cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
@@ -47,7 +47,7 @@ small preset at batch 64, 2.81 / 2.87 vs 2.79 / 3.00 ms (a tie). A batch of one 
 cores.
 
 bf16 changes the network output by a few 1e-3, so its poses are not those of fp32:
-``scripts/check_inference.py`` measured on the quickstart model's 150 test scenes p99 differences
+``scripts/bench/check_inference.py`` measured on the quickstart model's 150 test scenes p99 differences
 of 0.37 mm and 3.8 deg between paired hypotheses (1052 vs 1044 hypotheses; AP 0.8092 vs 0.8100),
 which is why fp32 stays the default and bf16 is a documented opt-in.
 """

@@ -232,8 +232,8 @@ def test_entry_point_errors_are_one_line(override: str, message: str, tmp_path: 
 
 
 def test_fuzz_pass_over_the_readers_finds_no_bug(tmp_path: Path) -> None:
-    """scripts/fuzz_inputs.py, readers only (the command lines run in the script's full pass)."""
-    spec = importlib.util.spec_from_file_location("fuzz_inputs", REPO_ROOT / "scripts" / "fuzz_inputs.py")
+    """scripts/dev/fuzz_inputs.py, readers only (the command lines run in the script's full pass)."""
+    spec = importlib.util.spec_from_file_location("fuzz_inputs", REPO_ROOT / "scripts" / "dev" / "fuzz_inputs.py")
     fuzz = importlib.util.module_from_spec(spec)
     sys.modules["fuzz_inputs"] = fuzz  # its dataclasses look their module up
     spec.loader.exec_module(fuzz)

@@ -1,4 +1,4 @@
-"""scripts/sileane_rerender.py: two official Siléane piles re-rendered at the fitted camera pose
+"""scripts/experiments/sileane/sileane_rerender.py: two official Siléane piles re-rendered at the fitted camera pose
 read back with opnet's Siléane reader, agree with the official occlusion rates and their ground
 truth lies on its own segmentation."""
 
@@ -13,7 +13,7 @@ import pytest
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("sileane_rerender", REPO_ROOT / "scripts" / "sileane_rerender.py")
+spec = importlib.util.spec_from_file_location("sileane_rerender", REPO_ROOT / "scripts" / "experiments" / "sileane" / "sileane_rerender.py")
 rerender = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(rerender)
 
@@ -52,7 +52,7 @@ def test_two_piles_rerendered_at_the_fitted_pose(bunny_sample: Path, meshes_dir:
         assert shown <= set(record.instance_id.tolist())
 
     # the official rates behave as the renderer's visibility without a ~2 px band along each part's
-    # boundary (scripts/sileane_fit.py); the required parts agree within 0.1 with that model
+    # boundary (src/opnet/analysis/sileane_fit.py); the required parts agree within 0.1 with that model
     table = rerender.evaluate(renderer, piles, pose)
     required = table.official <= 0.5
     modelled = table.modelled(rerender.FITTED_RADIUS)

@@ -1,4 +1,4 @@
-"""scripts/bench_infer.py: which forward rows a device gets, and that every one reaches the table."""
+"""scripts/bench/bench_infer.py: which forward rows a device gets, and that every one reaches the table."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import torch
 from opnet.models.stats import load_model_preset
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("bench_infer", REPO_ROOT / "scripts" / "bench_infer.py")
+spec = importlib.util.spec_from_file_location("bench_infer", REPO_ROOT / "scripts" / "bench" / "bench_infer.py")
 bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 

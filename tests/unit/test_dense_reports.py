@@ -1,11 +1,11 @@
-"""The dense-pile reports: scripts/dense_ab.py reads each arm's runs back (seeds as mean ± sd, missing runs
-as dashes, never a number made up) and scripts/bench_dense.py heads its README with the recipe's rows."""
+"""The dense-pile reports: scripts/experiments/dense/dense_ab.py reads each arm's runs back (seeds as
+mean ± sd, missing runs as dashes, never a number made up) and scripts/bench/bench_dense.py heads its
+README with the recipe's rows."""
 
 from __future__ import annotations
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -13,15 +13,15 @@ import pytest
 from opnet.paths import REPO_ROOT
 
 
-def _script(name: str):
-    sys.path.insert(0, str(REPO_ROOT / "scripts"))
-    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "scripts" / f"{name}.py")
+def _script(path: str):
+    name = Path(path).stem
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "scripts" / path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
-dense_ab = _script("dense_ab")
+dense_ab = _script("experiments/dense/dense_ab.py")
 
 
 def _run(root: Path, name: str, ap: float, others: dict[str, float]) -> None:
@@ -55,7 +55,7 @@ def test_no_runs_folder_is_a_one_line_error(tmp_path: Path, capsys: pytest.Captu
 
 
 def test_the_benchmark_readme_heads_with_the_recipe_rows() -> None:
-    bench_dense = _script("bench_dense")
+    bench_dense = _script("bench/bench_dense.py")
     row = {"object": "bunny", "config": bench_dense.HEADLINE, "gen_minutes": 14.1, "train_minutes": 40.8,
            "total_minutes": 54.9, "train_scenes": 13200, "ap": 0.83, "target": 0.5, "found": 0.864,
            "t_err_mm_p50": 7.3, "r_err_deg_p50": 7.9, "extra_tests": "sileane 0.947", "tuned": "", "command": "cmd"}

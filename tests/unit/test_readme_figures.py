@@ -1,5 +1,5 @@
 """The figures of the README and of the docs pages equal the committed results files
-(scripts/readme_figures.py)."""
+(scripts/dev/readme_figures.py)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("readme_figures", REPO_ROOT / "scripts" / "readme_figures.py")
+spec = importlib.util.spec_from_file_location("readme_figures", REPO_ROOT / "scripts" / "dev" / "readme_figures.py")
 figures = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(figures)
 
@@ -28,14 +28,14 @@ HAND_WRITTEN_AP = re.compile(r"\bAP (0\.\d{2,}|\*\*0\.)")
 
 def test_readme_figures_equal_the_results_files() -> None:
     readme = README.read_text()
-    assert figures.render(readme) == readme, "README figures drifted: run python scripts/readme_figures.py"
+    assert figures.render(readme) == readme, "README figures drifted: run python scripts/dev/readme_figures.py"
 
 
 def test_docs_figures_equal_the_results_files() -> None:
     pages = figures.docs_pages()
     assert DOCS / "method.md" in pages and DOCS / "data.md" in pages
     for path, page in pages.items():
-        assert figures.render_page(page) == page, f"{path} figures drifted: run python scripts/readme_figures.py"
+        assert figures.render_page(page) == page, f"{path} figures drifted: run python scripts/dev/readme_figures.py"
 
 
 def test_every_block_sits_in_a_page_and_links_from_its_own_folder() -> None:
@@ -134,7 +134,7 @@ def test_unknown_or_missing_blocks_are_errors() -> None:
 
 
 def test_quickstart_seeds_table_gives_mean_and_sd_per_precision_path(tmp_path: Path) -> None:
-    """results/quickstart/seeds.csv (scripts/quickstart_seeds.py) renders one row per CPU and
+    """results/quickstart/seeds.csv (scripts/experiments/quickstart/quickstart_seeds.py) renders one row per CPU and
     precision path with the sample mean ± sd over its seeds; runs that generated data are left out
     of the time per run."""
     results = tmp_path / "results"

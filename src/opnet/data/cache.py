@@ -79,7 +79,7 @@ def source_fingerprint(source: Any, keys: Sequence[Any]) -> str:
     (``source.source_files()``, relative to ``source.root``; a missing file counts too).
 
     Only ``stat`` calls, no file is opened: 0.25 s per 10,000 IPA scenes on a busy 2-core machine
-    (``scripts/bench_cache_fingerprint.py``). A copy that does not keep modification times
+    (``scripts/bench/bench_cache_fingerprint.py``). A copy that does not keep modification times
     (``cp`` without ``-p``) rebuilds the cache once.
     """
     digest = hashlib.sha256(json.dumps([list(k) if isinstance(k, tuple) else k for k in keys]).encode())

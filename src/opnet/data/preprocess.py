@@ -19,7 +19,7 @@ an off-centre principal point the centred square wastes input. ``fit="image"`` t
 centred on the *image* (side = the longer image side: only the short side is padded) and
 ``fit="image_crop"`` the centred square of the shorter side (the long side is cut); the input
 camera's principal point is then off-centre, which the decoding handles (it back-projects with
-the input camera). ``scripts/framing_table.py`` measures the input pixels each uses and the AP:
+the input camera). ``scripts/experiments/framing/framing_table.py`` measures the input pixels each uses and the AP:
 on a Siléane-like camera ``image`` scored 0.78 against 0.61 for ``pad``, so the configs default to
 ``image`` (identical canvases for centred principal points); the functions here keep ``pad`` as
 their default, the framing of checkpoints trained before ``data.fit`` existed.

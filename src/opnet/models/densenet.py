@@ -155,7 +155,7 @@ class DenseNetBC(nn.Module):
         in_channels: input channels (1 for depth).
         memory_efficient: recompute concatenations in the backward pass (torch.utils.checkpoint).
         channels_last: keep weights and activations in the channels-last (NHWC) memory format,
-            which oneDNN's CPU convolutions run faster (scripts/model_stats.py --train measures it).
+            which oneDNN's CPU convolutions run faster (scripts/bench/model_stats.py --train measures it).
 
     Under autocast (bf16 mixed precision) the head and the output activation run in float32: a
     bf16 sigmoid would quantize positions to 1/256 of their range (millimetres at bin scale).

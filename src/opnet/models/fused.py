@@ -1,7 +1,7 @@
 """Inference form of :class:`~opnet.models.densenet.DenseNetBC`: the same function, less work.
 
 A trained DenseNet-BC in eval mode is rewritten for CPU inference (``inference.fused``, on by
-default for float32; ``scripts/bench_infer.py`` measures each step):
+default for float32; ``scripts/bench/bench_infer.py`` measures each step):
 
 - **One buffer per dense block.** Each layer writes its ``growth_rate`` new channels into its
   slice of a preallocated channels-last block buffer and reads the first ``c`` channels of it,
@@ -25,7 +25,7 @@ default for float32; ``scripts/bench_infer.py`` measures each step):
   the pooled input (both linear; one acts on pixels, the other on channels): a quarter of the work.
 
 The output equals the reference network's to float32 rounding (``tests/unit/test_fused.py``);
-``scripts/check_inference.py`` compares the poses with the fp32 eager path. Training keeps the
+``scripts/bench/check_inference.py`` compares the poses with the fp32 eager path. Training keeps the
 plain module: this form has no gradients and no batch statistics.
 """
 

@@ -1,6 +1,6 @@
 """Benchmark the Brégier evaluator on synthetic scenes, and check it against a literal reference.
 
-    python scripts/bench_evaluate.py [--scenes 1000] [--instances 80] [--hypotheses 100]
+    python scripts/bench/bench_evaluate.py [--scenes 1000] [--instances 80] [--hypotheses 100]
                                      [--object bracket] [--check 20] [--seed 0]
 
 Each scene: random ground-truth poses in a 0.6 x 0.4 x 0.2 m bin with varied occlusion rates (some

@@ -1,6 +1,6 @@
 """Fit the unknown camera pose of the Siléane bunny piles to their official occlusion rates.
 
-Used by ``scripts/sileane_rerender.py`` (which writes the dataset); see its docstring.
+Used by ``scripts/experiments/sileane/sileane_rerender.py`` (which writes the dataset); see its docstring.
 
 Decisions:
 - The camera looks straight down: ``R_world_cam = Rz(yaw) @ diag(1, -1, -1)`` (yaw 0: camera x =

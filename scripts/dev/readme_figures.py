@@ -11,14 +11,14 @@ in the README, ``../results/...`` in a docs page):
 |---|---|
 | quickstart | ``results/quickstart/summary.json`` (``--run-quickstart`` makes it, pictures included) |
 | defaults | ``results/defaults/defaults.csv`` (``--record-run <run dir> --command ... --wall-s ...``) |
-| learning | ``results/learning/learning.csv`` (``scripts/bench_learning.py``) |
-| ab | ``results/learning/ab.csv`` (``scripts/ab_learning.py --collect``) |
-| speed | ``results/speed/{train,data}.csv`` (``scripts/bench_train.py`` / ``bench_data.py --out``) |
-| inference | ``results/speed/infer.csv`` (``scripts/bench_infer.py --out``), ``inference_check.csv`` (``scripts/check_inference.py``) |
+| learning | ``results/learning/learning.csv`` (``scripts/bench/bench_learning.py``) |
+| ab | ``results/learning/ab.csv`` (``scripts/experiments/learning/ab_learning.py --collect``) |
+| speed | ``results/speed/{train,data}.csv`` (``scripts/bench/bench_train.py`` / ``bench_data.py --out``) |
+| inference | ``results/speed/infer.csv`` (``scripts/bench/bench_infer.py --out``), ``inference_check.csv`` (``scripts/bench/check_inference.py``) |
 | benchmarks | ``results/benchmarks.csv`` (each row names the script that printed its figure) |
-| sensor | ``results/sensor/{holes,ab}.csv`` (``scripts/sensor_table.py``, ``scripts/sensor_ab.py``) |
-| real_frame | ``results/real_frame/summary.json`` (``scripts/real_frame.py``) |
-| framing | ``results/framing/framing.csv`` (``scripts/framing_table.py``) |
+| sensor | ``results/sensor/{holes,ab}.csv`` (``scripts/experiments/sensor/sensor_table.py``, ``scripts/sensor_ab.py``) |
+| real_frame | ``results/real_frame/summary.json`` (``scripts/experiments/real_frame/real_frame.py``) |
+| framing | ``results/framing/framing.csv`` (``scripts/experiments/framing/framing_table.py``) |
 | real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/real_ipd.py``) |
 | real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/real_ipd.py --seeds``) |
 | cells | ``results/cells/cells.csv`` (``scripts/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
@@ -29,9 +29,9 @@ in the README, ``../results/...`` in a docs page):
 
 Usage::
 
-    python scripts/readme_figures.py            # rewrite the blocks of README.md and docs/*.md (and the ceiling chart)
-    python scripts/readme_figures.py --check    # exit 1, with a diff, when a page and results disagree
-    python scripts/readme_figures.py --run-quickstart   # run the quickstart from an empty root, record it
+    python scripts/dev/readme_figures.py            # rewrite the blocks of README.md and docs/*.md (and the ceiling chart)
+    python scripts/dev/readme_figures.py --check    # exit 1, with a diff, when a page and results disagree
+    python scripts/dev/readme_figures.py --run-quickstart   # run the quickstart from an empty root, record it
 """
 
 from __future__ import annotations
@@ -50,16 +50,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
+from opnet.cli.console import format_duration
+from opnet.paths import REPO_ROOT
+from opnet.studies import mean_sd_text
+from opnet.studies.results import DENSE_HEADLINE, cpu_model, seed_spread
 
-from opnet.cli.console import format_duration  # noqa: E402
-
-sys.path.insert(0, str(REPO / "scripts"))
-import quickstart_seeds  # noqa: E402
-
-RESULTS = REPO / "results"
-DOCS = REPO / "docs"
+RESULTS = REPO_ROOT / "results"
+DOCS = REPO_ROOT / "docs"
 DOCS_PREFIX = "../"  # docs/*.md sit one folder below the repository root, where results/ is
 BLOCK = re.compile(r"(<!-- figures:(?P<name>[a-z0-9_]+) -->\n)(?P<body>.*?)(<!-- /figures:(?P=name) -->)", re.S)
 MARKER = re.compile(r"<!-- /?figures:(?P<name>[^ ]*) -->")
@@ -106,7 +103,7 @@ def quickstart_path_note(q: dict[str, Any]) -> str:
 
 def quickstart_seeds_table(results: Path) -> str:
     """Mean ± sd of the quickstart's test AP over training seeds, per CPU and precision path
-    (``results/quickstart/seeds.csv``, ``scripts/quickstart_seeds.py``); empty without the file."""
+    (``results/quickstart/seeds.csv``, ``scripts/experiments/quickstart/quickstart_seeds.py``); empty without the file."""
     path = results / "quickstart" / "seeds.csv"
     if not path.is_file():
         return ""
@@ -117,12 +114,12 @@ def quickstart_seeds_table(results: Path) -> str:
     rows = [[g["cpu"], "yes" if g["native_bf16"] else "no", f"**{g['precision_path']}**", ", ".join(g["seeds"]),
              f"**{g['ap_mean']:.3f} ± {known(g['ap_sd'], '{:.3f}'.format)}**",
              f"{g['ap_min']:.3f} – {g['ap_max']:.3f}", known(g["wall_s"], format_duration)]
-            for g in quickstart_seeds.spread(_csv(path))]  # fmt: skip
+            for g in seed_spread(_csv(path))]  # fmt: skip
     return (
         "\nThe precision path changes the model, so the figure to expect depends on the CPU: "
         "`trainer.precision=auto` trains in bf16 mixed precision where the CPU computes bf16 natively "
         "(AVX512-BF16 or AMX), else in fp32, and the console's `precision path:` line says which one a run took. "
-        "Over training seeds (`python scripts/quickstart_seeds.py --seeds 0 1 2 --precision auto 32`; the same "
+        "Over training seeds (`python scripts/experiments/quickstart/quickstart_seeds.py --seeds 0 1 2 --precision auto 32`; the same "
         "data, made with MuJoCo like the run above; the sd is over seeds):\n\n"
         + _table(["CPU", "native bf16", "precision path", "seeds", "test AP mean ± sd", "min – max",
                   "train + test time per run"], rows)  # fmt: skip
@@ -221,7 +218,7 @@ def block_inference(results: Path, prefix: str = "") -> str:
               + ", ".join(f"{r['stage'].split()[1]} {float(r['x_floor']):.3f}" for r in e2e) + "."]
     check = _csv(results / "speed" / "inference_check.csv")
     lines += ["", "Poses of each path against fp32 eager on the quickstart model's 150 test scenes "
-              "(`scripts/check_inference.py`):", ""]
+              "(`scripts/bench/check_inference.py`):", ""]
     lines.append(_table(["path", "hypotheses", "paired within 0.1 mm and 0.05°", "p99 Δt mm", "p99 Δr °", "AP"],
                         [[r["path"], r["hypotheses"], r["paired within 0.1 mm and 0.05 deg"], r["p99 dt mm"],
                           r["p99 dr deg"], r["AP"]] for r in check]))
@@ -264,12 +261,11 @@ def block_real_frame(results: Path, prefix: str = "") -> str:
 
 
 def block_dense(results: Path, prefix: str = "") -> str:
-    """The dense-pile recipe within 60 minutes per object (the ``bench_dense.HEADLINE`` rows)."""
-    from bench_dense import HEADLINE
+    """The dense-pile recipe within 60 minutes per object (the ``DENSE_HEADLINE`` rows)."""
 
     rows = []
     for r in _csv(results / "dense" / "dense.csv"):
-        if r["config"] != HEADLINE:
+        if r["config"] != DENSE_HEADLINE:
             continue
         tuned = re.search(r"test AP (\d\.\d+)", r.get("tuned") or "")
         rows.append([r["object"].replace("_", " "),
@@ -302,17 +298,13 @@ def block_real_ipd(results: Path, prefix: str = "") -> str:
 
 def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
     """The real-frame recipe over training seeds: AP per refinement, then mean ± sd (real_ipd.py --seeds)."""
-    import statistics
-
     runs = _csv(results / "real_ipd" / "seeds.csv")
     keys = ["generated_ap", "real_ap", "real_ap_icp", "real_ap_search"]
     rows = [[r["seed"], r["parameterization"], *(f"{float(r[k]):.3f}" for k in keys), f"{float(r['found_search']):.1f}"]
             for r in runs]
 
     def spread(key: str, digits: int) -> str:
-        v = [float(r[key]) for r in runs]
-        sd = statistics.stdev(v) if len(v) > 1 else 0.0
-        return f"{statistics.mean(v):.{digits}f} ± {sd:.{digits}f}"
+        return mean_sd_text([float(r[key]) for r in runs], digits)
 
     rows.append([f"mean ± sd ({len(runs)})", "", *(f"**{spread(k, 3)}**" if k == "real_ap_search" else spread(k, 3)
                                                   for k in keys), spread("found_search", 1)])
@@ -358,7 +350,7 @@ def _pictures(results: Path, prefix: str, pictures: list[tuple[str, str]]) -> st
     cells = []
     for rel, caption in pictures:
         if not (results / rel).is_file():
-            raise FileNotFoundError(f"{results / rel}: picture missing (python scripts/readme_figures.py [--run-quickstart])")
+            raise FileNotFoundError(f"{results / rel}: picture missing (python scripts/dev/readme_figures.py [--run-quickstart])")
         cells.append(f'<img src="{prefix}results/{rel}" width="420" alt="{caption}"><br><sub>{caption}</sub>')
     rows = ["<tr>" + "".join(f"<td>{c}</td>" for c in cells[i : i + 2]) + "</tr>" for i in range(0, len(cells), 2)]
     return "<table>" + "\n".join(rows) + "</table>\n"
@@ -474,7 +466,6 @@ def draw_ceiling_chart(results: Path) -> Path:
 
 def record_run(run_dir: Path, command: str, wall_s: float, note: str, into: Path) -> None:
     """Append a train run's test summary as a row of ``into`` (results/defaults/defaults.csv)."""
-    sys.path.insert(0, str(REPO / "src"))
     from opnet.fileio.atomic import append_csv_rows
 
     d = json.loads((run_dir / "test" / "summary.json").read_text())
@@ -494,8 +485,8 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
     run_dir = root / "run"
     env = {**os.environ, "OPNET_ROOT": str(root), "PYOPENGL_PLATFORM": "egl"}
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, str(REPO / "train.py"), "experiment=quickstart", f"hydra.run.dir={run_dir}"],
-                          cwd=REPO, env=env, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), "experiment=quickstart", f"hydra.run.dir={run_dir}"],
+                          cwd=REPO_ROOT, env=env, capture_output=True, text=True)
     wall = time.monotonic() - start
     if proc.returncode:
         raise RuntimeError(f"the quickstart failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
@@ -523,7 +514,7 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
         "dataset_scenes": len(list((data_root / "p_depth").rglob("*.png"))), "model": "small",
         "params_m": params / 1e6, "parameterization": "vanilla", "epochs": cfg["trainer"]["max_epochs"],
         "machine": f"this {os.cpu_count()}-core CPU machine", "date": time.strftime("%Y-%m-%d"),
-        "cpu": quickstart_seeds.cpu_model(), "precision_path": console_precision_path(proc.stdout + proc.stderr),
+        "cpu": cpu_model(), "precision_path": console_precision_path(proc.stdout + proc.stderr),
         "checkpoint": ckpt.name,
     }  # fmt: skip
     (out / "summary.json").write_text(json.dumps(q, indent=1) + "\n")
@@ -533,8 +524,8 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
     cycle, drop = densest.rsplit("_", 1)
     png = data_root / "p_depth" / cycle / f"{drop}_depth_uint16.png"
     pred = root / "predict"
-    subprocess.run([sys.executable, str(REPO / "predict.py"), f"ckpt={ckpt}", f"input={png}", f"out={pred}",
-                    "overwrite=true", f"hydra.run.dir={root / 'predict_run'}"], cwd=REPO, env=env, check=True,
+    subprocess.run([sys.executable, str(REPO_ROOT / "predict.py"), f"ckpt={ckpt}", f"input={png}", f"out={pred}",
+                    "overwrite=true", f"hydra.run.dir={root / 'predict_run'}"], cwd=REPO_ROOT, env=env, check=True,
                    capture_output=True)  # fmt: skip
     shutil.copyfile(pred / f"{png.stem}.png", out / "overlay.png")
     subprocess.run(["opnet-evaluate", "--gt", "test/gt", "--results", "test/results", "--object", q["object"],
@@ -547,7 +538,7 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="only compare; exit 1 when a page differs")
-    parser.add_argument("--readme", type=Path, default=REPO / "README.md")
+    parser.add_argument("--readme", type=Path, default=REPO_ROOT / "README.md")
     parser.add_argument("--docs", type=Path, default=DOCS, help="the folder of the docs pages (*.md)")
     parser.add_argument("--results", type=Path, default=RESULTS)
     parser.add_argument("--run-quickstart", action="store_true", help="run the quickstart and record its figures first")
@@ -577,7 +568,7 @@ def main(argv: list[str] | None = None) -> int:
             sys.stdout.writelines(difflib.unified_diff(text.splitlines(True), rendered.splitlines(True),
                                                        str(path), "rendered from results/"))  # fmt: skip
         if drifted:
-            print(f"\nfigures of {', '.join(map(str, drifted))} differ from results/: run python scripts/readme_figures.py",
+            print(f"\nfigures of {', '.join(map(str, drifted))} differ from results/: run python scripts/dev/readme_figures.py",
                   file=sys.stderr)
             return 1
         print(f"figures of README.md and {len(pages)} docs pages match results/")

@@ -1,7 +1,7 @@
 """A/B evidence for the learning changes: the same object, data, seed and step budget with and
 without each change, scored on the same held-out scenes (one table).
 
-    python scripts/ab_learning.py --train <IPA dir> --test <IPA dir> [--foreign <IPA dir>]
+    python scripts/experiments/learning/ab_learning.py --train <IPA dir> --test <IPA dir> [--foreign <IPA dir>]
         [--object bunny] [--steps 2000] [--arms A0 A1 ...] [--runs-dir outputs/ab] [--out results/learning]
 
 Arms (``ARMS``; each is ``train.py`` with the listed overrides, fp32 unless it says otherwise):
@@ -13,7 +13,7 @@ the *validation* split. ``--foreign`` adds a column: AP on scenes of another cam
 Finished arms (same overrides, ``test/summary.json`` present) are not trained again. Writes
 ``ab.md`` and ``ab.csv`` to ``--out``.
 
-    python scripts/ab_learning.py --collect results/learning/ab_runs.yaml --runs-dir <dir>
+    python scripts/experiments/learning/ab_learning.py --collect results/learning/ab_runs.yaml --runs-dir <dir>
 
 ``--collect`` builds the table from finished ``train.py`` runs listed in a YAML spec (arm, change,
 run name under ``--runs-dir``, optionally ``tune: true``: decode the run's model with the
@@ -37,8 +37,8 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "scripts"))
+from opnet.paths import REPO_ROOT
+from opnet.studies import best_checkpoint
 
 FP32 = ["trainer.precision=32"]
 #: name -> (what changes, base arm of a tuned arm or None, train.py overrides)
@@ -80,21 +80,16 @@ def train_arm(run: Path, overrides: list[str]) -> None:
     if (run / "test" / "summary.json").is_file() and overrides_of(run) == overrides:
         print(f"  {run.name}: done already", flush=True)
         return
-    cmd = [sys.executable, str(REPO / "train.py"), *overrides, f"hydra.run.dir={run}"]
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), *overrides, f"hydra.run.dir={run}"]
     run.mkdir(parents=True, exist_ok=True)
     print(f"  {run.name}: training", flush=True)
     with open(run / "ab_stdout.log", "w") as log:
-        subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+        subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
 def train_minutes(run: Path) -> float:
     """Minutes of training of a finished run (its learning curve's last row)."""
     return float(list(csv.DictReader((run / "learning_curve.csv").open()))[-1]["train_minutes"])
-
-
-def best_checkpoint(run: Path) -> Path:
-    ckpts = sorted(p for p in (run / "checkpoints").glob("epoch*.ckpt"))
-    return ckpts[-1] if ckpts else run / "checkpoints" / "last.ckpt"
 
 
 def evaluate(ckpt: Path, data_root: Path, settings: dict[str, Any] | None) -> dict[str, Any]:
@@ -141,7 +136,7 @@ def row_of(arm: str, change: str, run: Path, result: dict[str, Any], steps: int)
         "ap": s["ap"], "map": s["map"], "f1": s["f1"], "found": d["matched"] / n,
         "no_hypothesis": d["no_hypothesis"] / n, "position": d["position"] / n, "orientation": d["orientation"] / n,
         "conflict": d["conflict"] / n, "confident_fp_per_scene": d["confident_false_positives"] / max(s["num_scenes"], 1),
-        "run": os.path.relpath(run, REPO),
+        "run": os.path.relpath(run, REPO_ROOT),
     }  # fmt: skip
 
 
@@ -231,8 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--object", default="bunny")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--arms", nargs="+", default=list(ARMS))
-    parser.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "ab")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "learning")
+    parser.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "outputs" / "ab")
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "learning")
     args = parser.parse_args(argv)
     if args.collect is not None:
         collect(args.collect, args.runs_dir, args.out)

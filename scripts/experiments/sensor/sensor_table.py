@@ -1,6 +1,6 @@
 """Missing depth of the sensor presets next to the real Siléane frame: fraction and hole pattern.
 
-    python scripts/sensor_table.py [--presets ideal structured_light tof] [--object bunny]
+    python scripts/experiments/sensor/sensor_table.py [--presets ideal structured_light tof] [--object bunny]
         [--cycles 2] [--drops 20] [--work outputs/sensor_table] [--out results/sensor]
 
 Generates ``--cycles`` cycles of ``--drops`` parts per preset (``generate.py sensor=<preset>``),
@@ -37,12 +37,10 @@ import cv2
 import numpy as np
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
 
-from opnet.datasets.ipa import IPADataset  # noqa: E402
 from opnet.datasets.depth_inputs import load_depth_image  # noqa: E402
-from opnet.paths import shared_dir  # noqa: E402
+from opnet.datasets.ipa import IPADataset  # noqa: E402
+from opnet.paths import REPO_ROOT, shared_dir  # noqa: E402
 
 EDGE_JUMP_M = 0.01
 MAX_RUN = 200
@@ -98,8 +96,8 @@ def main() -> None:
     ap.add_argument("--drops", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--camera-height", type=float, default=0.92, help="metres above the bin floor (real-frame camera)")
-    ap.add_argument("--work", type=Path, default=REPO / "outputs" / "sensor_table")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "sensor")
+    ap.add_argument("--work", type=Path, default=REPO_ROOT / "outputs" / "sensor_table")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "sensor")
     args = ap.parse_args()
 
     shared = shared_dir() if shared_dir().is_dir() else None
@@ -118,10 +116,10 @@ def main() -> None:
         pictures.append(picture(real))
     for preset in args.presets:
         out = args.work / f"{obj}_{preset}"
-        cmd = [sys.executable, str(REPO / "generate.py"), f"object={obj}", f"cycles={args.cycles}",
+        cmd = [sys.executable, str(REPO_ROOT / "generate.py"), f"object={obj}", f"cycles={args.cycles}",
                f"drops={args.drops}", f"workers={args.workers}", f"sensor={preset}", f"out={out}", "progress=false",
                "previews=0", *camera_args]
-        proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+        proc = subprocess.run(cmd, cwd=REPO_ROOT, capture_output=True, text=True)
         if proc.returncode:
             raise SystemExit(f"generation failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
         ds = IPADataset(out)
@@ -151,7 +149,7 @@ def main() -> None:
                      f"{pct(r['edge_runs'])} | {pct(r['right_nearer'])} | {run} | {pct(r['speckle'])} |")
     setup = (f"{obj}, {args.cycles} cycles x {args.drops} drops, scenes with >= {args.drops // 2} parts; camera: "
              + (f"the real frame's camera_params.txt, {args.camera_height} m above the floor" if real is not None else "built-in, 512 px"))
-    (args.out / "holes.md").write_text("\n".join(lines) + f"\n\n{setup}. `python scripts/sensor_table.py`\n")
+    (args.out / "holes.md").write_text("\n".join(lines) + f"\n\n{setup}. `python scripts/experiments/sensor/sensor_table.py`\n")
     h = max(p.shape[0] for p in pictures)
     strip = np.hstack([cv2.copyMakeBorder(p, 0, h - p.shape[0], 0, 8, cv2.BORDER_CONSTANT, value=(255, 255, 255))
                        for p in pictures])

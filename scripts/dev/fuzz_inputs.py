@@ -1,6 +1,6 @@
 """Fuzz every reader and command line with bad input; print the table of verdicts.
 
-``python scripts/fuzz_inputs.py [--out results/fuzz.md] [--no-cli]``
+``python scripts/dev/fuzz_inputs.py [--out results/fuzz.md] [--no-cli]``
 
 Each case is a file (or argument) a careless or hostile user could hand us, derived from a valid
 tiny dataset: truncated, garbled, impossible values, wrong units, special files; BOP copies of it,
@@ -49,7 +49,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+from opnet.paths import REPO_ROOT
+
 READER_TIMEOUT_S = 20.0
 CLI_TIMEOUT_S = 120.0
 USER_ERRORS = (ValueError, FileNotFoundError)
@@ -88,11 +89,11 @@ def make_base(ws: Path) -> dict[str, Path]:
                      scene=SceneConfig(resolution=96), progress=False, previews=0,
                      object_config={"name": "zbracket", "builtin": "zbracket"})  # fmt: skip
     run = ws / "run"
-    subprocess.run([sys.executable, str(REPO / "train.py"), "model=tiny", "object=zbracket", f"data.root={data}",
+    subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), "model=tiny", "object=zbracket", f"data.root={data}",
                     "data.generate=null", "data.batch_size=4", "data.val_fraction=0.25", "data.test_fraction=0.25",
                     "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
                     "trainer.enable_progress_bar=false", "example_predictions=0", f"hydra.run.dir={run}"],
-                   check=True, capture_output=True, cwd=REPO)  # fmt: skip
+                   check=True, capture_output=True, cwd=REPO_ROOT)  # fmt: skip
     return {"data": data, "ckpt": run / "checkpoints" / "last.ckpt", "gt": run / "test" / "gt",
             "results": run / "test" / "results"}
 
@@ -439,8 +440,8 @@ def make_extra(ws: Path, base: dict[str, Path]) -> dict[str, Path]:
 
     extra = {"bop": convert_ipa_to_bop(base["data"], ws / "bop", split="train_synt", obj_id=1).parent}
     onnx = ws / "model.onnx"
-    subprocess.run([sys.executable, str(REPO / "export.py"), f"ckpt={base['ckpt']}", f"out={onnx}", "check=false",
-                    f"hydra.run.dir={ws / 'hydra' / 'export0'}"], check=True, capture_output=True, cwd=REPO)
+    subprocess.run([sys.executable, str(REPO_ROOT / "export.py"), f"ckpt={base['ckpt']}", f"out={onnx}", "check=false",
+                    f"hydra.run.dir={ws / 'hydra' / 'export0'}"], check=True, capture_output=True, cwd=REPO_ROOT)
     extra["onnx"] = onnx
     return extra
 
@@ -1181,7 +1182,7 @@ def input_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
         "search.coarse 2.5": (False, "search", {"search": {"coarse": 2.5}}, "coarse"),
         "search.coarse true": (False, "search", {"search": {"coarse": True}}, "coarse"),
     }
-    groups = {m: OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "refine" / f"{m}.yaml")) for m in ("icp", "search")}
+    groups = {m: OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / f"{m}.yaml")) for m in ("icp", "search")}
     for name, (valid, method, change, key) in refine.items():
         group = json.loads(json.dumps(groups[method]))
         for section, values in ({"icp": change} if "search" not in change else change).items():
@@ -1683,7 +1684,7 @@ def run_reader(case: Case) -> tuple[str, str]:
 
 def run_cli(case: Case) -> tuple[str, str]:
     try:
-        proc = subprocess.run(case.argv, cwd=REPO, capture_output=True, text=True, timeout=CLI_TIMEOUT_S,
+        proc = subprocess.run(case.argv, cwd=REPO_ROOT, capture_output=True, text=True, timeout=CLI_TIMEOUT_S,
                               env={**os.environ, "PYOPENGL_PLATFORM": "egl", "OPNET_VHACD_TIMEOUT": "30"})
     except subprocess.TimeoutExpired:
         return "HANG", f"no answer in {CLI_TIMEOUT_S:g} s"
@@ -1702,7 +1703,7 @@ def run_concurrent(case: Case) -> tuple[str, str]:
     """Start every command line of the case at once; one of them must stop with a clear error."""
     assert case.concurrent is not None
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
-    procs = [subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    procs = [subprocess.Popen(argv, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
              for argv in case.concurrent]
     deadline, texts = time.monotonic() + CLI_TIMEOUT_S, []
     try:
@@ -1794,7 +1795,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n" + "\n".join(lines) + "\n\n" + summary)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text("# Fuzz pass over the readers and command lines\n\n`python scripts/fuzz_inputs.py "
+        args.out.write_text("# Fuzz pass over the readers and command lines\n\n`python scripts/dev/fuzz_inputs.py "
                             f"--out {args.out}`\n\n" + "\n".join(lines) + "\n\n" + summary + "\n")
     if not args.keep:
         shutil.rmtree(ws, ignore_errors=True)

@@ -16,9 +16,9 @@ the pose of their camera is unknown. This script
 3. checks what it wrote: every scene read back with opnet's Siléane reader, depth within the clip
    planes, the ground truth projecting onto its own segment.
 
-    PYOPENGL_PLATFORM=egl python scripts/sileane_rerender.py [--out outputs/data/sileane_rerender]
-    PYOPENGL_PLATFORM=egl python scripts/sileane_rerender.py --fitted                 # the recorded fit
-    PYOPENGL_PLATFORM=egl python scripts/sileane_rerender.py --pose 0 -0.1 0.0 1.5    # any pose
+    PYOPENGL_PLATFORM=egl python scripts/experiments/sileane/sileane_rerender.py [--out outputs/data/sileane_rerender]
+    PYOPENGL_PLATFORM=egl python scripts/experiments/sileane/sileane_rerender.py --fitted                 # the recorded fit
+    PYOPENGL_PLATFORM=egl python scripts/experiments/sileane/sileane_rerender.py --pose 0 -0.1 0.0 1.5    # any pose
 
 Exit status: 0 written and checked, 1 a check failed, 2 bad arguments or input files.
 """
@@ -36,8 +36,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sileane_fit import (  # noqa: E402
+from opnet.analysis.sileane_fit import (  # noqa: E402
     FITTED_POSE,
     FITTED_RADIUS,
     CameraPose,
@@ -48,7 +47,6 @@ from sileane_fit import (  # noqa: E402
     mesh_frame_variants,
     search_pose,
 )
-
 from opnet.datasets.png import encode_depth, write_png  # noqa: E402
 from opnet.datasets.record import SceneRecord  # noqa: E402
 from opnet.datasets.sileane import CAMERA_FILE, SileaneDataset  # noqa: E402
@@ -160,7 +158,7 @@ def verify(out: Path, points_model: np.ndarray) -> list[str]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="scripts/sileane_rerender.py", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="scripts/experiments/sileane/sileane_rerender.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--sample", type=Path, default=shared_dir() / "data" / "sileane_bunny_sample",
                         help="the official sample folder (gt/*.json, poseutils.json)")
     parser.add_argument("--mesh", type=Path, default=shared_dir() / "data" / "meshes" / "SileaneBunny.obj")
@@ -207,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, variant in mesh_frame_variants(mesh, args.sample / POSEUTILS_FILE).items():
             other = evaluate(PileRenderer(variant, camera), piles, pose)
             print(f"  model frame {name:>6}, r = {radius:g} px:  {other.agreement(radius).line()}")
-    note = (f"written by scripts/sileane_rerender.py: camera pose fitted to the official occlusion rates\n"
+    note = (f"written by scripts/experiments/sileane/sileane_rerender.py: camera pose fitted to the official occlusion rates\n"
             f"{pose}; mean |d occlusion| {exact.mad:.4f} (renderer), {modelled.mad:.4f} (r = {radius:g} px)")
     write_dataset(args.out, renderer, piles, pose, args.sample / POSEUTILS_FILE, note)
     problems = verify(args.out, np.asarray(mesh.vertices))

@@ -1,6 +1,6 @@
 """predict.py on the real Siléane frame, recorded for the README: overlay, counts, scores.
 
-    python scripts/real_frame.py --ckpt <bunny model> [--out results/real_frame] [--min-score 0.5]
+    python scripts/experiments/real_frame/real_frame.py --ckpt <bunny model> [--out results/real_frame] [--min-score 0.5]
 
 Runs ``python predict.py ckpt=<ckpt> input=../shared/data/sileane_real_frame`` (the frame's own
 camera_params.txt: 1296 x 1024, fx 4507, off-centre principal point, 30 % missing depth) into a
@@ -22,16 +22,13 @@ from pathlib import Path
 
 import cv2
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
-
-from opnet.paths import shared_dir  # noqa: E402
+from opnet.paths import REPO_ROOT, shared_dir
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ckpt", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "real_frame")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "real_frame")
     ap.add_argument("--min-score", type=float, default=0.5)
     args = ap.parse_args()
     frame = shared_dir() / "data" / "sileane_real_frame"
@@ -39,8 +36,8 @@ def main() -> None:
         raise SystemExit(f"{frame}: the real frame is not there (../shared or OPNET_SHARED)")
     work = Path(tempfile.mkdtemp(prefix="opnet_real_frame_"))
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
-    proc = subprocess.run([sys.executable, str(REPO / "predict.py"), f"ckpt={args.ckpt}", f"input={frame}",
-                           f"out={work}", f"min_score={args.min_score}"], cwd=REPO, env=env, capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, str(REPO_ROOT / "predict.py"), f"ckpt={args.ckpt}", f"input={frame}",
+                           f"out={work}", f"min_score={args.min_score}"], cwd=REPO_ROOT, env=env, capture_output=True, text=True)
     if proc.returncode:
         raise SystemExit(f"predict.py failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
     doc = json.loads((work / "depth.json").read_text())

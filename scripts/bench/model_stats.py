@@ -3,9 +3,9 @@
 FLOPs are measured with torch.utils.flop_counter.FlopCounterMode (a multiply-add counts as 2 FLOPs;
 convolutions only). Times are the best of ``--repeats`` runs on this machine's CPU threads.
 
-    python scripts/model_stats.py                       # all presets, grids 16, 8, 32
-    python scripts/model_stats.py --presets paper --grids 16 --no-timing
-    python scripts/model_stats.py --presets small tiny --grids 16 --train --threads 1
+    python scripts/bench/model_stats.py                       # all presets, grids 16, 8, 32
+    python scripts/bench/model_stats.py --presets paper --grids 16 --no-timing
+    python scripts/bench/model_stats.py --presets small tiny --grids 16 --train --threads 1
 """
 
 from __future__ import annotations

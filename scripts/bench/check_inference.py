@@ -1,6 +1,6 @@
 """How far the fast inference path is from the fp32 eager reference, on a trained model's scenes.
 
-    python scripts/check_inference.py --ckpt <run>/checkpoints/<best>.ckpt [--split test] [--out results/speed/inference_check.csv]
+    python scripts/bench/check_inference.py --ckpt <run>/checkpoints/<best>.ckpt [--split test] [--out results/speed/inference_check.csv]
 
 For each path (fp32 channels-last, bf16 autocast channels-last, the default: the fused fp32 form
 on the CPU) it decodes

@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The lock file and its check on newer Pythons.
 #
-#   scripts/lock.sh            # re-make requirements.lock from pyproject.toml (keeps locked versions where they still fit)
-#   scripts/lock.sh --check    # every locked package resolves for CPython 3.12 and 3.13 on manylinux x86_64 as a
+#   scripts/dev/lock.sh            # re-make requirements.lock from pyproject.toml (keeps locked versions where they still fit)
+#   scripts/dev/lock.sh --check    # every locked package resolves for CPython 3.12 and 3.13 on manylinux x86_64 as a
 #                              # binary wheel, except the pure-Python source packages named in SOURCE_ONLY
 #
 # requirements.lock is universal (markers per Python version and platform): CI and the README install
 # with `pip install -c requirements.lock -e ".[dev]"`. It needs uv (pip install uv) and the package index.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 # pure-Python packages published as source only (no compiler needed): omegaconf's parser runtime, pyrender's OpenGL
 SOURCE_ONLY=(antlr4-python3-runtime pyopengl)
 

@@ -1,9 +1,9 @@
 """The learning benchmark: per object, generate data, train within a fixed CPU budget, report the
 held-out test AP with error diagnostics and the learning curve (AP against minutes of training).
 
-    python scripts/bench_learning.py                                   # the four objects, 30 min each
-    python scripts/bench_learning.py --objects bunny --minutes 10 --config paper
-    python scripts/bench_learning.py --objects zbracket --steps 4000   # a fixed step budget
+    python scripts/bench/bench_learning.py                                   # the four objects, 30 min each
+    python scripts/bench/bench_learning.py --objects bunny --minutes 10 --config paper
+    python scripts/bench/bench_learning.py --objects zbracket --steps 4000   # a fixed step budget
 
 Per object: a training set (``--train-cycles`` cycles of ``--drops`` drops, seed 0, 256 x 256) and
 a test set of other cycles from another seed (seed 1) are generated (or completed) under
@@ -24,8 +24,6 @@ invocations (other objects or configs) are kept; a re-run replaces its own rows.
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import os
 import subprocess
 import sys
@@ -35,9 +33,10 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from opnet.studies import diagnostic_shares, fmt, merge_csv
+from opnet.paths import REPO_ROOT
+from opnet.studies import fmt, merge_csv
+from opnet.studies.training import CURVE_FIELDS, calibrate_steps, summarize, train
 
-REPO = Path(__file__).resolve().parents[1]
 OBJECTS = ("bunny", "ring_screw", "gear_shaft", "zbracket")
 #: named configurations (Hydra overrides of train.py)
 CONFIGS: dict[str, list[str]] = {
@@ -52,77 +51,14 @@ ROW_FIELDS = (
     "ap", "map", "f1", "target", "found", "no_hypothesis", "position", "orientation", "conflict",
     "confident_fp_per_scene", "duplicates_per_scene", "t_err_mm_p50", "r_err_deg_p50", "run",
 )  # fmt: skip
-CURVE_FIELDS = ("object", "config", "epoch", "step", "train_minutes", "val_ap", "test_ap")
 
 
 def generate(obj: str, out: Path, cycles: int, drops: int, seed: int) -> None:
     """Generate (or complete) a dataset with ``generate.py`` (resumable, deterministic)."""
-    cmd = [sys.executable, str(REPO / "generate.py"), f"object={obj}", f"cycles={cycles}", f"drops={drops}",
+    cmd = [sys.executable, str(REPO_ROOT / "generate.py"), f"object={obj}", f"cycles={cycles}", f"drops={drops}",
            "workers=2", f"seed={seed}", "scene.resolution=256", f"out={out}", "progress=false", "previews=2"]  # fmt: skip
     print(f"[{obj}] data: {out} ({cycles} cycles x {drops} drops, seed {seed})", flush=True)
-    subprocess.run(cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL)
-
-
-def calibrate_steps(overrides: list[str], minutes: float) -> int:
-    """Optimizer steps that fill ``minutes`` of training at the measured images/s."""
-    sys.path.insert(0, str(REPO / "scripts"))
-    from bench_train import measure  # noqa: PLC0415
-
-    from hydra import compose, initialize_config_dir
-
-    from opnet.paths import config_dir
-
-    ips = measure(overrides, steps=40, warmup=10)
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        batch = int(compose("train", overrides=overrides).data.batch_size)
-    steps = int(minutes * 60 * ips / batch)
-    print(f"  calibration: {ips:.1f} images/s -> {steps} steps for {minutes:g} min", flush=True)
-    return steps
-
-
-def validation_schedule(steps: int, validations: int) -> list[str]:
-    """train.py overrides that validate ``validations`` times, evenly spaced in optimizer steps, the
-    last at the final step (at epoch ends, a step budget that ends mid-epoch leaves its last steps,
-    those at the lowest learning rate, out of the model selection)."""
-    every = max(1, steps // max(1, validations))
-    return ["trainer.check_val_every_n_epoch=null", f"+trainer.val_check_interval={every}"]
-
-
-def train(overrides: list[str], run_dir: Path, steps: int, test_every: int = 1, validations: int | None = None) -> None:
-    """train.py for ``steps`` optimizer steps (the last rounded down to a validation with ``validations``)."""
-    schedule = []
-    if validations:
-        schedule = validation_schedule(steps, validations)
-        steps = steps - steps % max(1, steps // validations)
-    cmd = [sys.executable, str(REPO / "train.py"), *overrides, f"trainer.max_steps={steps}",
-           "trainer.max_epochs=100000", "trainer.enable_progress_bar=false", *schedule,
-           f"callbacks.learning_curve.test_every={test_every}", f"hydra.run.dir={run_dir}"]  # fmt: skip
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with open(run_dir / "bench_stdout.log", "w") as log:
-        subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
-
-
-def choice(cfg: dict[str, Any], group: str) -> str:
-    return str(cfg.get(group, ""))
-
-
-def summarize(obj: str, config: str, run_dir: Path, steps: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """The result row and curve rows of a finished run."""
-    import yaml
-
-    summary = json.loads((run_dir / "test" / "summary.json").read_text())
-    choices = yaml.safe_load((run_dir / ".hydra" / "hydra.yaml").read_text())["hydra"]["runtime"]["choices"]
-    curve = list(csv.DictReader((run_dir / "learning_curve.csv").open()))
-    row = {
-        "object": obj, "config": config, "parameterization": choices.get("parameterization"),
-        "rotation": choices.get("rotation"), "loss": choices.get("loss"), "model": choices.get("model"),
-        "steps": steps, "train_minutes": float(curve[-1]["train_minutes"]) if curve else float("nan"),
-        "images": int(curve[-1]["images"]) if curve else 0,
-        "ap": summary["ap"], "map": summary["map"], "f1": summary["f1"], "target": TARGETS.get(obj, ""),
-        **diagnostic_shares(summary), "run": os.path.relpath(run_dir, REPO),
-    }  # fmt: skip
-    curves = [{"object": obj, "config": config, **{k: r[k] for k in CURVE_FIELDS[2:]}} for r in curve]
-    return row, curves
+    subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=subprocess.DEVNULL)
 
 
 def write_readme(out: Path, rows: list[dict[str, Any]], command: str) -> None:
@@ -188,14 +124,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--train-cycles", type=int, default=400)
     parser.add_argument("--test-cycles", type=int, default=25)
     parser.add_argument("--drops", type=int, default=20)
-    parser.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "learning")
-    parser.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "learning")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "learning")
+    parser.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "learning")
+    parser.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "outputs" / "learning")
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "learning")
     parser.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
     parser.add_argument("--test-every", type=int, default=3,
                         help="score the test split for the curve every this many epochs (validation AP: every epoch)")
     args = parser.parse_args(argv)
-    command = "python scripts/bench_learning.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python scripts/bench/bench_learning.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows, curves = [], []
     for obj in args.objects:
         train_root = args.data_dir / f"{obj}_train_c{args.train_cycles}_d{args.drops}_s0"
@@ -209,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         start = time.time()
         print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
         train(overrides, run_dir, steps, args.test_every)
-        row, curve = summarize(obj, args.config, run_dir, steps)
+        row, curve = summarize(obj, args.config, run_dir, steps, TARGETS.get(obj, ""))
         print(f"[{obj}] test AP {row['ap']:.4f} after {row['train_minutes']:.1f} training minutes "
               f"({(time.time() - start) / 60:.1f} min wall)", flush=True)  # fmt: skip
         rows.append(row)

@@ -1,7 +1,7 @@
 """The quickstart over seeds and precision paths: the spread a user should expect, and what the
 machine changes.
 
-    python scripts/quickstart_seeds.py --seeds 0 1 2 --precision auto 32
+    python scripts/experiments/quickstart/quickstart_seeds.py --seeds 0 1 2 --precision auto 32
 
 Runs ``python train.py experiment=quickstart seed=S trainer.precision=P`` as the README prints it
 (the training seed varies; the data are the quickstart's own, generated once with its seed 0 into a
@@ -13,7 +13,7 @@ fp32; ``32`` forces fp32). The first run's wall time includes the data generatio
 
 Rows go to ``--out`` (default ``results/quickstart/seeds.csv``), keyed by (CPU, precision path,
 seed): a run already recorded for this CPU is skipped unless ``--force``, so an interrupted sweep
-resumes. ``scripts/readme_figures.py`` renders the mean ± sd per precision path next to the
+resumes. ``scripts/dev/readme_figures.py`` renders the mean ± sd per precision path next to the
 quickstart's figure.
 """
 
@@ -22,8 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -31,28 +29,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
-sys.path.insert(0, str(REPO / "scripts"))
-
-from bench_learning import merge_csv  # noqa: E402
-
-from opnet.hardware import cpu_has_native_bf16, resolve_precision  # noqa: E402
+from opnet.hardware import cpu_has_native_bf16, resolve_precision
+from opnet.paths import REPO_ROOT
+from opnet.studies import merge_csv
+from opnet.studies.results import cpu_model, seed_spread
 
 FIELDS = ("cpu", "native_bf16", "precision_path", "seed", "ap", "map", "f1", "found", "wall_s", "with_generation",
           "torch", "date", "command")  # fmt: skip
 KEY = ("cpu", "precision_path", "seed")
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), or the platform's processor string."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def path_name(precision: str) -> str:
@@ -67,7 +51,7 @@ def run_one(root: Path, seed: int, precision: str) -> dict[str, Any]:
     argv = ["experiment=quickstart", f"seed={seed}", f"trainer.precision={precision}"]
     env = {**os.environ, "OPNET_ROOT": str(root), "PYOPENGL_PLATFORM": "egl"}
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, str(REPO / "train.py"), *argv, f"hydra.run.dir={run_dir}"], cwd=REPO,
+    proc = subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), *argv, f"hydra.run.dir={run_dir}"], cwd=REPO_ROOT,
                           env=env, capture_output=True, text=True)  # fmt: skip
     wall = time.monotonic() - start
     if proc.returncode:
@@ -86,30 +70,12 @@ def run_one(root: Path, seed: int, precision: str) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def spread(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One entry per (CPU, native bf16, precision path), sorted: its seeds, the test AP's mean, sample
-    sd (NaN for one run), min and max, and the mean wall time of the runs that did not generate data
-    (NaN when all did). Rows as written by :func:`run_one` or read back from the CSV."""
-    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
-    for r in rows:
-        groups.setdefault((str(r["cpu"]), str(r["native_bf16"]), str(r["precision_path"])), []).append(r)
-    out = []
-    for (cpu, native, precision), rs in sorted(groups.items()):
-        aps = [float(r["ap"]) for r in rs]
-        walls = [float(r["wall_s"]) for r in rs if str(r["with_generation"]) != "True"]
-        out.append({"cpu": cpu, "native_bf16": native == "True", "precision_path": precision,
-                    "seeds": [str(r["seed"]) for r in rs], "ap_mean": statistics.fmean(aps),
-                    "ap_sd": statistics.stdev(aps) if len(aps) > 1 else float("nan"), "ap_min": min(aps),
-                    "ap_max": max(aps), "wall_s": statistics.fmean(walls) if walls else float("nan")})  # fmt: skip
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--precision", nargs="+", default=["auto"],
                         help="trainer.precision values to run (auto: bf16 where native, else fp32; 32: fp32)")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "quickstart" / "seeds.csv")
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "quickstart" / "seeds.csv")
     parser.add_argument("--keep", type=Path, help="run in this folder and keep it (else a temporary one)")
     parser.add_argument("--force", action="store_true", help="run again what this CPU already recorded")
     args = parser.parse_args(argv)
@@ -136,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
 
         shutil.rmtree(root, ignore_errors=True)
     print("\n| CPU | precision path | seeds | test AP mean ± sd | wall (s, without generation) |\n|---|---|---|---|---|")
-    for g in spread(done):
+    for g in seed_spread(done):
         print(f"| {g['cpu']} | {g['precision_path']} | {len(g['seeds'])} | {g['ap_mean']:.3f} ± {g['ap_sd']:.3f} | "
               f"{g['wall_s']:.0f} |")
     return 0

@@ -1,8 +1,8 @@
 """Benchmark the synthetic data engine: scenes per second at 512 x 512 with 20 parts per cycle.
 
-    python scripts/bench_generate.py                       # bracket, 1 and 2 workers, 6 cycles each
-    python scripts/bench_generate.py --objects bracket,pin --cycles 6 --breakdown
-    python scripts/bench_generate.py --scene bulk --drops 75 --cycles 2   # Siléane-like bulk piles
+    python scripts/bench/bench_generate.py                       # bracket, 1 and 2 workers, 6 cycles each
+    python scripts/bench/bench_generate.py --objects bracket,pin --cycles 6 --breakdown
+    python scripts/bench/bench_generate.py --scene bulk --drops 75 --cycles 2   # Siléane-like bulk piles
 
 Pool start-up (process spawn, imports, EGL and pybullet set-up) is reported separately and not
 counted in scenes/s. ``--breakdown`` times physics, rendering and writing of one cycle in this
@@ -26,6 +26,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from opnet.cli.evaluate import resolve_object  # noqa: E402
 from opnet.objects import ObjectModel  # noqa: E402
+from opnet.studies.scenes import scene_overrides, scene_preset
 from opnet.synthesis import CycleGenerator, SceneConfig, generate_dataset  # noqa: E402
 from opnet.synthesis.writer import write_cycle  # noqa: E402
 
@@ -98,40 +99,6 @@ def main() -> None:
         print(f"| {name} | {workers} | {r.cycles_generated} | {r.scenes_written} | {r.startup_seconds:.1f} | "
               f"{r.seconds:.1f} | {r.scenes_per_second:.2f} | {r.steady_scenes_per_second:.2f} | {r.redrops} | "
               f"{r.unsettled} | {r.solo_renders / max(r.scenes_written, 1):.1f} | {100 * hidden:.0f} % | {100 * half:.0f} % |")
-
-
-def scene_overrides(camera_file: str | None, camera_height: float | None, sets: list[str]) -> dict[str, object]:
-    """Scene overrides of the command line: a camera file (its clip planes used), its height, and
-    ``key=value`` pairs (values parsed as YAML: numbers, booleans, null)."""
-    import yaml
-
-    out: dict[str, object] = {}
-    if camera_file:
-        out.update(camera_file=str(Path(camera_file).resolve()), camera_file_clip=True)
-    if camera_height is not None:
-        out["camera_height"] = camera_height
-    for item in sets:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise SystemExit(f"--set {item!r}: expected key=value")
-        out[key.strip()] = yaml.safe_load(value)
-    return out
-
-
-def scene_preset(name: str, **overrides: object) -> SceneConfig:
-    """The SceneConfig of conf/scene/<name>.yaml (a preset's ``defaults`` resolved) with overrides."""
-    from omegaconf import OmegaConf
-
-    from opnet.paths import config_dir
-
-    def load(preset: str) -> dict:
-        doc = OmegaConf.to_container(OmegaConf.load(config_dir() / "scene" / f"{preset}.yaml"))
-        values: dict = {}
-        for base in doc.pop("defaults", []):
-            values.update(load(base))
-        return {**values, **doc}
-
-    return SceneConfig.from_dict({**load(name), **overrides})
 
 
 def occlusion(root: Path, drops: int) -> tuple[float, float]:

@@ -2,7 +2,7 @@
 camera from above; per object, generate the training piles, train, and score piles of another
 seed, all within one budget on this machine.
 
-    python scripts/bench_dense.py --objects bunny ring_screw --gen-cycles 96 --views 8 --minutes 40
+    python scripts/bench/bench_dense.py --objects bunny ring_screw --gen-cycles 96 --views 8 --minutes 40
 
 Per object: training piles (``--gen-cycles`` cycles = ``--gen-cycles / --views`` simulated piles
 of ``--drops`` parts, seed 0, ``scene=bulk``, ``--camera-file`` at ``--camera-height``) and test
@@ -32,16 +32,13 @@ from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_learning import calibrate_steps, fmt, merge_csv, summarize, train  # noqa: E402
+from opnet.paths import REPO_ROOT
+from opnet.studies import best_checkpoint, fmt, merge_csv, read_summary
+from opnet.studies.results import DENSE_HEADLINE as HEADLINE
+from opnet.studies.training import calibrate_steps, summarize, train
 
-from opnet.paths import best_checkpoint  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-CAMERA = REPO / "conf" / "cameras" / "sileane_bunny.yaml"
-#: the configuration of the README's headline table (the 60-minute recipe of ``experiment=dense``)
-HEADLINE = "recipe60"
+CAMERA = REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"
 TARGET = 0.5
 ROW_FIELDS = (
     "object", "config", "gen_minutes", "train_minutes", "total_minutes", "train_scenes", "piles", "views",
@@ -104,16 +101,16 @@ def tests_of(obj: str, specs: list[str]) -> list[str]:
 
 def evaluate(ckpt: Path, dest: Path, test_root: str | None = None) -> dict[str, Any]:
     """eval.py's summary of ``ckpt`` on its own test split, or on all scenes of ``test_root``."""
-    cmd = [sys.executable, str(REPO / "eval.py"), f"ckpt={ckpt}", f"out={dest}", "examples=2",
+    cmd = [sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={ckpt}", f"out={dest}", "examples=2",
            *([f"data.test_root={Path(test_root).resolve()}"] if test_root else [])]
     with open(dest.with_suffix(".log"), "w") as log:
-        subprocess.run(cmd, check=True, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+        subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT)
     return json.loads((dest / "summary.json").read_text())
 
 
 def extra_tests(ckpt: Path, run_dir: Path, tests: list[str], tag: str = "") -> str:
     """Score ``ckpt`` on each ``NAME=DIR`` dataset (all its scenes, e.g. piles another generator made,
-    ``scripts/sileane_rerender.py``) with eval.py; ``NAME AP (found %)`` per dataset."""
+    ``scripts/experiments/sileane/sileane_rerender.py``) with eval.py; ``NAME AP (found %)`` per dataset."""
     out = []
     for spec in tests:
         name, _, folder = spec.partition("=")
@@ -156,7 +153,7 @@ def split_sizes(run_dir: Path) -> dict[str, int]:
 
 def test_curve(run_dir: Path) -> str:
     """The held-out test AP measured during a run: ``<train minutes>: <AP>`` at each test epoch."""
-    path = REPO / run_dir / "learning_curve.csv"
+    path = REPO_ROOT / run_dir / "learning_curve.csv"
     if not path.is_file():
         return ""
     points = [r for r in csv.DictReader(path.open()) if r.get("test_ap")]
@@ -230,13 +227,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--camera-height", type=float, default=1.5)
     ap.add_argument("--minutes", type=float, default=40.0)
     ap.add_argument("--steps", type=int, default=None, help="fixed step budget (skips the calibration)")
-    ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "dense")
-    ap.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "dense")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "dense")
+    ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "dense")
+    ap.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "outputs" / "dense")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "dense")
     ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
     ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
                     help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
-                         "bunny:sileane=outputs/data/sileane_rerender (scripts/sileane_rerender.py)")
+                         "bunny:sileane=outputs/data/sileane_rerender (scripts/experiments/sileane/sileane_rerender.py)")
     ap.add_argument("--validations", type=int, default=None,
                     help="validate this many times, evenly spaced, the last at the final step (default: every epoch)")
     ap.add_argument("--tune", action="store_true",
@@ -248,11 +245,11 @@ def main(argv: list[str] | None = None) -> int:
         rows = merge_csv(args.out / "dense.csv", ROW_FIELDS, [], ("object", "config"))
         for r in rows:
             r["test_curve"] = test_curve(Path(r["run"])) or r.get("test_curve", "")
-            r["train_scenes"] = split_sizes(REPO / r["run"]).get("train", r["train_scenes"])
+            r["train_scenes"] = split_sizes(REPO_ROOT / r["run"]).get("train", r["train_scenes"])
         write_readme(args.out, merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config")))
         print((args.out / "README.md").read_text())
         return 0
-    command = "python scripts/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python scripts/bench/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
     rows = []
     for obj in args.objects:
         train_root = args.data_dir / f"{obj}_train_c{args.gen_cycles}_v{args.views}_d{args.drops}_s0"
@@ -269,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
         train(overrides, run_dir, steps, test_every=4, validations=args.validations)
         row, _ = summarize(obj, args.config, run_dir, steps)
-        summary = json.loads((run_dir / "test" / "summary.json").read_text())
+        summary = read_summary(run_dir)
         row.update(gen_minutes=gen_minutes, total_minutes=gen_minutes + float(row["train_minutes"]),
                    train_scenes=split_sizes(run_dir).get("train", args.gen_cycles * args.drops),
                    piles=-(-args.gen_cycles // args.views),

@@ -1,6 +1,6 @@
 """Framing of an off-centre, non-square camera into the square network input: pixels used and AP.
 
-    python scripts/framing_table.py [--fits pad crop image image_crop] [--work outputs/framing]
+    python scripts/experiments/framing/framing_table.py [--fits pad crop image image_crop] [--work outputs/framing]
         [--object shaft] [--out results/framing]
 
 A Siléane-like camera (506 x 474 pixels, principal point (139.5, 236.5): far left of centre, as
@@ -16,18 +16,14 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import os
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
-sys.path.insert(0, str(REPO / "scripts"))
-
-from opnet.data.preprocess import framing_coverage, square_canvas  # noqa: E402
-from opnet.datasets.camera_file import read_camera_file  # noqa: E402
-from sensor_ab import run_logged as _run  # noqa: E402 - one subprocess helper for the study scripts
+from opnet.data.preprocess import framing_coverage, square_canvas
+from opnet.datasets.camera_file import read_camera_file
+from opnet.paths import REPO_ROOT
+from opnet.studies import read_summary, run_logged
 
 CAMERA = "fx: 600.0\nfy: 600.0\ncx: 139.5\ncy: 236.5\nwidth: 506\nheight: 474\nclip_start: 0.3\nclip_end: 2.0\n"
 
@@ -35,9 +31,9 @@ CAMERA = "fx: 600.0\nfy: 600.0\ncx: 139.5\ncy: 236.5\nwidth: 506\nheight: 474\nc
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--fits", nargs="+", default=["pad", "crop", "image", "image_crop"])
-    ap.add_argument("--work", type=Path, default=REPO / "outputs" / "framing")
+    ap.add_argument("--work", type=Path, default=REPO_ROOT / "outputs" / "framing")
     ap.add_argument("--object", default="shaft")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "framing")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "framing")
     args, overrides = ap.parse_known_args()
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
@@ -47,22 +43,23 @@ def main() -> None:
     env = {**os.environ, "OPNET_ROOT": str(work), "PYOPENGL_PLATFORM": "egl"}
     test = work / "test"
     print("held-out test set ...", flush=True)
-    _run(["generate.py", f"object={args.object}", "cycles=15", "drops=10", "workers=2", "seed=1",
-          f"scene.camera_file={cam_file}", f"out={test}", "progress=false"], env, work / "logs" / "generate_test.log")
+    run_logged([sys.executable, "generate.py", f"object={args.object}", "cycles=15", "drops=10", "workers=2", "seed=1",
+                f"scene.camera_file={cam_file}", f"out={test}", "progress=false"], work / "logs" / "generate_test.log",
+               env=env)
     rows = []
     for fit in args.fits:
         run_dir = work / f"run_{fit}"
         if not (run_dir / "test" / "summary.json").exists():
             print(f"training with data.fit={fit} ...", flush=True)
-            _run(["train.py", "experiment=quickstart", f"object={args.object}", f"data.fit={fit}",
-                  f"scene.camera_file={cam_file}", f"hydra.run.dir={run_dir}", "example_predictions=0",
-                  *overrides], env, work / "logs" / f"train_{fit}.log")
+            run_logged([sys.executable, "train.py", "experiment=quickstart", f"object={args.object}", f"data.fit={fit}",
+                        f"scene.camera_file={cam_file}", f"hydra.run.dir={run_dir}", "example_predictions=0",
+                        *overrides], work / "logs" / f"train_{fit}.log", env=env)
         ckpt = sorted((run_dir / "checkpoints").glob("epoch*.ckpt"))[-1]
         out = work / f"eval_{fit}"
         if not (out / "summary.json").exists():
-            _run(["eval.py", f"ckpt={ckpt}", f"data.test_root={test}", f"out={out}", "examples=0"], env,
-                 work / "logs" / f"eval_{fit}.log")
-        summary = json.loads((out / "summary.json").read_text())
+            run_logged([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.test_root={test}", f"out={out}", "examples=0"],
+                       work / "logs" / f"eval_{fit}.log", env=env)
+        summary = read_summary(out, ".")
         input_share, image_share = framing_coverage(camera, fit)
         side = square_canvas(camera, fit)[2]
         rows.append({"fit": fit, "input_share": round(input_share, 4), "image_share": round(image_share, 4),
@@ -79,7 +76,7 @@ def main() -> None:
               f"{r['image_px_per_input_px']:.2f} | {r['ap']:.4f} |" for r in rows]
     note = (f"{args.object}, camera 506 x 474, principal point (139.5, 236.5); quickstart recipe per row "
             f"(`python train.py experiment=quickstart data.fit=<fit> scene.camera_file=<camera.yaml>`), "
-            f"AP on {rows[0]['scenes']} held-out scenes (seed 1). `python scripts/framing_table.py`")
+            f"AP on {rows[0]['scenes']} held-out scenes (seed 1). `python scripts/experiments/framing/framing_table.py`")
     (args.out / "framing.md").write_text("\n".join(lines) + "\n\n" + note + "\n")
     print("\n".join(lines))
     print(note)

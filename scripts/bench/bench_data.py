@@ -1,9 +1,9 @@
 """Memory and speed of the training data path at scale: one epoch of the training DataLoader
 (records -> crop/resize -> augmentation -> collate), peak resident memory and images/s.
 
-    python scripts/bench_data.py --data <IPA dataset> [--scenes 5000 50000] [--workers 0 2]
-    python scripts/bench_data.py --data <dir> --no-cache        # read the PNG/CSV files instead
-    python scripts/bench_data.py --data <dir> --no-cache --memoize   # ... and keep every record
+    python scripts/bench/bench_data.py --data <IPA dataset> [--scenes 5000 50000] [--workers 0 2]
+    python scripts/bench/bench_data.py --data <dir> --no-cache        # read the PNG/CSV files instead
+    python scripts/bench/bench_data.py --data <dir> --no-cache --memoize   # ... and keep every record
                                                                      # (what opnet did before)
 
 ``--scenes N`` larger than the dataset repeats its scenes (under new cycle numbers) to reach N:

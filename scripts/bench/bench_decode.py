@@ -8,7 +8,7 @@ default) with uniform garbage in the other channels. Target: under 5 ms per imag
 parameterization. Columns: median and best wall-clock time, median process CPU time (what the
 decode costs when the machine is shared and the wall clock also counts waiting for a core).
 
-    python scripts/bench_decode.py [--object bracket] [--batch 1] [--repeats 20]
+    python scripts/bench/bench_decode.py [--object bracket] [--batch 1] [--repeats 20]
 """
 
 from __future__ import annotations

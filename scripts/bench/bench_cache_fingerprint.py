@@ -1,7 +1,7 @@
 """Cost of the scene cache's fingerprint (:func:`opnet.data.cache.source_fingerprint`): one ``stat``
 per source file of every scene, done each time a training or evaluation opens its cached dataset.
 
-    python scripts/bench_cache_fingerprint.py [--scenes 50000] [--drops 30] [--root <dataset>]
+    python scripts/bench/bench_cache_fingerprint.py [--scenes 50000] [--drops 30] [--root <dataset>]
 
 Without ``--root`` it writes a fake IPA dataset of ``--scenes`` scenes (three small files each, in
 cycles of ``--drops + 1`` scenes) into a temporary folder, deleted afterwards. It prints the time

@@ -1,7 +1,7 @@
 """Where one drop cycle's time goes: physics (spawn, stepping, settle checks), rendering (the scene
 pass, the visibility passes), the sensor model, PNG encoding and writing.
 
-    python scripts/profile_generate.py --objects bunny,ring_screw --scene bulk --drops 75 \
+    python scripts/bench/profile_generate.py --objects bunny,ring_screw --scene bulk --drops 75 \
         --camera-file conf/cameras/sileane_bunny.yaml --camera-height 1.5 --cycles 2
 
 Runs in this process (one worker), after a warm-up render; each stage is timed by wrapping the
@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -26,11 +25,9 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_generate import scene_overrides, scene_preset  # noqa: E402
 
 from opnet.cli.evaluate import resolve_object  # noqa: E402
+from opnet.studies.scenes import scene_overrides, scene_preset
 from opnet.synthesis import CycleGenerator, SceneConfig  # noqa: E402
 
 #: (stage, module path, attribute owner, attribute): the functions whose time makes each stage

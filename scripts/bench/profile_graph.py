@@ -1,10 +1,10 @@
 """Where the time of one image goes on the whole-image CUDA graph (:class:`opnet.inference.GraphedPipeline`).
 
-    python scripts/profile_graph.py [--model paper] [--parameterization vanilla] [--repeats 50]
+    python scripts/bench/profile_graph.py [--model paper] [--parameterization vanilla] [--repeats 50]
                                     [--out results/gpu/graph_profile.csv]
 
 On a CUDA device, the paper network with random weights on a synthetic 512 x 512 depth image (as
-``scripts/bench_infer.py``), bf16 and fp32: the whole pipeline end to end (best and median of
+``scripts/bench/bench_infer.py``), bf16 and fp32: the whole pipeline end to end (best and median of
 ``--repeats`` after warm-up), then its parts, each timed alone the same way: the host's copy of the
 depth into the pinned buffer and on to the device; the replay of the one graph (synchronized); the
 table's copy back; the host's finish (rows ordered, rotations projected); and, each captured as a
@@ -25,14 +25,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_infer import _setup, depth_image
-
 from opnet.data import preprocess_torch
 from opnet.data.preprocess import to_network_input
 from opnet.geometry import Camera
 from opnet.inference import GraphedPipeline, InferenceSettings, capture_graph
 from opnet.objects import builtin_object
+from opnet.studies.scenes import depth_image, noisy_setup
 
 
 def host_ms(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
@@ -78,7 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     device = torch.device("cuda")
     camera = Camera.from_fov(50.0, 512, 512, 0.6, 1.2)
     net_cam = to_network_input(np.full((512, 512), 1.0, np.float32), camera)[1]
-    param, model, _ = _setup(args.parameterization, args.model, builtin_object(args.object), net_cam, device, "tuned")
+    param, model, _ = noisy_setup(args.parameterization, args.model, builtin_object(args.object), net_cam, device, "tuned")
     depth = depth_image(camera, np.random.default_rng(0))
     name = torch.cuda.get_device_name()
     rows: list[tuple[str, str, float, float]] = []

@@ -1,0 +1,47 @@
+"""What a script that makes a committed table and the one that renders it into the docs
+(``scripts/dev/readme_figures.py``) must agree on: the machine a row was measured on, the spread of
+the quickstart over seeds, the dense benchmark's headline configuration."""
+
+from __future__ import annotations
+
+import platform
+import statistics
+from pathlib import Path
+from typing import Any
+
+from opnet.studies import mean_sd
+
+#: the configuration of the dense benchmark's headline table (the 60-minute recipe of ``experiment=dense``)
+DENSE_HEADLINE = "recipe60"
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), or the platform's processor string."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def seed_spread(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One entry per (CPU, native bf16, precision path) of the quickstart's seed rows, sorted: its
+    seeds, the test AP's mean, sample sd (NaN for one run), min and max, and the mean wall time of the
+    runs that did not generate data (NaN when all did)."""
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((str(r["cpu"]), str(r["native_bf16"]), str(r["precision_path"])), []).append(r)
+    out = []
+    for (cpu, native, precision), rs in sorted(groups.items()):
+        aps = [float(r["ap"]) for r in rs]
+        walls = [float(r["wall_s"]) for r in rs if str(r["with_generation"]) != "True"]
+        mean, sd = mean_sd(aps, single=float("nan"))
+        out.append({"cpu": cpu, "native_bf16": native == "True", "precision_path": precision,
+                    "seeds": [str(r["seed"]) for r in rs], "ap_mean": mean, "ap_sd": sd, "ap_min": min(aps),
+                    "ap_max": max(aps), "wall_s": statistics.fmean(walls) if walls else float("nan")})  # fmt: skip
+    return out
+
+
+__all__ = ["DENSE_HEADLINE", "cpu_model", "seed_spread"]
