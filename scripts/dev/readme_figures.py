@@ -52,7 +52,7 @@ from typing import Any
 
 from opnet.cli.console import format_duration
 from opnet.paths import REPO_ROOT
-from opnet.studies import mean_sd_text
+from opnet.studies import mean_sd_text, train_command
 from opnet.studies.results import DENSE_HEADLINE, cpu_model, seed_spread
 
 RESULTS = REPO_ROOT / "results"
@@ -485,8 +485,8 @@ def run_quickstart(results: Path, keep: Path | None) -> dict[str, Any]:
     run_dir = root / "run"
     env = {**os.environ, "OPNET_ROOT": str(root), "PYOPENGL_PLATFORM": "egl"}
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), "experiment=quickstart", f"hydra.run.dir={run_dir}"],
-                          cwd=REPO_ROOT, env=env, capture_output=True, text=True)
+    proc = subprocess.run(train_command(["experiment=quickstart"], run_dir), cwd=REPO_ROOT, env=env, capture_output=True,
+                          text=True)
     wall = time.monotonic() - start
     if proc.returncode:
         raise RuntimeError(f"the quickstart failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")

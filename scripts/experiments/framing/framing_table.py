@@ -23,7 +23,7 @@ from pathlib import Path
 from opnet.data.preprocess import framing_coverage, square_canvas
 from opnet.datasets.camera_file import read_camera_file
 from opnet.paths import REPO_ROOT
-from opnet.studies import read_summary, run_logged
+from opnet.studies import read_summary, run_logged, run_train
 
 CAMERA = "fx: 600.0\nfy: 600.0\ncx: 139.5\ncy: 236.5\nwidth: 506\nheight: 474\nclip_start: 0.3\nclip_end: 2.0\n"
 
@@ -51,9 +51,8 @@ def main() -> None:
         run_dir = work / f"run_{fit}"
         if not (run_dir / "test" / "summary.json").exists():
             print(f"training with data.fit={fit} ...", flush=True)
-            run_logged([sys.executable, "train.py", "experiment=quickstart", f"object={args.object}", f"data.fit={fit}",
-                        f"scene.camera_file={cam_file}", f"hydra.run.dir={run_dir}", "example_predictions=0",
-                        *overrides], work / "logs" / f"train_{fit}.log", env=env)
+            run_train(["experiment=quickstart", f"object={args.object}", f"data.fit={fit}", f"scene.camera_file={cam_file}",
+                       "example_predictions=0", *overrides], run_dir, work / "logs" / f"train_{fit}.log", env=env)
         ckpt = sorted((run_dir / "checkpoints").glob("epoch*.ckpt"))[-1]
         out = work / f"eval_{fit}"
         if not (out / "summary.json").exists():

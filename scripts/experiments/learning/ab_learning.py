@@ -30,7 +30,6 @@ import csv
 import io
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,7 @@ from typing import Any
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from opnet.paths import REPO_ROOT
-from opnet.studies import best_checkpoint
+from opnet.studies import best_checkpoint, run_train
 
 FP32 = ["trainer.precision=32"]
 #: name -> (what changes, base arm of a tuned arm or None, train.py overrides)
@@ -80,11 +79,8 @@ def train_arm(run: Path, overrides: list[str]) -> None:
     if (run / "test" / "summary.json").is_file() and overrides_of(run) == overrides:
         print(f"  {run.name}: done already", flush=True)
         return
-    cmd = [sys.executable, str(REPO_ROOT / "train.py"), *overrides, f"hydra.run.dir={run}"]
-    run.mkdir(parents=True, exist_ok=True)
     print(f"  {run.name}: training", flush=True)
-    with open(run / "ab_stdout.log", "w") as log:
-        subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT)
+    run_train(overrides, run, run / "ab_stdout.log")
 
 
 def train_minutes(run: Path) -> float:

@@ -31,7 +31,7 @@ from typing import Any
 
 from opnet.hardware import cpu_has_native_bf16, resolve_precision
 from opnet.paths import REPO_ROOT
-from opnet.studies import merge_csv
+from opnet.studies import merge_csv, train_command
 from opnet.studies.results import cpu_model, seed_spread
 
 FIELDS = ("cpu", "native_bf16", "precision_path", "seed", "ap", "map", "f1", "found", "wall_s", "with_generation",
@@ -51,8 +51,7 @@ def run_one(root: Path, seed: int, precision: str) -> dict[str, Any]:
     argv = ["experiment=quickstart", f"seed={seed}", f"trainer.precision={precision}"]
     env = {**os.environ, "OPNET_ROOT": str(root), "PYOPENGL_PLATFORM": "egl"}
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), *argv, f"hydra.run.dir={run_dir}"], cwd=REPO_ROOT,
-                          env=env, capture_output=True, text=True)  # fmt: skip
+    proc = subprocess.run(train_command(argv, run_dir), cwd=REPO_ROOT, env=env, capture_output=True, text=True)
     wall = time.monotonic() - start
     if proc.returncode:
         raise RuntimeError(f"quickstart seed {seed}, precision {precision} failed (exit {proc.returncode}):\n"

@@ -1,6 +1,6 @@
 """What the benchmark, study and maintenance scripts of ``scripts/`` and the tools of
-:mod:`opnet.tools` share: run a command of the framework with its console in a log file, read a
-run's test summary, mean ± sample sd, the checkpoint a run's test scored, tables kept across
+:mod:`opnet.tools` share: run a command of the framework (train.py above all) with its console in a
+log file, read a run's test summary, mean ± sample sd, the checkpoint a run's test scored, tables kept across
 invocations. Sweeps in the layout of the paper's Table I: :mod:`opnet.studies.sweeps`; training
 runs of a fixed budget: :mod:`opnet.studies.training`."""
 
@@ -12,6 +12,7 @@ import json
 import math
 import statistics
 import subprocess
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,18 @@ def run_logged(cmd: list[str], log: Path, cwd: Path = REPO_ROOT, env: dict[str, 
         code = subprocess.run(cmd, cwd=cwd, env=env, stdout=f, stderr=subprocess.STDOUT, check=False).returncode
     if code:
         raise SystemExit(f"error: exit {code}; see {log}")
+
+
+def train_command(overrides: list[str], run_dir: str | Path) -> list[str]:
+    """``python train.py <overrides> hydra.run.dir=<run_dir>`` as an argv, to run in the repository root."""
+    return [sys.executable, "train.py", *overrides, f"hydra.run.dir={run_dir}"]
+
+
+def run_train(overrides: list[str], run_dir: Path, log: Path | None = None, env: dict[str, str] | None = None) -> None:
+    """train.py with ``overrides`` into ``run_dir``, its console in ``log`` (default
+    ``<run_dir>/train_stdout.log``); a failure exits naming the log (:func:`run_logged`)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    run_logged(train_command(overrides, run_dir), log or run_dir / "train_stdout.log", env=env)
 
 
 def read_summary(run: str | Path, folder: str = "test") -> dict[str, Any] | None:
@@ -94,4 +107,4 @@ def fmt(value: Any, kind: str = "f3") -> str:
 
 
 __all__ = ["best_checkpoint", "diagnostic_shares", "fmt", "mean_sd", "mean_sd_text", "merge_csv", "read_summary",
-           "run_logged"]
+           "run_logged", "run_train", "train_command"]

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import csv
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -15,7 +13,7 @@ from typing import Any
 import lightning as L
 
 from opnet.paths import REPO_ROOT, config_dir
-from opnet.studies import diagnostic_shares, read_summary
+from opnet.studies import diagnostic_shares, read_summary, run_train
 
 #: the learning curve's columns of a result table (``learning_curve.csv``'s, behind object and config)
 CURVE_FIELDS = ("object", "config", "epoch", "step", "train_minutes", "val_ap", "test_ap")
@@ -111,12 +109,8 @@ def train(overrides: list[str], run_dir: Path, steps: int, test_every: int = 1, 
     if validations:
         schedule = validation_schedule(steps, validations)
         steps = steps - steps % max(1, steps // validations)
-    cmd = [sys.executable, str(REPO_ROOT / "train.py"), *overrides, f"trainer.max_steps={steps}",
-           "trainer.max_epochs=100000", "trainer.enable_progress_bar=false", *schedule,
-           f"callbacks.learning_curve.test_every={test_every}", f"hydra.run.dir={run_dir}"]  # fmt: skip
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with open(run_dir / "bench_stdout.log", "w") as log:
-        subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT)
+    run_train([*overrides, f"trainer.max_steps={steps}", "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
+               *schedule, f"callbacks.learning_curve.test_every={test_every}"], run_dir, run_dir / "bench_stdout.log")
 
 
 def summarize(obj: str, config: str, run_dir: Path, steps: int, target: object = "") -> tuple[dict[str, Any], list[dict[str, Any]]]:
