@@ -1,8 +1,10 @@
 """What the benchmark, study and maintenance scripts of ``scripts/`` and the tools of
 :mod:`opnet.tools` share: run a command of the framework (train.py above all) with its console in a
-log file, read a run's test summary, mean ± sample sd, the checkpoint a run's test scored, tables kept across
-invocations. Sweeps in the layout of the paper's Table I: :mod:`opnet.studies.sweeps`; training
-runs of a fixed budget: :mod:`opnet.studies.training`."""
+log file, read a run's test summary, mean ± sample sd, the checkpoint a run's test scored, tables
+kept across invocations. Sweeps in the layout of the paper's Table I: :mod:`opnet.studies.sweeps`;
+training runs of a fixed budget: :mod:`opnet.studies.training`; scene presets, a depth image and a
+network output for the benchmarks: :mod:`opnet.studies.scenes`; what a table's maker and its
+renderer agree on: :mod:`opnet.studies.results`."""
 
 from __future__ import annotations
 
