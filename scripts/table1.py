@@ -255,7 +255,7 @@ def report(rows: list[dict[str, object]], steps: int, requested: int | None = No
            tuned: list[dict[str, object]] | None = None) -> tuple[str, str]:
     """(README.md text, table1.csv text) of the finished arms (``requested``: arms asked for;
     ``tuned``: the same arms with the decoding tuned on their validation split)."""
-    lines = ["# Table I on this machine", "",
+    lines = ["# Table I on this machine" if MACHINE is None else "# Table I on another machine (below)", "",
              (f"Held-out test AP (Brégier, max occlusion 0.5) per parameterization and object, mean ± sample sd over the "
               f"seeds (runs); each arm `experiment=table1`, {steps} steps; the paper's Table I value in brackets. "
               "Made by `python scripts/table1.py` (its docstring has the command and the budget)."
