@@ -16,13 +16,13 @@ in the README, ``../results/...`` in a docs page):
 | speed | ``results/speed/{train,data}.csv`` (``scripts/bench/bench_train.py`` / ``bench_data.py --out``) |
 | inference | ``results/speed/infer.csv`` (``scripts/bench/bench_infer.py --out``), ``inference_check.csv`` (``scripts/bench/check_inference.py``) |
 | benchmarks | ``results/benchmarks.csv`` (each row names the script that printed its figure) |
-| sensor | ``results/sensor/{holes,ab}.csv`` (``scripts/experiments/sensor/sensor_table.py``, ``scripts/sensor_ab.py``) |
+| sensor | ``results/sensor/{holes,ab}.csv`` (``scripts/experiments/sensor/sensor_table.py``, ``scripts/experiments/sensor/sensor_ab.py``) |
 | real_frame | ``results/real_frame/summary.json`` (``scripts/experiments/real_frame/real_frame.py``) |
 | framing | ``results/framing/framing.csv`` (``scripts/experiments/framing/framing_table.py``) |
-| real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/real_ipd.py``) |
-| real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/real_ipd.py --seeds``) |
+| real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/experiments/real_ipd/real_ipd.py``) |
+| real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/experiments/real_ipd/real_ipd.py --seeds``) |
 | cells | ``results/cells/cells.csv`` (``scripts/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
-| verification | ``results/verification/verification.csv`` (``scripts/verify_ab.py``) |
+| verification | ``results/verification/verification.csv`` (``scripts/experiments/verification/verify_ab.py``) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
 | pictures_method | the ceiling chart |
@@ -285,7 +285,7 @@ def block_framing(results: Path, prefix: str = "") -> str:
 
 
 def block_real_ipd(results: Path, prefix: str = "") -> str:
-    """The real Photoneo frames of IPD object 18 with their ground truth (scripts/real_ipd.py)."""
+    """The real Photoneo frames of IPD object 18 with their ground truth (scripts/experiments/real_ipd/real_ipd.py)."""
     pct = lambda v: f"{100 * float(v):.1f}"  # noqa: E731
     rows = [[r["visibility"], r["refine"], r["required"], f"**{float(r['ap']):.3f}**", pct(r["found"]),
              pct(r["no_hypothesis"]), pct(r["position"]), pct(r["orientation"]), f"{float(r['confident_fp_per_frame']):.1f}",
@@ -328,7 +328,7 @@ def block_cells(results: Path, prefix: str = "") -> str:
 
 
 def block_verification(results: Path, prefix: str = "") -> str:
-    """Decoded, ICP and the depth-agreement search on held-out generated piles (scripts/verify_ab.py)."""
+    """Decoded, ICP and the depth-agreement search on held-out generated piles (scripts/experiments/verification/verify_ab.py)."""
     rows = [[r["object"].replace("_", " "), r["decoding"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
              f"{100 * float(r['found']):.1f}", f"{float(r['icp_ms_per_image']):.0f}" if r.get("icp_ms_per_image") else "–"]
             for r in _csv(results / "verification" / "verification.csv")]

@@ -1,4 +1,4 @@
-"""scripts/icp_ab.py: its KEY=VALUE options read as YAML values; a malformed one is a clear error."""
+"""scripts/experiments/verification/icp_ab.py: its KEY=VALUE options read as YAML values; a malformed one is a clear error."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("icp_ab", REPO_ROOT / "scripts" / "icp_ab.py")
+spec = importlib.util.spec_from_file_location("icp_ab", REPO_ROOT / "scripts" / "experiments" / "verification" / "icp_ab.py")
 icp_ab = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(icp_ab)
 

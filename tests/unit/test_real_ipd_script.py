@@ -1,4 +1,4 @@
-"""scripts/real_ipd.py: its A/B table is made from the arms' own files, and a bad --holes is one line."""
+"""scripts/experiments/real_ipd/real_ipd.py: its A/B table is made from the arms' own files, and a bad --holes is one line."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("real_ipd", REPO_ROOT / "scripts" / "real_ipd.py")
+spec = importlib.util.spec_from_file_location("real_ipd", REPO_ROOT / "scripts" / "experiments" / "real_ipd" / "real_ipd.py")
 real_ipd = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(real_ipd)
 
@@ -19,7 +19,7 @@ def _arm(folder: Path, name: str, command: str, synthetic: float, ap: float, cha
          search: float | None = None) -> None:
     arm = folder / name
     arm.mkdir(parents=True)
-    (arm / "README.md").write_text(f"# x\n\nThe recipe of `scripts/real_ipd.py` (`{command}`): ...\n\n"
+    (arm / "README.md").write_text(f"# x\n\nThe recipe of `scripts/experiments/real_ipd/real_ipd.py` (`{command}`): ...\n\n"
                                    f"On generated piles of another seed (the training's test split): AP {synthetic:.3f}.\n")
     (arm / "change.txt").write_text(change + "\n")
     with (arm / "real_ipd.csv").open("w", newline="") as f:
@@ -32,14 +32,14 @@ def _arm(folder: Path, name: str, command: str, synthetic: float, ap: float, cha
 
 
 def test_ab_table_has_one_row_per_arm_in_name_order(tmp_path: Path) -> None:
-    _arm(tmp_path, "1_b", "python scripts/real_ipd.py --clutter 8 --run-dir x/y --out /tmp/z", 0.25, 0.043, "+ clutter",
+    _arm(tmp_path, "1_b", "python scripts/experiments/real_ipd/real_ipd.py --clutter 8 --run-dir x/y --out /tmp/z", 0.25, 0.043, "+ clutter",
          search=0.4)
-    _arm(tmp_path, "0_a", "python scripts/real_ipd.py --cycles 200", 0.291, 0.0, "before")
+    _arm(tmp_path, "0_a", "python scripts/experiments/real_ipd/real_ipd.py --cycles 200", 0.291, 0.0, "before")
     (tmp_path / "notes").mkdir()  # a folder without results is no arm
     lines = real_ipd.ab_table(tmp_path).splitlines()
     rows = [x for x in lines if x.startswith("| 0_a") or x.startswith("| 1_b")]
     assert [r.split(" | ")[0] for r in rows] == ["| 0_a", "| 1_b"]
-    assert rows[1] == ("| 1_b | + clutter | `python scripts/real_ipd.py --clutter 8` | 0.250 | **0.043** | 0.053 | 0.400 | "
+    assert rows[1] == ("| 1_b | + clutter | `python scripts/experiments/real_ipd/real_ipd.py --clutter 8` | 0.250 | **0.043** | 0.053 | 0.400 | "
                        "20.0 | 50.0 | 30.0 |")  # run and output folders left out of the shown command
     assert rows[0].split(" | ")[4:7] == ["**0.000**", "0.010", ""]  # an arm made before the search: no search cell
 

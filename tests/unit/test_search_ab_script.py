@@ -1,4 +1,4 @@
-"""scripts/search_ab.py: a folder that is no run, or --report without evaluations, is one line."""
+"""scripts/experiments/real_ipd/search_ab.py: a folder that is no run, or --report without evaluations, is one line."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 from opnet.paths import REPO_ROOT
+from opnet.studies.ipd import SEARCH_DECODING
 
-spec = importlib.util.spec_from_file_location("search_ab", REPO_ROOT / "scripts" / "search_ab.py")
+spec = importlib.util.spec_from_file_location("search_ab", REPO_ROOT / "scripts" / "experiments" / "real_ipd" / "search_ab.py")
 search_ab = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(search_ab)
 
@@ -17,7 +18,7 @@ spec.loader.exec_module(search_ab)
 def test_a_folder_without_checkpoints_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert search_ab.main([str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "not a run folder of scripts/real_ipd.py" in err
+    assert err.count("\n") == 1 and "not a run folder of scripts/experiments/real_ipd/real_ipd.py" in err
 
 
 def test_report_without_evaluations_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -30,7 +31,7 @@ def test_report_without_evaluations_is_one_line(tmp_path: Path, capsys: pytest.C
 def test_every_arm_names_its_overrides_and_the_last_is_the_recipe() -> None:
     names = [a[0] for a in search_ab.ARMS]
     assert names[0] == "none" and names[-1] == "recipe" and len(set(names)) == len(names)
-    assert search_ab.ARMS[-1][2] == ["refine=search", *search_ab.real_ipd.SEARCH_DECODING]
+    assert search_ab.ARMS[-1][2] == ["refine=search", *SEARCH_DECODING]
 
 
 def test_each_variant_is_the_recipe_with_one_more_override() -> None:

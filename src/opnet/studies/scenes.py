@@ -1,9 +1,10 @@
 """Scenes as the generation benchmarks set them up: the scene overrides of a command line and the
 ``conf/scene/`` presets as a :class:`opnet.synthesis.SceneConfig`; a depth image and a network output
-to time inference on without a dataset."""
+to time inference on without a dataset; the statistics of the piles a dataset holds."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -84,4 +85,51 @@ def noisy_setup(name: str, model_name: str, obj: object, net_cam: Camera, device
     return param, model, noisy
 
 
-__all__ = ["depth_image", "noisy_setup", "scene_overrides", "scene_preset"]
+VIS_EDGES = (0.0, 1e-9, 0.25, 0.5, 0.75, 1.0 + 1e-9)
+VIS_LABELS = ("0", "(0, .25)", "[.25, .5)", "[.5, .75)", "[.75, 1]")
+FLAT_DEG = 20.0
+
+
+def pile_stats(root: Path) -> dict[str, float | list[float]]:
+    """The piles of one IPA dataset folder: scenes, parts per scene, the visibility histogram of every
+    part of every scene (bins :data:`VIS_LABELS`), and over the full piles (the last scene of every
+    cycle), in the bin's frame: the pile height (highest part origin above the floor, and the mean),
+    the share of parts lying flat (the thinnest bounding-box axis within :data:`FLAT_DEG` of the
+    vertical) and the share fully hidden."""
+    from opnet.datasets.ipa import IPADataset, read_ipa_csv, scene_paths
+    from opnet.objects import object_from_config
+    from opnet.synthesis.layout import homogeneous, inverse_pose
+
+    ds = IPADataset(root)
+    obj = object_from_config(json.loads((root / "object.json").read_text()))
+    thin_axis = np.eye(3)[int(np.argmin(obj.mesh.extents))]
+    scenes = ds.scenes()
+    last = max(n for _, n in scenes)
+    vis_all, counts, heights, mean_heights, flat, hidden = [], [], [], [], [], []
+    for cycle, n in scenes:
+        gt = read_ipa_csv(scene_paths(root, cycle, n)["csv"])
+        vis_all.append(gt.visibility_o)
+        counts.append(n)
+        if n != last or n == 0:
+            continue
+        T_bin_cam = inverse_pose(homogeneous(gt.R_cam_bin, gt.t_cam_bin))
+        R_bin_obj = T_bin_cam[:3, :3] @ gt.R_cam_obj
+        z = gt.t_cam_obj @ T_bin_cam[:3, :3].T[:, 2] + T_bin_cam[2, 3]
+        heights.append(z.max())
+        mean_heights.append(z.mean())
+        up = np.abs((R_bin_obj @ thin_axis)[:, 2])
+        flat.append(np.mean(up >= np.cos(np.radians(FLAT_DEG))))
+        hidden.append(np.mean(gt.visibility_o == 0))
+    vis = np.concatenate(vis_all)
+    hist, _ = np.histogram(vis, bins=VIS_EDGES)
+    return {
+        "scenes": len(scenes), "parts_per_scene": float(np.mean(counts)), "full_piles": len(heights),
+        "vis_hist": (hist / max(len(vis), 1)).tolist(),
+        "height_max_mm": 1e3 * float(np.mean(heights)), "height_max_sd_mm": 1e3 * float(np.std(heights)),
+        "height_mean_mm": 1e3 * float(np.mean(mean_heights)),
+        "flat": float(np.mean(flat)), "hidden": float(np.mean(hidden)),
+    }
+
+
+__all__ = ["FLAT_DEG", "VIS_EDGES", "VIS_LABELS", "depth_image", "noisy_setup", "pile_stats", "scene_overrides",
+           "scene_preset"]

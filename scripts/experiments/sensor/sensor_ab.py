@@ -1,6 +1,6 @@
 """2 x 2 A/B of the depth-sensor model: train on ideal vs sensor-model depth, test on both.
 
-    python scripts/sensor_ab.py [--work outputs/sensor_ab] [--sensor structured_light]
+    python scripts/experiments/sensor/sensor_ab.py [--work outputs/sensor_ab] [--sensor structured_light]
         [--object shaft] [--out results/sensor] [train.py overrides ...]
 
 Both arms are the README's quickstart recipe (``train.py experiment=quickstart``: same object,
@@ -15,31 +15,22 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from opnet.paths import REPO_ROOT
+from opnet.studies import read_summary, run_logged, run_train
+
 TEST_SEED = 1
-
-
-def run_logged(args: list[str], env: dict[str, str], log: Path) -> None:
-    """``python <args>`` in the repository, output to ``log``; exits naming the log on failure."""
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "w") as f:
-        proc = subprocess.run([sys.executable, *args], cwd=REPO, env=env, stdout=f, stderr=subprocess.STDOUT)
-    if proc.returncode:
-        raise SystemExit(f"{' '.join(args)} failed (exit {proc.returncode}); see {log}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--work", type=Path, default=REPO / "outputs" / "sensor_ab")
+    ap.add_argument("--work", type=Path, default=REPO_ROOT / "outputs" / "sensor_ab")
     ap.add_argument("--sensor", default="structured_light")
     ap.add_argument("--object", default="shaft")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "sensor")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "sensor")
     ap.add_argument("--test-cycles", type=int, default=15)
     args, overrides = ap.parse_known_args()
     work = args.work.resolve()
@@ -51,9 +42,9 @@ def main() -> None:
         out = work / f"test_{s}"
         if not (out / "generation.json").exists() or not any((out / "gt").glob("cycle_*")):
             print(f"generating the held-out test set ({s}) ...", flush=True)
-        run_logged(["generate.py", f"object={args.object}", f"cycles={args.test_cycles}", "drops=10", "workers=2",
+        run_logged([sys.executable, "generate.py", f"object={args.object}", f"cycles={args.test_cycles}", "drops=10", "workers=2",
               f"seed={TEST_SEED}", "scene.resolution=256", f"sensor={s}", f"out={out}", "progress=false"],
-             env, work / "logs" / f"generate_test_{s}.log")  # completes or confirms an existing set
+             work / "logs" / f"generate_test_{s}.log", env=env)  # completes or confirms an existing set
         tests[s] = out
 
     models = {}
@@ -61,8 +52,8 @@ def main() -> None:
         run_dir = work / f"run_{s}"
         if not (run_dir / "test" / "summary.json").exists():
             print(f"training the {s} arm (quickstart recipe) ...", flush=True)
-            run_logged(["train.py", "experiment=quickstart", f"object={args.object}", f"sensor={s}",
-                  f"hydra.run.dir={run_dir}", "example_predictions=0", *overrides], env, work / "logs" / f"train_{s}.log")
+            run_train(["experiment=quickstart", f"object={args.object}", f"sensor={s}", "example_predictions=0",
+                       *overrides], run_dir, work / "logs" / f"train_{s}.log", env=env)
         best = sorted((run_dir / "checkpoints").glob("epoch*.ckpt"))
         if not best:
             raise SystemExit(f"{run_dir}/checkpoints: no epoch*.ckpt")
@@ -74,9 +65,9 @@ def main() -> None:
             out = work / f"eval_{train_s}_on_{test_s}"
             if not (out / "summary.json").exists():
                 print(f"scoring the {train_s} model on {test_s} test scenes ...", flush=True)
-                run_logged(["eval.py", f"ckpt={models[train_s]}", f"data.test_root={tests[test_s]}", f"out={out}",
-                      "examples=0"], env, work / "logs" / f"eval_{train_s}_on_{test_s}.log")
-            summary = json.loads((out / "summary.json").read_text())
+                run_logged([sys.executable, "eval.py", f"ckpt={models[train_s]}", f"data.test_root={tests[test_s]}",
+                            f"out={out}", "examples=0"], work / "logs" / f"eval_{train_s}_on_{test_s}.log", env=env)
+            summary = read_summary(out, ".")
             diag = summary.get("diagnostics", {})
             rows.append({"train_sensor": train_s, "test_sensor": test_s, "ap": round(summary["ap"], 4),
                          "map": round(summary["map"], 4),

@@ -1,6 +1,6 @@
 """ICP refinement A/B: the same network outputs scored without and with ICP.
 
-    python scripts/icp_ab.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/<best>.ckpt \\
+    python scripts/experiments/verification/icp_ab.py --ckpt outputs/table1/ap_bunny_s0/checkpoints/<best>.ckpt \\
         [--ckpt ...] [--split test] [--budget-ms 100 none] [--search] [--decoding averaging=false] \\
         [--data test_root=<dataset> --data cache=false] [--out results/icp]
 
@@ -42,8 +42,7 @@ from opnet.evaluation import predict_scenes  # noqa: E402
 from opnet.geometry.icp import ICPSettings, settings_from_config  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.diagnostics import scene_outcomes  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
+from opnet.paths import REPO_ROOT
 
 
 def budgets(values: list[str]) -> list[float | None]:
@@ -92,7 +91,7 @@ def search_variant(text: str) -> tuple[str, ICPSettings]:
     """``LABEL:KEY=VALUE[,KEY=VALUE...]`` -> (label, conf/refine/search.yaml with ``icp.KEY`` / ``search.KEY``
     overridden); ValueError naming the option for anything else."""
     label, _, pairs = text.partition(":")
-    conf = OmegaConf.load(REPO / "conf" / "refine" / "search.yaml")
+    conf = OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml")
     try:
         for pair in filter(None, re.split(r",(?![^\[]*\])", pairs)):  # a list value keeps its commas
             key, value = pair.split("=", 1)
@@ -130,12 +129,12 @@ def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search
     shown = ",".join(f"{k}={v}" for k, v in (decoding or {}).items()) or "as trained"
     rows = [{"run": name, "object": obj.name, "decoding": shown, "refine": "none", "scenes": len(scenes),
              **score(scenes, obj, max_occ)}]  # fmt: skip
-    base = dict(OmegaConf.to_container(OmegaConf.load(REPO / "conf" / "refine" / "icp.yaml"))["icp"])
+    base = dict(OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "icp.yaml"))["icp"])
     arms: list[tuple[str, ICPSettings]] = [
         ("icp, no budget" if b is None else f"icp, {b:g} ms budget", ICPSettings.from_config({**base, "budget_ms": b}))
         for b in budget_list]  # fmt: skip
     if search:
-        arms.append(("icp + search", settings_from_config(OmegaConf.load(REPO / "conf" / "refine" / "search.yaml"))))
+        arms.append(("icp + search", settings_from_config(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))))
     arms += [(f"icp + search, {label}", settings) for label, settings in variants]
     for label, settings in arms:
         refined = copy.deepcopy(scenes)
@@ -175,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="also the search with conf/refine/search.yaml's icp.KEY / search.KEY overridden")
     parser.add_argument("--overridden-only", action="store_true",
                         help="with --decoding: only the rows of the overridden decoding")
-    parser.add_argument("--out", type=Path, default=REPO / "results" / "icp")
+    parser.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "icp")
     args = parser.parse_args(argv)
     try:
         budget_list = budgets(args.budget_ms)
@@ -198,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     writer.writeheader()
     writer.writerows(rows)
     (args.out / "ab.csv").write_text(buf.getvalue())
-    (args.out / "command.txt").write_text("python scripts/icp_ab.py " + " ".join(sys.argv[1:] if argv is None else argv) + "\n")
+    (args.out / "command.txt").write_text("python scripts/experiments/verification/icp_ab.py " + " ".join(sys.argv[1:] if argv is None else argv) + "\n")
     return 0
 
 

@@ -7,9 +7,9 @@ search, on held-out generated piles of three parts (milliseconds per frame besid
 - IPD plates (auto: turn): the shipped plate model on the cell study's full-resolution test piles with the
   basket where its training put it (``scripts/cells.py``), the scenes with at least 8 plates, its box.
 
-    python scripts/verify_ab.py            # generate the dense piles, run the arms: results/verification/
+    python scripts/experiments/verification/verify_ab.py            # generate the dense piles, run the arms: results/verification/
 
-Each part's arms come from ``scripts/icp_ab.py`` (its command is in the table); the search's present settings
+Each part's arms come from ``scripts/experiments/verification/icp_ab.py`` (its command is in the table); the search's present settings
 (``conf/refine/search.yaml``) and, for the plates, the earlier ones (every decoded hypothesis searched, the
 depth at full resolution) beside them.
 """
@@ -24,17 +24,15 @@ from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
+from opnet.paths import REPO_ROOT
+from opnet.studies import run_logged
 
-from opnet.studies import run_logged  # noqa: E402
-
-DENSE_SCENE = {"camera_file": str(REPO / "conf" / "cameras" / "sileane_bunny.yaml"), "camera_file_clip": "true",
+DENSE_SCENE = {"camera_file": str(REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"), "camera_file_clip": "true",
                "camera_height": 1.5, "views": 2, "camera_jitter_m": 0.03, "camera_jitter_deg": 3.0,
                "bin_jitter_m": 0.03, "bin_jitter_deg": 15.0}  # fmt: skip
-PLATE_TEST = REPO / "outputs" / "data" / "cells" / "test_trained_c12"
+PLATE_TEST = REPO_ROOT / "outputs" / "data" / "cells" / "test_trained_c12"
 #: the cell study's validation piles (the basket anywhere in the working area; scripts/cells.py)
-CELL_VALIDATION = REPO / "outputs" / "data" / "cells" / "val_c6"
+CELL_VALIDATION = REPO_ROOT / "outputs" / "data" / "cells" / "val_c6"
 PARTS = ("bunny", "ring_screw", "ipd_plate", "cell_plate")
 #: how a part's rows are named in the table (the object's name otherwise)
 LABELS = {"cell_plate": "ipd_plate, cell model, validation piles"}
@@ -66,9 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS)
     ap.add_argument("--piles", type=int, default=3)
-    ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "verify")
-    ap.add_argument("--runs", type=Path, default=REPO / "outputs" / "verify")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "verification")
+    ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "verify")
+    ap.add_argument("--runs", type=Path, default=REPO_ROOT / "outputs" / "verify")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "verification")
     ap.add_argument("--report", action="store_true", help="only re-make --out from the runs")
     args = ap.parse_args(argv)
     for part, folder in (("ipd_plate", PLATE_TEST), ("cell_plate", CELL_VALIDATION)):
@@ -85,14 +83,14 @@ def main(argv: list[str] | None = None) -> int:
                         f"cycles={2 * args.piles}", "drops=75", "workers=1", "seed=11", f"out={out}", "progress=false",
                         "previews=1", *(f"scene.{k}={v}" for k, v in DENSE_SCENE.items())],
                        args.runs / f"generate_{part}.log")  # fmt: skip
-        run_logged([sys.executable, "scripts/icp_ab.py", *arms(args.data_dir)[part], f"--out={args.runs / part}"],
+        run_logged([sys.executable, "scripts/experiments/verification/icp_ab.py", *arms(args.data_dir)[part], f"--out={args.runs / part}"],
                    args.runs / f"ab_{part}.log")
     rows = []
     for part in PARTS:  # every part run so far, whichever --parts this call ran
         table = args.runs / part / "ab.csv"
         if table.is_file():
             command = (args.runs / part / "command.txt").read_text().strip()
-            command = command.replace(str(REPO) + "/", "")
+            command = command.replace(str(REPO_ROOT) + "/", "")
             rows += [{**r, "object": LABELS.get(part, r["object"]), "command": command}
                      for r in csv.DictReader(table.open())]
     fields = ["object", "decoding", "refine", "scenes", "ap", "found", "t_mm_p50", "r_deg_p50", "icp_ms_per_image",
@@ -104,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         w.writerows(rows)
     num = lambda v, f="{:.3f}": "" if v in ("", None) else f.format(float(v))  # noqa: E731
     lines = ["# Verification A/B: decoded, ICP, depth-agreement search", "",
-             "Made by `python scripts/verify_ab.py` (one part at a time: `--parts <part>`; `--report` re-makes this page)"
+             "Made by `python scripts/experiments/verification/verify_ab.py` (one part at a time: `--parts <part>`; `--report` re-makes this page)"
              " on this 2-core CPU (other jobs may have shared it: the milliseconds are an upper bound). Held-out "
              f"generated piles: bunny and ring screw {args.piles} piles x 2 views of 75 parts made with "
              "`sensor=structured_light` (the shipped dense models trained on ideal depth), scenes with >= 70 parts; "

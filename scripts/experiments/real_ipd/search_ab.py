@@ -1,13 +1,13 @@
 """The depth-agreement search, step by step, on the real IPD frames.
 
-    python scripts/search_ab.py outputs/real_ipd/run_D outputs/real_ipd/run_D_s1 outputs/real_ipd/run_D_s2 \\
+    python scripts/experiments/real_ipd/search_ab.py outputs/real_ipd/run_D outputs/real_ipd/run_D_s1 outputs/real_ipd/run_D_s2 \\
         [--generated results/real_ipd/search_ab_generated/ab.csv] [--out results/real_ipd/search_ab.md]
 
-Each run folder of ``scripts/real_ipd.py`` (one training seed each) is scored on the three real frames
+Each run folder of ``scripts/experiments/real_ipd/real_ipd.py`` (one training seed each) is scored on the three real frames
 (official ``visib_fract``, its region of interest and clip planes) by ``eval.py`` with each arm's
 overrides, from the network alone to ``refine=search +decoding.averaging=false`` (the recipe): what
 each step of the search is worth, mean ± sd over the runs. ``--generated`` adds the table that
-``scripts/icp_ab.py --search`` wrote for held-out generated piles (the same refinements on 240
+``scripts/experiments/verification/icp_ab.py --search`` wrote for held-out generated piles (the same refinements on 240
 scenes of another generation seed). ``VARIANTS`` (the recipe with one change each, measured and not
 adopted) follow the arms; ``--generated-run RUN`` also scores the recipe and its variants on RUN's own
 held-out generated piles (made once, reused). Writes ``--out`` and prints it; ``--report`` re-makes it
@@ -18,17 +18,15 @@ from __future__ import annotations
 
 import argparse
 import csv
-import importlib.util
 import json
 import os
 import statistics
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("real_ipd", REPO / "scripts" / "real_ipd.py")
-real_ipd = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(real_ipd)
+from opnet.paths import REPO_ROOT, best_checkpoint
+from opnet.studies import mean_sd_text, run_logged
+from opnet.studies.ipd import CLIP, FRAMES, ROI, evaluate, run_info
 
 #: (name, what it changes, eval.py overrides); each arm adds to the one before unless it says otherwise
 ARMS = [
@@ -55,7 +53,7 @@ VARIANTS = [
 
 def score(run: Path, overrides: list[str], out: Path) -> dict:
     """A run's best checkpoint on the real frames with one arm's eval.py overrides."""
-    return real_ipd.evaluate(real_ipd.best_checkpoint(run), real_ipd.FRAMES / "test", out, real_ipd.ROI, real_ipd.CLIP,
+    return evaluate(best_checkpoint(run), FRAMES / "test", out, ROI, CLIP,
                              overrides, examples=0)  # fmt: skip
 
 
@@ -67,8 +65,8 @@ def generated_split(run: Path, arms: list[tuple[str, str, list[str]]]) -> list[s
     for name, _, overrides in arms:
         out = run / "search_ab" / f"generated_{name}"
         if not (out / "summary.json").is_file():
-            real_ipd.run([sys.executable, "eval.py", f"ckpt={real_ipd.best_checkpoint(run)}", "+data.cache=false",
-                          f"out={out}", "examples=0", *overrides], out.with_suffix(".log"))  # fmt: skip
+            run_logged([sys.executable, "eval.py", f"ckpt={best_checkpoint(run)}", "+data.cache=false",
+                        f"out={out}", "examples=0", *overrides], out.with_suffix(".log"))  # fmt: skip
         summary = json.loads((out / "summary.json").read_text())
         d = summary["diagnostics"]
         lines.append(f"| {name} | `{' '.join(overrides)}` | {summary['scenes']} | {summary['ap']:.3f} | "
@@ -91,30 +89,30 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--generated", type=Path, default=None)
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "real_ipd" / "search_ab.md")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "real_ipd" / "search_ab.md")
     ap.add_argument("--report", action="store_true", help="re-make the page from the evaluations already made")
     ap.add_argument("--generated-run", type=Path, default=None,
                     help="also score the recipe and its variants on this run's held-out generated piles")
     args = ap.parse_args(argv)
     for run in args.runs:
         if not (run / "checkpoints").is_dir():
-            print(f"error: {run}: not a run folder of scripts/real_ipd.py (no checkpoints/)", file=sys.stderr)
+            print(f"error: {run}: not a run folder of scripts/experiments/real_ipd/real_ipd.py (no checkpoints/)", file=sys.stderr)
             return 2
     if args.generated_run is not None and not (args.generated_run / "checkpoints").is_dir():
-        print(f"error: --generated-run {args.generated_run}: not a run folder of scripts/real_ipd.py", file=sys.stderr)
+        print(f"error: --generated-run {args.generated_run}: not a run folder of scripts/experiments/real_ipd/real_ipd.py", file=sys.stderr)
         return 2
     if args.generated is not None and not args.generated.is_file():
-        print(f"error: --generated {args.generated}: no such file (scripts/icp_ab.py --search writes it)", file=sys.stderr)
+        print(f"error: --generated {args.generated}: no such file (scripts/experiments/verification/icp_ab.py --search writes it)", file=sys.stderr)
         return 2
     runs = [r.resolve() for r in args.runs]
-    seeds = [real_ipd.run_info(r)[0] for r in runs]
+    seeds = [run_info(r)[0] for r in runs]
     lines = ["# The depth-agreement search on the real IPD frames, step by step", "",
-             f"Made by `python scripts/search_ab.py {' '.join(os.path.relpath(r, REPO) for r in runs)}"
-             + (f" --generated {os.path.relpath(args.generated, REPO)}" if args.generated else "")
-             + (f" --generated-run {os.path.relpath(args.generated_run.resolve(), REPO)}" if args.generated_run else "")
+             f"Made by `python scripts/experiments/real_ipd/search_ab.py {' '.join(os.path.relpath(r, REPO_ROOT) for r in runs)}"
+             + (f" --generated {os.path.relpath(args.generated, REPO_ROOT)}" if args.generated else "")
+             + (f" --generated-run {os.path.relpath(args.generated_run.resolve(), REPO_ROOT)}" if args.generated_run else "")
              + "`. "
              "Each arm adds to the one before (unless it says otherwise); every run is one training seed of "
-             "`scripts/real_ipd.py` (the same generated data), scored on the three real frames with the official "
+             "`scripts/experiments/real_ipd/real_ipd.py` (the same generated data), scored on the three real frames with the official "
              "`visib_fract` (AP: Brégier, max occlusion 0.5; found: plates matched of the 15 to find).", "",
              "| arm | what changes | eval.py overrides | " + " | ".join(f"AP seed {s}" for s in seeds)
              + " | **AP mean ± sd** | found % mean |", "|" + "---|" * (5 + len(runs))]
@@ -129,22 +127,21 @@ def main(argv: list[str] | None = None) -> int:
             aps.append(summary["ap"])
             found.append(100 * summary["diagnostics"]["matched"] / max(summary["diagnostics"]["to_find"], 1))
             print(f"{run.name} {name}: AP {aps[-1]:.3f}", flush=True)
-        sd = statistics.stdev(aps) if len(aps) > 1 else 0.0
         label = f"variant {name}" if (name, change, overrides) in VARIANTS else name
         lines.append(f"| {label} | {change} | `{' '.join(overrides) or '(none)'}` | " + " | ".join(f"{a:.3f}" for a in aps)
-                     + f" | **{statistics.mean(aps):.3f} ± {sd:.3f}** | {statistics.mean(found):.1f} |")
+                     + f" | **{mean_sd_text(aps)}** | {statistics.mean(found):.1f} |")
     lines += ["", "The variants are measured, not adopted: the recipe changes only where held-out generated piles "
               "support it (`--generated-run`), since the three frames above are the test."]
     if args.generated_run is not None:
         run = args.generated_run.resolve()
-        lines += ["", f"The recipe and its variants on the held-out generated piles of `{os.path.relpath(run, REPO)}` "
+        lines += ["", f"The recipe and its variants on the held-out generated piles of `{os.path.relpath(run, REPO_ROOT)}` "
                   "(its test split: another generation seed, at the dataset's own resolution):", "",
                   *generated_split(run, ARMS[-1:] + VARIANTS)]
     if args.generated is not None:
         command = args.generated.parent / "command.txt"
-        made_by = f"`{command.read_text().strip()}`" if command.is_file() else "`scripts/icp_ab.py --search`"
+        made_by = f"`{command.read_text().strip()}`" if command.is_file() else "`scripts/experiments/verification/icp_ab.py --search`"
         lines += ["", "On held-out generated piles (another generation seed, refined at the dataset's own resolution; "
-                  f"`{os.path.relpath(args.generated, REPO)}`, written by {made_by}); the milliseconds were measured "
+                  f"`{os.path.relpath(args.generated, REPO_ROOT)}`, written by {made_by}); the milliseconds were measured "
                   "on 2 cores while other evaluations shared them:", "", *generated_table(args.generated)]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")

@@ -1,13 +1,13 @@
 """MuJoCo against pybullet: the same piles? how fast?
 
-    python scripts/bench_physics.py --objects bunny,ring_screw --cycles 4 --out results/physics/ab.md
+    python scripts/bench/bench_physics.py --objects bunny,ring_screw --cycles 4 --out results/physics/ab.md
 
 Per object and engine, the same dataset settings and seed (Siléane-like bulk piles of 75 parts seen
 by the Siléane bunny camera, 1.5 m above the floor; ``--scene``, ``--drops``, ``--camera-file``
 change that): the time one pile's physics takes in this process (the mean over ``--piles``
 piles: the engines alone), then a dataset of ``--cycles`` cycles generated with ``--workers``
 workers (scenes/s of the whole generator: physics, rendering, writing), and the pile statistics of
-:mod:`pile_stats` on it (parts per scene, visibility histogram, pile height, share lying flat and
+:func:`opnet.studies.scenes.pile_stats` on it (parts per scene, visibility histogram, pile height, share lying flat and
 fully hidden). Each engine uses its own convex decomposition of concave parts (MuJoCo: CoACD;
 pybullet: its V-HACD); their part counts are in the table. The datasets are kept under ``--keep``.
 """
@@ -21,12 +21,8 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from pile_stats import VIS_LABELS, pile_stats  # noqa: E402
-
 from opnet.cli.evaluate import resolve_object  # noqa: E402
-from opnet.studies.scenes import scene_overrides, scene_preset  # noqa: E402
+from opnet.studies.scenes import VIS_LABELS, pile_stats, scene_overrides, scene_preset
 from opnet.synthesis import SceneConfig, generate_dataset  # noqa: E402
 from opnet.synthesis.collision import build_collision_model, convex_parts  # noqa: E402
 from opnet.synthesis.cycle import cycle_rngs  # noqa: E402
@@ -99,7 +95,7 @@ def main() -> None:
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         tmp = args.out.with_name(args.out.name + ".tmp")
-        tmp.write_text(f"Command: `python scripts/bench_physics.py {' '.join(sys.argv[1:])}`\n\n{text}\n")
+        tmp.write_text(f"Command: `python scripts/bench/bench_physics.py {' '.join(sys.argv[1:])}`\n\n{text}\n")
         os.replace(tmp, args.out)
 
 

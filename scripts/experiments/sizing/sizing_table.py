@@ -1,8 +1,8 @@
 """The recipes sized to the part: bin, drops, camera, clip planes and the piles they make, from a
 15 mm pin to a 450 mm shaft (results/sizing/README.md).
 
-    python scripts/sizing_table.py --generate            # make the piles (outputs/sizing/), then the table
-    python scripts/sizing_table.py --out results/sizing  # the table of what is there
+    python scripts/experiments/sizing/sizing_table.py --generate            # make the piles (outputs/sizing/), then the table
+    python scripts/experiments/sizing/sizing_table.py --out results/sizing  # the table of what is there
 
 Each part is generated with a recipe's own generator settings, as ``train.py experiment=<recipe>``
 would (conf/experiment/quickstart.yaml: scene=train, 10 drops; conf/experiment/dense.yaml: the bulk
@@ -14,7 +14,7 @@ scaled (``object.mesh_scale``) so that D, as opnet measures it (the object's dia
 size named. Per dataset: D, the bin (inner side, wall height), drops, camera height, clip planes,
 D in pixels on the floor (written image; at the 128-pixel network input), seconds per pile
 (generation log: wall time after start-up over piles simulated), start-up seconds (imports, the
-convex decomposition on a cache miss), re-drops and unsettled drops, and scripts/pile_stats.py's
+convex decomposition on a cache miss), re-drops and unsettled drops, and scripts/bench/pile_stats.py's
 pile statistics.
 """
 
@@ -28,14 +28,10 @@ import re
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
-sys.path.insert(0, str(REPO / "scripts"))
-
-from pile_stats import VIS_LABELS, pile_stats
-from sensor_ab import run_logged
-
 from opnet.objects import builtin_object, object_from_config
+from opnet.paths import REPO_ROOT
+from opnet.studies import run_logged
+from opnet.studies.scenes import VIS_LABELS, pile_stats
 from opnet.synthesis import SceneConfig
 from opnet.synthesis.layout import make_rig
 
@@ -140,7 +136,7 @@ def markdown(rows: list[dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--work", type=Path, default=REPO / "outputs" / "sizing")
+    ap.add_argument("--work", type=Path, default=REPO_ROOT / "outputs" / "sizing")
     ap.add_argument("--generate", action="store_true", help="generate the missing datasets first")
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=list(PARTS))
     ap.add_argument("--recipes", nargs="+", default=["quickstart", "dense", "dense_sized"], choices=list(RECIPES))
@@ -154,8 +150,7 @@ def main() -> None:
             root, log = work / f"{part}_{recipe}", work / f"{part}_{recipe}.log"
             if args.generate and not LOG_LINE.search(log.read_text() if log.exists() else ""):
                 cmd = generate_command(part, recipe, work)
-                print("python " + " ".join(cmd), flush=True)
-                run_logged(cmd, env, log)
+                run_logged([sys.executable, *cmd], log, env=env)
             if (root / "generation.json").exists():
                 rows.append(row(root))
                 print(markdown(rows[-1:]).splitlines()[-1], flush=True)

@@ -1,8 +1,8 @@
 """The real-frame recipe: train on generated piles of IPD object 18 seen as the IPD Photoneo
 sees them, then score the three real frames of ``../shared/data/ipd_real_obj18`` with their ground truth.
 
-    python scripts/real_ipd.py                       # generate, train, evaluate: results/real_ipd/
-    python scripts/real_ipd.py --stage eval          # re-score the trained model only
+    python scripts/experiments/real_ipd/real_ipd.py                       # generate, train, evaluate: results/real_ipd/
+    python scripts/experiments/real_ipd/real_ipd.py --stage eval          # re-score the trained model only
 
 What a user with their own cell would do, step by step (each step is a command of the framework):
 
@@ -31,8 +31,8 @@ What a user with their own cell would do, step by step (each step is a command o
 
 Writes ``README.md``, ``real_ipd.csv`` and the overlays of the three frames to ``--out``.
 
-    python scripts/real_ipd.py --ab results/real_ipd/ab   # the A/B table of the arms kept there
-    python scripts/real_ipd.py --seeds RUN_DIR ...        # results/real_ipd/seeds.md: runs, mean ± sd
+    python scripts/experiments/real_ipd/real_ipd.py --ab results/real_ipd/ab   # the A/B table of the arms kept there
+    python scripts/experiments/real_ipd/real_ipd.py --seeds RUN_DIR ...        # results/real_ipd/seeds.md: runs, mean ± sd
 
 ``--ab DIR`` writes ``DIR/../ab.md``: one line per arm (a subfolder of ``DIR`` holding the
 ``README.md`` and ``real_ipd.csv`` a run of this script wrote, and a one-line ``change.txt``, in
@@ -55,18 +55,10 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
+from opnet.paths import REPO_ROOT, best_checkpoint
+from opnet.studies import run_logged, run_train
+from opnet.studies.ipd import CLIP, FRAMES, OBJECT_ID, ROI, SEARCH_DECODING, evaluate, run_info
 
-from opnet.paths import best_checkpoint, shared_dir  # noqa: E402
-from opnet.studies import run_logged  # noqa: E402
-
-FRAMES = shared_dir() / "data" / "ipd_real_obj18"
-OBJECT_ID = 18
-#: the region of interest (pixels of the 2064 x 1544 frames) around the basket, found from the frames'
-#: depth alone, and the working clip planes around it (metres)
-ROI = [560, 230, 1250, 1160]
-CLIP = [1.55, 2.05]
 #: the pose of the camera over the basket floor, measured from the frames' ground truth
 #: (python -m opnet.synthesis.camera_pose ../shared/data/ipd_real_obj18/test --object-id 18)
 CAMERA_POSE = {"camera_height": 1.7748, "camera_tilt_deg": 19.86, "camera_azimuth_deg": -30.26}
@@ -83,17 +75,9 @@ BASKET = {"bin_inner": 0.3, "bin_inner_y": 0.65, "bin_wall_height": 0.1, "bin_wa
 HOLES = "0.012:0.018,0.016:0.021,0.02:0.026"
 #: the refinements each real frame is scored with (conf/refine/): none, ICP, ICP + depth-agreement search
 REFINEMENTS = ("none", "icp", "search")
-#: the search starts from every hypothesis the network decodes, not from their DBSCAN averages (an average
-#: of a right and a turned hypothesis is neither; measured: results/real_ipd/search_ab.md)
-SEARCH_DECODING = ["+decoding.averaging=false"]
 ROW_FIELDS = ("visibility", "refine", "frames", "required", "ap", "map", "found", "no_hypothesis", "position",
               "orientation", "confident_fp_per_frame", "t_err_mm_p50", "t_err_mm_p90", "r_err_deg_p50",
               "r_err_deg_p90", "ms_per_frame")  # fmt: skip
-
-
-def run(cmd: list[str], log: Path) -> None:
-    """A command of the framework, its console in ``log``; a failure names the log."""
-    run_logged(cmd, log, REPO)
 
 
 def roi_camera(roi: list[int], clip: list[float], out: Path) -> Path:
@@ -104,7 +88,7 @@ def roi_camera(roi: list[int], clip: list[float], out: Path) -> Path:
     x0, y0, x1, y1 = roi
     if not (0 <= x0 < x1 <= cam.width and 0 <= y0 < y1 <= cam.height):
         raise SystemExit(f"error: --roi {roi} is not a box inside the {cam.width} x {cam.height} frames")
-    text = (f"# the Photoneo camera of {FRAMES / 'camera_photoneo.yaml'} cropped to the box {roi} (scripts/real_ipd.py)\n"
+    text = (f"# the Photoneo camera of {FRAMES / 'camera_photoneo.yaml'} cropped to the box {roi} (scripts/experiments/real_ipd/real_ipd.py)\n"
             f"fx: {cam.fx!r}\nfy: {cam.fy!r}\ncx: {cam.cx - x0!r}\ncy: {cam.cy - y0!r}\n"
             f"width: {x1 - x0}\nheight: {y1 - y0}\nclip_start: {clip[0]!r}\nclip_end: {clip[1]!r}\n")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -117,17 +101,17 @@ def generate(camera: Path, out: Path, cycles: int, drops: int, views: int, seed:
     scene = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
              **({"clutter": clutter} if clutter else {}),
              **({"bin_hole_size": holes[0], "bin_hole_pitch": holes[1]} if holes else {})}
-    run([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", f"cycles={cycles}", f"drops={drops}",
-         "workers=2", f"seed={seed}", f"out={out}", "progress=false", "previews=4",
-         *(f"scene.{k}={v}" for k, v in scene.items())], logs / f"generate_{out.name}.log")  # fmt: skip
+    run_logged([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", f"cycles={cycles}", f"drops={drops}",
+                "workers=2", f"seed={seed}", f"out={out}", "progress=false", "previews=4",
+                *(f"scene.{k}={v}" for k, v in scene.items())], logs / f"generate_{out.name}.log")  # fmt: skip
 
 
 def train(train_roots: list[Path], test_root: Path, run_dir: Path, steps: int, extra: list[str]) -> None:
     root = str(train_roots[0]) if len(train_roots) == 1 else "[" + ",".join(map(str, train_roots)) + "]"
-    run([sys.executable, "train.py", "object=ipd_plate", "data=ipa", f"data.root={root}", "data.generate=null",
-         f"data.test_root={test_root}", "parameterization=eve", "augmentation.p_rotate=0.5",
-         f"trainer.max_steps={steps}", "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
-         *extra, f"hydra.run.dir={run_dir}"], run_dir / "console.log")  # fmt: skip
+    run_train(["object=ipd_plate", "data=ipa", f"data.root={root}", "data.generate=null", f"data.test_root={test_root}",
+               "parameterization=eve", "augmentation.p_rotate=0.5", f"trainer.max_steps={steps}",
+               "trainer.max_epochs=100000", "trainer.enable_progress_bar=false", *extra], run_dir,
+              run_dir / "console.log")  # fmt: skip
 
 
 def mask_visibility_split(out: Path) -> Path:
@@ -169,15 +153,6 @@ def mask_visibility_split(out: Path) -> Path:
     return out / "test"
 
 
-def evaluate(ckpt: Path, split: Path, out: Path, roi: list[int], clip: list[float], overrides: list[str],
-             examples: int = 3) -> dict[str, Any]:  # fmt: skip
-    """``eval.py`` of ``ckpt`` on a BOP split of the frames (ROI, clip planes, the dataset's own
-    resolution) with further ``overrides``; its summary."""
-    split = split.resolve()  # read whole as the test split (data.root too: nothing else is opened)
-    run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
-         f"+data.object_id={OBJECT_ID}", f"+data.roi=[{','.join(map(str, roi))}]", f"+data.clip=[{clip[0]},{clip[1]}]",
-         "+data.cache=false", f"out={out}", f"examples={examples}", *overrides], out.with_suffix(".log"))  # fmt: skip
-    return json.loads((out / "summary.json").read_text())
 
 
 def refine_overrides(refine: str) -> list[str]:
@@ -206,15 +181,15 @@ def ab_table(folder: Path) -> str:
     import re
 
     lines = ["# Real IPD frames: what each change of the recipe is worth", "",
-             "Each arm is one run of `scripts/real_ipd.py` (the command in the row; the same ROI, clip planes, camera "
+             "Each arm is one run of `scripts/experiments/real_ipd/real_ipd.py` (the command in the row; the same ROI, clip planes, camera "
              "pose, basket and 200 cycles x 2 views unless the row says otherwise), scored on the three real frames "
              "(official `visib_fract`) and on 240 generated scenes of another seed. Made by "
-             f"`python scripts/real_ipd.py --ab {os.path.relpath(folder, REPO)}`.", "",
+             f"`python scripts/experiments/real_ipd/real_ipd.py --ab {os.path.relpath(folder, REPO_ROOT)}`.", "",
              "| arm | what changes | command | generated piles AP | real AP | real AP, ICP | real AP, search | found % | "
              "no hypothesis % | position % |", "|---|---|---|---|---|---|---|---|---|---|"]
     for arm in sorted(p for p in folder.iterdir() if (p / "real_ipd.csv").is_file()):
         text = (arm / "README.md").read_text()
-        command = re.search(r"\(`(python scripts/real_ipd\.py[^`]*)`\)", text)
+        command = re.search(r"\(`(python scripts/experiments/real_ipd/real_ipd\.py[^`]*)`\)", text)
         synthetic = re.search(r"test split\): AP (\d\.\d+)", text)
         rows = {(r["visibility"], r["refine"]): r for r in csv.DictReader((arm / "real_ipd.csv").open())}
         plain, icp = rows[("official visib_fract", "none")], rows[("official visib_fract", "icp")]
@@ -230,16 +205,6 @@ def ab_table(folder: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_info(run: Path) -> tuple[str, str]:
-    """(training seed, parameterization name) of a run folder of train.py, from its logged
-    hyperparameters ('?' where they are not there)."""
-    import re
-
-    path = run / "tensorboard" / "hparams.yaml"
-    hp = path.read_text() if path.is_file() else ""
-    seed = re.search(r"^  seed: (\d+)$", hp, re.M)
-    param = re.search(r"parameterization:\n\s+_target_: opnet\.parameterizations\.\w+\.(\w+)Parameterization", hp)
-    return (seed.group(1) if seed else "?"), (param.group(1) if param else "?")
 
 
 SEED_FIELDS = ("run", "seed", "parameterization", "generated_ap", "real_ap", "real_ap_icp", "real_ap_search",
@@ -257,7 +222,7 @@ def seed_rows(runs: list[Path]) -> list[list[Any]]:
             folder = run / "eval_real" / f"official{'' if refine == 'none' else '_' + refine}"
             values.append(json.loads((folder / "summary.json").read_text())["ap"])
         d = json.loads((run / "eval_real" / "official_search" / "summary.json").read_text())["diagnostics"]
-        rows.append([os.path.relpath(run, REPO), seed, param, *values, 100 * d["matched"] / max(d["to_find"], 1)])
+        rows.append([os.path.relpath(run, REPO_ROOT), seed, param, *values, 100 * d["matched"] / max(d["to_find"], 1)])
     return rows
 
 
@@ -268,9 +233,9 @@ def seeds_table(runs: list[Path]) -> str:
     import numpy as np
 
     lines = ["# Real IPD frames: the recipe over several runs", "",
-             "Each row is one run of `scripts/real_ipd.py` (its run folder; the same generated data, another "
+             "Each row is one run of `scripts/experiments/real_ipd/real_ipd.py` (its run folder; the same generated data, another "
              "training seed), scored on the three real frames (official `visib_fract`) and on the generated piles "
-             f"of another seed. Made by `python scripts/real_ipd.py --seeds {' '.join(os.path.relpath(r, REPO) for r in runs)}`.",
+             f"of another seed. Made by `python scripts/experiments/real_ipd/real_ipd.py --seeds {' '.join(os.path.relpath(r, REPO_ROOT) for r in runs)}`.",
              "", "| run | seed | parameterization | generated piles AP | real AP | real AP, ICP | real AP, search | "
              "found %, search |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     table = []
@@ -295,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --seeds takes run folders of this script with their evaluations (eval_real/); "
                   f"{'none given' if not runs else 'not one: ' + ', '.join(missing)}", file=sys.stderr)
             return 2
-        out = REPO / "results" / "real_ipd" / "seeds.md"
+        out = REPO_ROOT / "results" / "real_ipd" / "seeds.md"
         out.write_text(seeds_table([r.resolve() for r in runs]))
         with (out.with_suffix(".csv")).open("w", newline="") as f:
             w = csv.writer(f)
@@ -326,9 +291,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra", nargs="*", default=[], help="further train.py overrides")
     ap.add_argument("--stage", choices=("all", "generate", "train", "eval", "report"), default="all",
                     help="report: only re-make --out from the evaluations already in --run-dir")
-    ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "real_ipd")
-    ap.add_argument("--run-dir", type=Path, default=REPO / "outputs" / "real_ipd" / "run")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "real_ipd")
+    ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "real_ipd")
+    ap.add_argument("--run-dir", type=Path, default=REPO_ROOT / "outputs" / "real_ipd" / "run")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "real_ipd")
     args = ap.parse_args(argv)
     given = args.holes
     try:
@@ -414,11 +379,11 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
         shutil.copyfile(png, out / f"overlay_{png.name}")
     pct = lambda x: f"{100 * x:.1f}"  # noqa: E731
     lines = ["# Real Photoneo frames of IPD object 18, scored with their ground truth", "",
-             f"The recipe of `scripts/real_ipd.py` (`python scripts/real_ipd.py {' '.join(_recipe_argv())}`): "
+             f"The recipe of `scripts/experiments/real_ipd/real_ipd.py` (`python scripts/experiments/real_ipd/real_ipd.py {' '.join(_recipe_argv())}`): "
              f"region of interest {args.roi}, clip planes {args.clip} m, {args.cycles} generated cycles "
              f"({args.views} views per pile, up to {args.drops} plates), {run_info(args.run_dir)[1]}, training seed "
              f"{run_info(args.run_dir)[0]}, {args.steps} steps; checkpoint "
-             f"`{os.path.relpath(ckpt, REPO)}`. AP: Brégier, max occlusion 0.5, over the three frames "
+             f"`{os.path.relpath(ckpt, REPO_ROOT)}`. AP: Brégier, max occlusion 0.5, over the three frames "
              "(the same six plates captured three times). Refinement: none, `refine=icp`, or `refine=search "
              "+decoding.averaging=false` (ICP and the depth-agreement search; the hypotheses then ranked by their "
              "agreement, so 'confident', score >= 0.5, means agreement >= 0.5 there).", "",
