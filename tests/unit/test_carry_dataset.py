@@ -1,4 +1,4 @@
-"""scripts/carry_dataset.py: a dataset packed and unpacked keeps every depth pixel and every other
+"""scripts/dev/carry_dataset.py: a dataset packed and unpacked keeps every depth pixel and every other
 file's bytes, and an archive cannot write outside the target folder."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("carry_dataset", REPO_ROOT / "scripts" / "carry_dataset.py")
+spec = importlib.util.spec_from_file_location("carry_dataset", REPO_ROOT / "scripts" / "dev" / "carry_dataset.py")
 carry = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(carry)
 

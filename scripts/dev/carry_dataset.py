@@ -1,8 +1,8 @@
 """Pack a dataset folder small enough to carry to another machine, and unpack it there, losslessly.
 
-    python scripts/carry_dataset.py pack <dataset folder> <archive.tar.xz>
-    python scripts/carry_dataset.py unpack <archive.tar.xz> <folder>
-    python scripts/carry_dataset.py verify <dataset folder> <archive.tar.xz>
+    python scripts/dev/carry_dataset.py pack <dataset folder> <archive.tar.xz>
+    python scripts/dev/carry_dataset.py unpack <archive.tar.xz> <folder>
+    python scripts/dev/carry_dataset.py verify <dataset folder> <archive.tar.xz>
 
 16-bit depth PNGs of piles compress poorly (deflate sees the bytes, not the surface): ``pack``
 stores each as its row differences (uint16, wrapping), which are near zero on smooth surfaces, and

@@ -5,9 +5,9 @@
 #      PYTHONPATH count), and opnet itself: nothing when it imports from this tree's src/ already (PYTHONPATH), else
 #      editable; the machine's own torch is kept (checked);
 #   2. the import, and the device tests (tests/unit/test_device_side.py, test_inference.py, test_bench_infer.py) on CUDA;
-#   3. scripts/bench_infer.py --device cuda: forward and end to end, batch 1 and 32, fp32 / bf16 / CUDA graph
+#   3. scripts/bench/bench_infer.py --device cuda: forward and end to end, batch 1 and 32, fp32 / bf16 / CUDA graph
 #      -> latency.csv (device, network, batch, precision, forward_ms, end_to_end_ms, ...) and infer.csv;
-#   4. scripts/bench_train.py: the training loop's images/s for experiment=paper against the network alone
+#   4. scripts/bench/bench_train.py: the training loop's images/s for experiment=paper against the network alone
 #      -> train_throughput.csv;
 #   5. the quickstart on existing data (train.py experiment=quickstart data=ipa ...) -> quickstart.csv (seconds, AP);
 #   6. table1, when a bunny dataset is there (BUNNY): the paper's Table I arms vanilla, eve, ap and si for the bunny
@@ -20,11 +20,11 @@
 # PyOpenGL, pybullet), which the GPU machine lacks: the dry run then shows that no step imports them.
 #
 # Usage (from the repository root):
-#   scripts/gpu_check.sh                 # the check (or the dry run without CUDA)
-#   scripts/gpu_check.sh prepare         # here, before carrying: download the missing wheels for CPython 3.12 into
+#   scripts/dev/gpu_check.sh                 # the check (or the dry run without CUDA)
+#   scripts/dev/gpu_check.sh prepare         # here, before carrying: download the missing wheels for CPython 3.12 into
 #                                        # $WHEELS (antlr4-python3-runtime built), generate the quickstart's dataset
 #                                        # and the bunny's where absent, pack and verify both into .carry/
-#                                        # (scripts/carry_dataset.py), and print what the call will carry
+#                                        # (scripts/dev/carry_dataset.py), and print what the call will carry
 # Environment: PYTHON (python3), WHEELS (.whl), DATA (the quickstart dataset: an IPA folder or a carry_dataset.py
 # archive; the dry run generates one when unset; prepare: the folder to pack, default the quickstart's own
 # outputs/data/shaft_c150_d10_s0_r256), BUNNY (the table1 dataset, folder or archive, default .carry/bunny.tar.xz when
@@ -45,7 +45,7 @@
 # Files written (at most 8, for $OUT): gpu_check.log (the tests' output included), summary.md, latency.csv,
 # infer.csv, train_throughput.csv, quickstart.csv, table1.csv. The exit status is the number of failed steps.
 set -uo pipefail
-cd "$(dirname "$0")/.." || exit 2
+cd "$(dirname "$0")/../.." || exit 2
 ROOT=$(pwd)
 PY=${PYTHON:-python3}
 WHEELS=${WHEELS:-.whl}
@@ -99,16 +99,16 @@ if [ "${1:-}" = "prepare" ]; then
         DATA=outputs/data/shaft_c150_d10_s0_r256
         generate "$DATA" object=shaft cycles=150 drops=10
     fi
-    $PY scripts/carry_dataset.py pack "$DATA" .carry/data.tar.xz
-    $PY scripts/carry_dataset.py verify "$DATA" .carry/data.tar.xz
+    $PY scripts/dev/carry_dataset.py pack "$DATA" .carry/data.tar.xz
+    $PY scripts/dev/carry_dataset.py verify "$DATA" .carry/data.tar.xz
     cycles=${BUNNY_CYCLES:-16}
     if [ "$cycles" != 0 ]; then
         if [ -z "$BUNNY" ]; then
             BUNNY=outputs/data/bunny_c${cycles}_d20_s0_r256
             generate "$BUNNY" object=bunny "cycles=$cycles" drops=20
         fi
-        $PY scripts/carry_dataset.py pack "$BUNNY" .carry/bunny.tar.xz
-        $PY scripts/carry_dataset.py verify "$BUNNY" .carry/bunny.tar.xz
+        $PY scripts/dev/carry_dataset.py pack "$BUNNY" .carry/bunny.tar.xz
+        $PY scripts/dev/carry_dataset.py verify "$BUNNY" .carry/bunny.tar.xz
         # the bunny's mesh is in ../shared, which does not travel: the table1 step names this copy
         mesh=$($PY -c "import json, sys; print(json.load(open(sys.argv[1]))['mesh'])" "$BUNNY/object.json")
         mkdir -p .carry/meshes
@@ -136,7 +136,7 @@ total = tree + sum(carried.values())
 parts = ", ".join(f"{d} {n / 2**20:.1f} MiB" for d, n in carried.items())
 print(f"travels: the working tree {tree / 2**20:.1f} MiB, {parts}: {total / 2**20:.1f} MiB of the 64 MiB of a call")
 EOF
-    echo "carry: $WHEELS .carry; run: DATA=.carry/data.tar.xz scripts/gpu_check.sh (table1: .carry/bunny.tar.xz, found)"
+    echo "carry: $WHEELS .carry; run: DATA=.carry/data.tar.xz scripts/dev/gpu_check.sh (table1: .carry/bunny.tar.xz, found)"
     exit 0
 fi
 
@@ -305,11 +305,11 @@ print('opnet from', opnet.__file__, '| torch', torch.__version__, '| cuda', torc
 if [ -z "$DATA" ] && [ "$MODE" = dry ]; then
     step generate 300 "$PY" generate.py object=shaft cycles=3 drops=4 scene.resolution=128 previews=0 progress=false \
         "out=$WORK/generated" hydra.run.dir="$WORK/hydra_generate"
-    step pack 60 "$PY" scripts/carry_dataset.py pack "$WORK/generated" "$WORK/data.tar.xz"
+    step pack 60 "$PY" scripts/dev/carry_dataset.py pack "$WORK/generated" "$WORK/data.tar.xz"
     DATA=$WORK/data.tar.xz
 fi
 if [ -n "$DATA" ] && [ -f "$DATA" ]; then
-    step unpack 120 "$PY" scripts/carry_dataset.py unpack "$DATA" "$WORK/data"
+    step unpack 120 "$PY" scripts/dev/carry_dataset.py unpack "$DATA" "$WORK/data"
     DATA=$WORK/data
 fi
 if [ -z "$DATA" ] || [ ! -d "$DATA" ]; then
@@ -324,12 +324,12 @@ step tests 150 "$PY" -m pytest -q -p no:cacheprovider tests/unit/test_device_sid
 # ---- 3. latency --------------------------------------------------------------------------------------------------
 DEVICE=cpu
 [ "$MODE" = gpu ] && DEVICE=cuda
-step latency 120 "$PY" scripts/bench_infer.py --device "$DEVICE" --model "$MODEL" --batches "$BATCHES" \
+step latency 120 "$PY" scripts/bench/bench_infer.py --device "$DEVICE" --model "$MODEL" --batches "$BATCHES" \
     --repeats "$REPEATS" --parameterizations "" --no-onnx --out "$DEST/infer.csv" --latency-out "$DEST/latency.csv"
 
 # ---- 4. training throughput and 5. the quickstart ---------------------------------------------------------------
 if [ -n "$DATA" ] && [ -d "$DATA" ]; then
-    step train_throughput 120 "$PY" scripts/bench_train.py --data "$DATA" --accelerator "$ACCEL" --arms "$ARM" \
+    step train_throughput 120 "$PY" scripts/bench/bench_train.py --data "$DATA" --accelerator "$ACCEL" --arms "$ARM" \
         --workers "$WORKERS" --steps "$STEPS" --warmup "$WARMUP" --network-alone --extra "${TRAIN_EXTRA[@]}" \
         --throughput-out "$DEST/train_throughput.csv"
     RUN=$WORK/quickstart
@@ -427,7 +427,7 @@ if [ -n "$BUNNY" ]; then
     MESH=$ROOT/.carry/meshes/SileaneBunny.obj
     [ -f "$MESH" ] || MESH=$(cd "$ROOT/.." && pwd)/shared/data/meshes/SileaneBunny.obj
     if [ -f "$BUNNY" ]; then
-        step unpack_bunny 120 "$PY" scripts/carry_dataset.py unpack "$BUNNY" "$WORK/bunny"
+        step unpack_bunny 120 "$PY" scripts/dev/carry_dataset.py unpack "$BUNNY" "$WORK/bunny"
         BUNNY=$WORK/bunny
     fi
     left=$((BUDGET_S - $(elapsed)))
@@ -450,7 +450,7 @@ fi
 if [ -n "${ARMS_DATA:-}" ]; then
     ARMS_OBJECT=${ARMS_OBJECT:?ARMS_OBJECT: the object of ARMS_DATA}
     if [ -f "$ARMS_DATA" ]; then
-        step unpack_arms 120 "$PY" scripts/carry_dataset.py unpack "$ARMS_DATA" "$WORK/arms_data"
+        step unpack_arms 120 "$PY" scripts/dev/carry_dataset.py unpack "$ARMS_DATA" "$WORK/arms_data"
         ARMS_DATA=$WORK/arms_data
     fi
     ARMS_RUNS=$WORK/arms
