@@ -39,7 +39,7 @@
 # BUDGET_S.
 #   7. arms, when ARMS_DATA is given: Table I of the object ARMS_OBJECT at the experiment=table1 budget (every
 #      parameterization x 3 seeds, 1350 steps each, ARMS_JOBS = 18 at once on the one GPU, each tuned on its validation
-#      split; scripts/table1.py --jobs) -> arms_<object>.tar.gz, which `scripts/table1.py --collect --runs-dir <the
+#      split; scripts/experiments/table1/table1.py --jobs) -> arms_<object>.tar.gz, which `scripts/experiments/table1/table1.py --collect --runs-dir <the
 #      unpacked folder> --objects <object>` turns into a table here.
 # ONLY="install unpack arms" (step names, a prefix before "_" included) runs just those steps.
 # Files written (at most 8, for $OUT): gpu_check.log (the tests' output included), summary.md, latency.csv,
@@ -443,7 +443,7 @@ if [ -n "$BUNNY" ]; then
     fi
 fi
 
-# ---- 7. arms: Table I of another object, experiment=table1 (scripts/table1.py), JOBS arms at once ------------------
+# ---- 7. arms: Table I of another object, experiment=table1 (scripts/experiments/table1/table1.py), JOBS arms at once ------------------
 # ARMS_DATA: the object's experiment=table1 dataset (a folder or a carry_dataset.py archive), ARMS_OBJECT its name;
 # its mesh under $OPNET_SHARED as the object's config names it. The arms' small files (configs, test summaries, tuned
 # decodings, learning curves, consoles) come back as arms_<object>.tar.gz.
@@ -469,7 +469,7 @@ if [ -n "${ARMS_DATA:-}" ]; then
         ARMS_PARAMS=${ARMS_PARAMS:-vanilla,si}
     fi
     # shellcheck disable=SC2086  # the seeds are words
-    step arms "$ARMS_S" "$PY" scripts/table1.py --objects "$ARMS_OBJECT" \
+    step arms "$ARMS_S" "$PY" scripts/experiments/table1/table1.py --objects "$ARMS_OBJECT" \
         --parameterizations "${ARMS_PARAMS:-vanilla,eve,ap,z,mp,si}" --seeds $ARMS_SEEDS --steps "$ARMS_STEPS" \
         --jobs "$ARMS_JOBS" --runs-dir "$ARMS_RUNS" --out "$WORK/arms_table" \
         --extra "data.root=$ARMS_DATA" data.generate=null example_predictions=0 "${ARMS_EXTRA[@]}"

@@ -163,7 +163,7 @@ def block_ab(results: Path, prefix: str = "") -> str:
 
 
 def block_table1(results: Path, prefix: str = "") -> str:
-    """Table I (scripts/table1.py): held-out test AP, mean ± sd over seeds, the paper's value in
+    """Table I (scripts/experiments/table1/table1.py): held-out test AP, mean ± sd over seeds, the paper's value in
     brackets; the decoding tuned per arm on its validation split where the table has it."""
     rows = _csv(results / "table1" / "table1.csv")
     decoding = "tuned on val" if any(r["decoding"] == "tuned on val" for r in rows) else "configured"

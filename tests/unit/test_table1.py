@@ -1,4 +1,4 @@
-"""scripts/table1.py: the request is checked, the arms are the grid, the table has the spread and the paper."""
+"""scripts/experiments/table1/table1.py: the request is checked, the arms are the grid, the table has the spread and the paper."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import yaml
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("table1", REPO_ROOT / "scripts" / "table1.py")
+spec = importlib.util.spec_from_file_location("table1", REPO_ROOT / "scripts" / "experiments" / "table1" / "table1.py")
 table1 = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(table1)
 

@@ -1,28 +1,28 @@
 """The paper's Table I on this machine: every parameterization x object x seed at one step budget.
 
-    python scripts/table1.py --objects bunny,ring_screw,gear_shaft --seeds 0 1 2 --steps 1350
-    python scripts/table1.py --collect            # only re-make results/table1/ from the finished runs
-    python scripts/table1.py --combine results/table1/vanilla_eve_ap results/table1/z_mp_si
+    python scripts/experiments/table1/table1.py --objects bunny,ring_screw,gear_shaft --seeds 0 1 2 --steps 1350
+    python scripts/experiments/table1/table1.py --collect            # only re-make results/table1/ from the finished runs
+    python scripts/experiments/table1/table1.py --combine results/table1/vanilla_eve_ap results/table1/z_mp_si
                                                   # one table from tables made at different times
 
 Each arm is ``python train.py experiment=table1 object=O parameterization=P seed=S
 trainer.max_steps=N`` in ``--runs-dir``/``P_O_sS`` (its console in ``console.log``); an arm whose
 ``test/summary.json`` exists is not run again, so an interrupted table resumes. Arms run one after
 another (they share the machine); ``--jobs K`` runs K at once, for a GPU that several arms share
-(``scripts/gpu_check.sh`` runs an object's arms that way on a lent GPU machine). Then ``--out`` (default ``results/table1/``) gets
+(``scripts/dev/gpu_check.sh`` runs an object's arms that way on a lent GPU machine). Then ``--out`` (default ``results/table1/``) gets
 ``README.md`` and ``table1.csv``: per object and parameterization the mean ± sample sd of the
 held-out test AP over the seeds, the share of required parts found and the median errors, and the
 paper's number beside it (Table I of Kleeberger et al., ICRA 2021: its bunny, pepper and T-LESS 20 are
 the Siléane ones, its ring screw and gear shaft the Fraunhofer IPA ones), plus the two acceptance checks (AP >= vanilla on
 two of three objects; EVE >= vanilla). The table comes twice: with the configured decoding (the
 settings tuned once on bunny-vanilla, ``decoding=tuned``), and with the decoding of each arm tuned on
-its own validation split (``scripts/tune_decoding.py``, cached in the arm's ``decoding_tuned.json``;
+its own validation split (``opnet-tune-decoding``, cached in the arm's ``decoding_tuned.json``;
 ``--no-tune`` skips it), then scored on the held-out test split.
 
 On a lent GPU machine (``results/table1/pepper_tless20``): each object's dataset is generated here
 (``python train.py experiment=table1 object=pepper trainer.max_steps=1 test=false``) and packed
-(``scripts/carry_dataset.py``); there ``ONLY="install import unpack arms" ARMS_DATA=<archive>
-ARMS_OBJECT=pepper ARMS_S=380 OPNET_SHARED=<a folder with the meshes> scripts/gpu_check.sh`` trains
+(``scripts/dev/carry_dataset.py``); there ``ONLY="install import unpack arms" ARMS_DATA=<archive>
+ARMS_OBJECT=pepper ARMS_S=380 OPNET_SHARED=<a folder with the meshes> scripts/dev/gpu_check.sh`` trains
 its 18 arms at once and brings back ``arms_pepper.tar.gz``; here ``--collect --runs-dir <unpacked>
 --objects pepper,tless20 --machine "<the GPU>"`` makes the table. ``ARMS_S`` also stops the arms'
 fitting 150 s before it ends (``trainer.max_time``): an arm stopped that way is marked in
@@ -57,12 +57,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "scripts"))
-
-import compare_runs  # noqa: E402
-
-from opnet.paths import best_checkpoint  # noqa: E402
+from opnet.paths import REPO_ROOT, best_checkpoint
+from opnet.studies import mean_sd, train_command
+from opnet.studies.sweeps import PAPER_ORDER, cell_text, collect, table
 
 #: Table I of the paper (OP-Net with L_ori1 is "vanilla"), on the objects opnet ships configs for
 PAPER = {
@@ -76,12 +73,12 @@ PAPER = {
 DEFAULT_STEPS = 1350
 #: the two decodings of every table, as its README names them
 DECODINGS = {"configured": "configured (`decoding=tuned`: the bunny-vanilla settings for every arm)",
-             "tuned on val": ("tuned per arm on its own validation split (`scripts/tune_decoding.py`; the test split "
+             "tuned on val": ("tuned per arm on its own validation split (`opnet-tune-decoding`; the test split "
                               "never seen by the tuning)")}
 
 
 def _names(folder: str) -> list[str]:
-    return sorted(p.stem for p in (REPO / "conf" / folder).glob("*.yaml"))
+    return sorted(p.stem for p in (REPO_ROOT / "conf" / folder).glob("*.yaml"))
 
 
 def _choice(text: str, known: list[str], flag: str) -> list[str]:
@@ -98,11 +95,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     """The request, checked: every mistake is one line naming the flag (ValueError)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", default="bunny,ring_screw,gear_shaft")
-    ap.add_argument("--parameterizations", default=",".join(compare_runs.PAPER_ORDER))
+    ap.add_argument("--parameterizations", default=",".join(PAPER_ORDER))
     ap.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
     ap.add_argument("--steps", type=int, default=DEFAULT_STEPS, help="optimizer steps per arm (the equal budget)")
-    ap.add_argument("--runs-dir", type=Path, default=REPO / "outputs" / "table1")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "table1")
+    ap.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "outputs" / "table1")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "table1")
     ap.add_argument("--extra", nargs="*", default=[], help="more train.py overrides for every arm")
     ap.add_argument("--collect", action="store_true", help="only aggregate the finished arms")
     ap.add_argument("--no-tune", dest="tune", action="store_false",
@@ -143,9 +140,9 @@ def arms(args: argparse.Namespace) -> list[tuple[Path, list[str]]]:
         for param in args.parameterizations:
             for seed in args.seeds:
                 run = args.runs_dir / f"{param}_{obj}_s{seed}"
-                cmd = [sys.executable, "train.py", "experiment=table1", f"object={obj}", f"parameterization={param}",
-                       f"seed={seed}", f"trainer.max_steps={args.steps}", "trainer.enable_progress_bar=false", *args.extra,
-                       f"hydra.run.dir={run}"]
+                cmd = train_command(["experiment=table1", f"object={obj}", f"parameterization={param}", f"seed={seed}",
+                                     f"trainer.max_steps={args.steps}", "trainer.enable_progress_bar=false", *args.extra],
+                                    run)
                 if args.jobs > 1:  # arms at once would all build one shared scene cache at the same time
                     cmd.insert(-1, f"data.cache_dir={run / 'cache'}")
                 out.append((run, cmd))
@@ -163,14 +160,14 @@ def run_arms(todo: list[tuple[Path, list[str]]], jobs: int = 1, tune: bool = Fal
             run.mkdir(parents=True, exist_ok=True)
             start = time.perf_counter()
             with (run / "console.log").open("w") as log:
-                code = subprocess.run(cmd, cwd=REPO, stdout=log, stderr=subprocess.STDOUT, env=env, check=False).returncode
+                code = subprocess.run(cmd, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT, env=env, check=False).returncode
             state = "done" if code == 0 else f"FAILED (exit {code}, see {run / 'console.log'})"
             print(f"[{k}/{len(todo)}] {run.name}: {state} in {time.perf_counter() - start:.0f} s", flush=True)
             if code:
                 return run.name
         if tune and jobs > 1 and not (run / "decoding_tuned.json").is_file():
             with (run / "tune.log").open("w") as log:
-                subprocess.run([sys.executable, __file__, "--tune-run", str(run)], cwd=REPO, stdout=log,
+                subprocess.run([sys.executable, __file__, "--tune-run", str(run)], cwd=REPO_ROOT, stdout=log,
                                stderr=subprocess.STDOUT, env=env, check=False)
         return None
 
@@ -202,7 +199,7 @@ def _mean(values: list[float | None]) -> float | None:
 
 
 def tuned_decoding(run: Path) -> dict[str, object] | None:
-    """Decoding tuned on the arm's validation split (scripts/tune_decoding.py), then its held-out
+    """Decoding tuned on the arm's validation split (opnet-tune-decoding), then its held-out
     test scored with it; cached in ``decoding_tuned.json``. None for an arm without a checkpoint."""
     cache = run / "decoding_tuned.json"
     if cache.is_file():
@@ -211,9 +208,8 @@ def tuned_decoding(run: Path) -> dict[str, object] | None:
     if ckpt is None:
         print(f"warning: {run.name}: no checkpoint, decoding not tuned", file=sys.stderr)
         return None
-    import tune_decoding
-
     from opnet.metrics.diagnostics import diagnose
+    from opnet.tools import tune_decoding
 
     with contextlib.redirect_stdout(io.StringIO()):
         best, _ = tune_decoding.search([tune_decoding.RecordedSplit.record(str(ckpt), "val")])
@@ -258,7 +254,7 @@ def report(rows: list[dict[str, object]], steps: int, requested: int | None = No
     lines = ["# Table I on this machine" if MACHINE is None else "# Table I on another machine (below)", "",
              (f"Held-out test AP (Brégier, max occlusion 0.5) per parameterization and object, mean ± sample sd over the "
               f"seeds (runs); each arm `experiment=table1`, {steps} steps; the paper's Table I value in brackets. "
-              "Made by `python scripts/table1.py` (its docstring has the command and the budget)."
+              "Made by `python scripts/experiments/table1/table1.py` (its docstring has the command and the budget)."
               + (f" **Arms finished: {len(rows)} of {requested}.**" if requested and len(rows) < requested else "")
               + short_of_budget(rows, steps)), ""]
     buf = io.StringIO()
@@ -277,7 +273,7 @@ def report(rows: list[dict[str, object]], steps: int, requested: int | None = No
 
 def _table(rows: list[dict[str, object]], decoding: str, w: Any) -> list[str]:
     """Markdown lines of one table (and its CSV rows through ``w``)."""
-    params, objects, cells = compare_runs.table(rows)
+    params, objects, cells = table(rows)
     lines = ["| parameterization | " + " | ".join(objects) + " | found % (mean) | t p50 mm | r p50 ° |",
              "|" + "---|" * (len(objects) + 4)]
     for p in params:
@@ -285,10 +281,10 @@ def _table(rows: list[dict[str, object]], decoding: str, w: Any) -> list[str]:
         for o in objects:
             vals = cells.get((p, o))
             paper = PAPER.get(p, {}).get(o)
-            texts.append(compare_runs.cell_text(vals) + (f" [{paper:.2f}]" if paper is not None else ""))
+            texts.append(cell_text(vals) + (f" [{paper:.2f}]" if paper is not None else ""))
             if vals:
                 mine = [r for r in rows if r["parameterization"] == p and r["object"] == o]
-                mean, sd = compare_runs.mean_sd(vals)
+                mean, sd = mean_sd(vals)
                 w.writerow([decoding, p, o, len(vals), f"{mean:.6f}", f"{sd:.6f}", "" if paper is None else paper,
                             *(("" if m is None else f"{m:.4f}") for m in
                               (_mean([r["found"] for r in mine]), _mean([r["t_err_mm_p50"] for r in mine]),
@@ -305,7 +301,7 @@ def checks(cells: dict[tuple[str, str], list[float]], objects: list[str]) -> lis
     """The two acceptance checks on the means over seeds: AP >= vanilla on two of three objects;
     EVE >= vanilla."""
     def mean(p: str, o: str) -> float | None:
-        return compare_runs.mean_sd(cells[(p, o)])[0] if cells.get((p, o)) else None
+        return mean_sd(cells[(p, o)])[0] if cells.get((p, o)) else None
 
     out = []
     for other, need in (("ap", 2), ("eve", len(objects))):
@@ -351,7 +347,7 @@ def arms_csv(rows: list[dict[str, object]], tuned: list[dict[str, object]] | Non
     w.writerow(["parameterization", "object", "seed", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ap_tuned",
                 "found_tuned", "run", "machine", "steps", "time_limited"])
     where = machine()
-    fmt = lambda v: "" if v is None else f"{float(v):.6f}"  # noqa: E731
+    fmt = lambda v: "" if v is None else f"{float(v):.6f}"
     for r in sorted(rows, key=lambda r: (str(r["object"]), str(r["parameterization"]), str(r["seed"]))):
         t = by_run.get(str(r["run"]), {})
         w.writerow([r["parameterization"], r["object"], r["seed"], fmt(r["ap"]), fmt(r["found"]), fmt(r["t_err_mm_p50"]),
@@ -381,14 +377,14 @@ def combine(folders: list[Path], rel_to: Path) -> tuple[str, str]:
                 both.append((first[key], (k, r)))
             else:
                 first[key] = (k, r)
-    order = {p: i for i, p in enumerate(compare_runs.PAPER_ORDER)}
+    order = {p: i for i, p in enumerate(PAPER_ORDER)}
     keys = sorted(first, key=lambda key: (key[0] != "tuned on val", order.get(key[1], 99), key[2]))
     objects = list(dict.fromkeys(key[2] for key in keys))
-    cell = lambda r: f"{float(r['ap_mean']):.3f} ± {float(r['ap_sd']):.3f} ({r['runs']})"  # noqa: E731
+    cell = lambda r: f"{float(r['ap_mean']):.3f} ± {float(r['ap_sd']):.3f} ({r['runs']})"
     lines = ["# Table I", "",
              "Held-out test AP (Brégier, max occlusion 0.5), mean ± sample sd over seeds (runs), per parameterization "
              "and object; the paper's Table I value in brackets; the source table of each row as [k]. Merged by "
-             f"`python scripts/table1.py --combine {' '.join(os.path.relpath(f, REPO) for f in folders)}` from:", ""]
+             f"`python scripts/experiments/table1/table1.py --combine {' '.join(os.path.relpath(f, REPO_ROOT) for f in folders)}` from:", ""]
     for k, folder, where, rows in sources:
         params = ", ".join(dict.fromkeys(r["parameterization"] for r in rows))
         lines.append(f"- [{k}] [`{os.path.relpath(folder, rel_to)}/`]({os.path.relpath(folder, rel_to)}/README.md): "
@@ -455,7 +451,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     failed = [] if args.collect else run_arms(todo, args.jobs, args.tune)
     wanted = {run.name for run, _ in todo}
-    rows = [r for r in compare_runs.collect(args.runs_dir) if str(r["run"]) in wanted] if args.runs_dir.is_dir() else []
+    rows = [r for r in collect(args.runs_dir) if str(r["run"]) in wanted] if args.runs_dir.is_dir() else []
     for r in rows:
         run = args.runs_dir / str(r["run"])
         r["steps"] = steps_done(run)
