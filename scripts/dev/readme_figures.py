@@ -21,7 +21,7 @@ in the README, ``../results/...`` in a docs page):
 | framing | ``results/framing/framing.csv`` (``scripts/experiments/framing/framing_table.py``) |
 | real_ipd | ``results/real_ipd/real_ipd.csv`` (``scripts/experiments/real_ipd/real_ipd.py``) |
 | real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/experiments/real_ipd/real_ipd.py --seeds``) |
-| cells | ``results/cells/cells.csv`` (``scripts/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
+| cells | ``results/cells/cells.csv`` (``scripts/experiments/cells/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
 | verification | ``results/verification/verification.csv`` (``scripts/experiments/verification/verify_ab.py``) |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
@@ -314,7 +314,7 @@ def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
 
 def block_cells(results: Path, prefix: str = "") -> str:
     """A cell whose bin moves: generated piles where the bin stood in training and where it did not
-    (scripts/cells.py), and the real frames scored by the recipe (results/real_ipd/cell.csv; its first scoring,
+    (scripts/experiments/cells/cells.py), and the real frames scored by the recipe (results/real_ipd/cell.csv; its first scoring,
     before the refinement's speed settings changed, cell_first_scoring.csv)."""
     first, real = results / "real_ipd" / "cell_first_scoring.csv", results / "real_ipd" / "cell.csv"
     earlier = [{**r, "refine": f"{r['refine']} (first scoring, earlier speed settings)"}

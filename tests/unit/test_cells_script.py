@@ -1,4 +1,4 @@
-"""scripts/cells.py: the cell's camera at another resolution sees the same rays, and S of auto:S holds the
+"""scripts/experiments/cells/cells.py: the cell's camera at another resolution sees the same rays, and S of auto:S holds the
 basket in any yaw."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from opnet.paths import REPO_ROOT
 
-spec = importlib.util.spec_from_file_location("cells", REPO_ROOT / "scripts" / "cells.py")
+spec = importlib.util.spec_from_file_location("cells", REPO_ROOT / "scripts" / "experiments" / "cells" / "cells.py")
 cells = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(cells)
 

@@ -5,7 +5,7 @@ search, on held-out generated piles of three parts (milliseconds per frame besid
   seed made with a depth-sensor model (``sensor=structured_light``; the models trained on ideal depth),
   the scenes with at least 70 parts;
 - IPD plates (auto: turn): the shipped plate model on the cell study's full-resolution test piles with the
-  basket where its training put it (``scripts/cells.py``), the scenes with at least 8 plates, its box.
+  basket where its training put it (``scripts/experiments/cells/cells.py``), the scenes with at least 8 plates, its box.
 
     python scripts/experiments/verification/verify_ab.py            # generate the dense piles, run the arms: results/verification/
 
@@ -31,7 +31,7 @@ DENSE_SCENE = {"camera_file": str(REPO_ROOT / "conf" / "cameras" / "sileane_bunn
                "camera_height": 1.5, "views": 2, "camera_jitter_m": 0.03, "camera_jitter_deg": 3.0,
                "bin_jitter_m": 0.03, "bin_jitter_deg": 15.0}  # fmt: skip
 PLATE_TEST = REPO_ROOT / "outputs" / "data" / "cells" / "test_trained_c12"
-#: the cell study's validation piles (the basket anywhere in the working area; scripts/cells.py)
+#: the cell study's validation piles (the basket anywhere in the working area; scripts/experiments/cells/cells.py)
 CELL_VALIDATION = REPO_ROOT / "outputs" / "data" / "cells" / "val_c6"
 PARTS = ("bunny", "ring_screw", "ipd_plate", "cell_plate")
 #: how a part's rows are named in the table (the object's name otherwise)
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     for part, folder in (("ipd_plate", PLATE_TEST), ("cell_plate", CELL_VALIDATION)):
         if part in args.parts and not args.report and not folder.is_dir():
-            print(f"error: {folder}: make the cell study's piles first (python scripts/cells.py --stage generate)",
+            print(f"error: {folder}: make the cell study's piles first (python scripts/experiments/cells/cells.py --stage generate)",
                   file=sys.stderr)
             return 2
     for part in args.parts:

@@ -8,8 +8,8 @@ recipe always put it (``trained``: within 4 cm of the camera's aim point) and mo
 the four corners of the working area), each as decoded and with the depth-agreement search, beside the
 earlier fixed-box recipe's shipped model on the same piles.
 
-    python scripts/cells.py                       # generate, train, evaluate: results/cells/
-    python scripts/cells.py --stage report        # re-make results/cells/ from the evaluations
+    python scripts/experiments/cells/cells.py                       # generate, train, evaluate: results/cells/
+    python scripts/experiments/cells/cells.py --stage report        # re-make results/cells/ from the evaluations
 
 Every setting here is chosen without the real frames: the cell (camera, its pose, the basket's size) is what
 a user measures; S is 1.1 x the basket's outer diagonal (the basket in any yaw with the finder's error to
@@ -35,13 +35,10 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "src"))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from opnet.paths import best_checkpoint, shared_dir  # noqa: E402
-from opnet.studies import run_logged  # noqa: E402
+from opnet.paths import REPO_ROOT, best_checkpoint, shared_dir
+from opnet.studies import run_logged, train_command
 
 FRAMES = shared_dir() / "data" / "ipd_real_obj18"
 OBJECT_ID = 18
@@ -64,7 +61,7 @@ VALIDATION_SEED = 200
 CORNERS = ((0.1, 0.1, 0.2, 0.2), (-0.2, 0.1, -0.1, 0.2), (-0.2, -0.2, -0.1, -0.1), (0.1, -0.2, 0.2, -0.1))
 #: the earlier recipe's fixed box (pixels of the full frames) and its shipped model
 OLD_ROI = (560, 230, 1250, 1160)
-OLD_MODEL = REPO / "models" / "real_ipd_plate.ckpt"
+OLD_MODEL = REPO_ROOT / "models" / "real_ipd_plate.ckpt"
 #: the sensor model's settings in pixels (halved with the resolution)
 PIXEL_SENSOR_KEYS = {"lateral_px": 0.5, "edge_missing_px": 2, "blob_scale_px": 15.0}
 FIELDS = ("policy", "model", "placement", "refine", "scenes", "required", "ap", "found", "found_of_all",
@@ -80,7 +77,7 @@ def roi_side() -> float:
 
 def run(cmd: list[str], log: Path) -> None:
     """A command of the framework, its console in ``log``; a failure names the log."""
-    run_logged(cmd, log, REPO)
+    run_logged(cmd, log, REPO_ROOT)
 
 
 def camera_file(scale: float, out: Path) -> Path:
@@ -208,7 +205,7 @@ def score_real_frames(run_dir: Path) -> int:
     if ckpt is None:
         print(f"error: {run_dir}: no checkpoint; train first (--stage train)", file=sys.stderr)
         return 2
-    shipped = REPO / "models" / "cell_ipd_plate.ckpt"  # the model scored is the model shipped
+    shipped = REPO_ROOT / "models" / "cell_ipd_plate.ckpt"  # the model scored is the model shipped
     if not shipped.is_file() or shipped.read_bytes() != ckpt.read_bytes():
         import shutil
 
@@ -222,11 +219,11 @@ def score_real_frames(run_dir: Path) -> int:
              f"+data.object_id={OBJECT_ID}", f"+data.clip=[{CLIP[0]},{CLIP[1]}]", "+data.cache=false", f"out={out}",
              "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
         rows.append(row(json.loads((out / "summary.json").read_text()), policy=str(ARMS[run_dir.name]["roi"]),
-                        model=os.path.relpath(ckpt, REPO), placement="real frames", refine=refine))
+                        model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
     stages = (json.loads((run_dir / "eval_real" / "search" / "summary.json").read_text()).get("icp") or {}) \
         .get("ms_per_image_by_stage", {})  # fmt: skip
     head = ["# The real frames, scored by the cell recipe", "",
-            f"`python scripts/cells.py --stage real --real-arm {run_dir.name}` (every setting fixed on "
+            f"`python scripts/experiments/cells/cells.py --stage real --real-arm {run_dir.name}` (every setting fixed on "
             "generated piles before this ran: results/cells/README.md). The three Photoneo frames of IPD object 18, "
             "official `visib_fract`, the whole frame given: the ROI is the checkpoint's "
             f"(`{ARMS[run_dir.name]['roi']}`), the clip planes too. The frames were scored twice: first with the "
@@ -236,9 +233,9 @@ def score_real_frames(run_dir: Path) -> int:
     notes = ["", "The search's milliseconds per frame by stage: " + ", ".join(f"{k} {v:.0f}" for k, v in stages.items())
              + " (scene: the depth as points; icp: ICP of every hypothesis; search: the turn search of all of them; "
              "polish: ICP of the searched poses; rank: agreement and duplicates)."] if stages else []  # fmt: skip
-    write_table(REPO / "results" / "real_ipd" / "cell.csv", rows, head,
+    write_table(REPO_ROOT / "results" / "real_ipd" / "cell.csv", rows, head,
                 ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
-    with (REPO / "results" / "real_ipd" / "cell.md").open("a") as f:
+    with (REPO_ROOT / "results" / "real_ipd" / "cell.md").open("a") as f:
         f.write("\n".join(notes) + ("\n" if notes else ""))
     return 0
 
@@ -293,11 +290,12 @@ def arm_policy(arm: str) -> str:
 def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
     a = ARMS[arm]
     roots = "[" + ",".join(str(r) for r, *_ in train_sets) + "]"
-    run([sys.executable, "train.py", "object=ipd_plate", "data=ipa", f"data.root={roots}", "data.generate=null",
-         f"data.roi={a['roi'] or 'null'}", f"data.input_size={a['input']}", f"model.in_size={a['input']}",
-         f"parameterization.grid={16 * a['input'] // 128}", f"seed={a['seed']}", "parameterization=eve",
-         "augmentation.p_rotate=0.5", "test=false", f"trainer.max_steps={steps}", "trainer.max_epochs=100000",
-         "trainer.enable_progress_bar=false", f"hydra.run.dir={runs / arm}"], runs / arm / "console.log")  # fmt: skip
+    run(train_command(["object=ipd_plate", "data=ipa", f"data.root={roots}", "data.generate=null",
+                       f"data.roi={a['roi'] or 'null'}", f"data.input_size={a['input']}", f"model.in_size={a['input']}",
+                       f"parameterization.grid={16 * a['input'] // 128}", f"seed={a['seed']}", "parameterization=eve",
+                       "augmentation.p_rotate=0.5", "test=false", f"trainer.max_steps={steps}",
+                       "trainer.max_epochs=100000", "trainer.enable_progress_bar=false"], runs / arm),
+        runs / arm / "console.log")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -312,9 +310,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--val-cycles", type=int, default=6, help="validation piles (the refinement's settings)")
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--scale", type=float, default=0.5, help="the training piles' resolution, x the camera's")
-    ap.add_argument("--data-dir", type=Path, default=REPO / "outputs" / "data" / "cells")
-    ap.add_argument("--runs", type=Path, default=REPO / "outputs" / "cells")
-    ap.add_argument("--out", type=Path, default=REPO / "results" / "cells")
+    ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "cells")
+    ap.add_argument("--runs", type=Path, default=REPO_ROOT / "outputs" / "cells")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "cells")
     args = ap.parse_args(argv)
     if not (FRAMES / "camera_photoneo.yaml").is_file():
         print(f"error: {FRAMES}: the cell's camera is not there (../shared, or OPNET_SHARED)", file=sys.stderr)
@@ -373,7 +371,7 @@ def main(argv: list[str] | None = None) -> int:
     notes += ["Every setting of the recipe, and what chose it (no setting was chosen by a score on the real frames):", "",
               *SETTINGS]
     arms = sorted({r["model"].split(" ")[0] for r in rows if r["model"] != "models/real_ipd_plate.ckpt"})
-    command = (f"`python scripts/cells.py --stage generate`, then `--stage train --arms {' '.join(arms)}` and "
+    command = (f"`python scripts/experiments/cells/cells.py --stage generate`, then `--stage train --arms {' '.join(arms)}` and "
                f"`--stage eval --arms {' '.join(arms)}` (`--stage report` re-makes this page)")
     notes.insert(1, "`found % of the frame's parts`: matched parts over every part the metric requires in the whole "
                  "frames (visibility >= 0.5). A fixed box's own `required`, `found` and AP count only the parts "
