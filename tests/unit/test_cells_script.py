@@ -42,3 +42,14 @@ def test_the_roi_side_holds_the_basket_in_any_yaw() -> None:
 @pytest.mark.parametrize("arm", ["auto", "frame128"])
 def test_each_arm_is_a_policy_of_the_table(arm: str) -> None:
     assert cells.arm_policy(arm) in (cells.ARMS[arm]["roi"], "working area (whole frame)")
+
+
+def test_the_seed_table_gives_mean_sd_and_the_gap_for_policies_with_seeds() -> None:
+    rows = [{"policy": "auto:0.8", "refine": "search", "placement": p, "ap": ap}
+            for p, ap in (("trained", 0.50), ("trained", 0.46), ("moved", 0.45), ("moved", 0.47))]
+    rows += [{"policy": "fixed", "refine": "search", "placement": "trained", "ap": 0.5},  # one seed: left out
+             {"policy": "fixed", "refine": "search", "placement": "moved", "ap": 0.1}]
+    lines = cells.seed_table(rows)
+    assert lines[-1] == "| auto:0.8 | search | 2 | 0.480 ± 0.028 | 0.460 ± 0.014 | -0.020 (within 0.05) |"
+    assert not any("fixed" in line for line in lines)
+    assert cells.seed_table(rows[4:]) == []

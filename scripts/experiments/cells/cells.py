@@ -38,7 +38,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 import numpy as np
 
 from opnet.paths import REPO_ROOT, best_checkpoint, shared_dir
-from opnet.studies import run_logged, train_command
+from opnet.studies import mean_sd, mean_sd_text, run_logged, train_command
 
 FRAMES = shared_dir() / "data" / "ipd_real_obj18"
 OBJECT_ID = 18
@@ -195,7 +195,27 @@ def report(rows: list[dict[str, Any]], out: Path, command: str, notes: list[str]
             "0.5, over every scene of the split (piles of 0-10 plates).", ""]  # fmt: skip
     write_table(out / "cells.csv", rows, head, FIELDS)
     with (out / "README.md").open("a") as f:
-        f.write("\n" + "\n\n".join(notes) + "\n")
+        f.write("\n" + "\n".join(seed_table(rows)) + "\n" + "\n" + "\n\n".join(notes) + "\n")
+
+
+def seed_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Mean ± sample sd over the training seeds of each policy's rows that have more than one seed (AP, and
+    moved minus trained: the recipe's acceptance holds where |moved - trained| <= 0.05)."""
+    groups: dict[tuple[str, str], dict[str, list[float]]] = {}
+    for r in rows:
+        groups.setdefault((r["policy"], r["refine"]), {}).setdefault(r["placement"], []).append(float(r["ap"]))
+    lines = []
+    for (policy, refine), by in groups.items():
+        trained, moved = by.get("trained", []), by.get("moved", [])
+        if len(trained) < 2 or len(trained) != len(moved):
+            continue
+        gap = mean_sd(moved)[0] - mean_sd(trained)[0]
+        lines.append(f"| {policy} | {refine} | {len(trained)} | {mean_sd_text(trained)} | {mean_sd_text(moved)} | "
+                     f"{gap:+.3f} ({'within' if abs(gap) <= 0.05 else 'beyond'} 0.05) |")
+    if not lines:
+        return []
+    return ["Over the training seeds (mean ± sample sd of the rows above):", "",
+            "| policy | refine | seeds | AP trained | AP moved | moved - trained |", "|---|---|---|---|---|---|", *lines]
 
 
 def score_real_frames(run_dir: Path) -> int:
