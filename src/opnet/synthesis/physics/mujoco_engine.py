@@ -8,7 +8,7 @@ it is and costs the solver nothing; a drop activates the next parked part. Every
 redrops go back to a copy of (qpos, qvel, the solver's warm start, time). MuJoCo is deterministic
 on one thread.
 
-Choices, measured against pybullet on the same piles (``scripts/bench_physics.py``):
+Choices, measured against pybullet on the same piles (``scripts/bench/bench_physics.py``):
 - Body frame = the part's inertial frame (centre of mass, principal axes), with the mass and
   principal moments of :mod:`opnet.synthesis.collision` given exactly; the model frame is
   recovered in :meth:`MujocoSimulator.poses`. The convex parts of the decomposition (or the hull)
