@@ -161,6 +161,9 @@ START=$(date +%s)
 FAILED=0
 : >"$LOG"
 say() { echo "$*" | tee -a "$LOG"; }
+# max_time SECONDS: trainer.max_time's DD:HH:MM:SS (exported: the steps run their functions in a bash of their own)
+max_time() { printf '00:%02d:%02d:%02d' $(($1 / 3600)) $(($1 / 60 % 60)) $(($1 % 60)); }
+export -f max_time
 elapsed() { echo $(($(date +%s) - START)); }
 
 if [ "$MODE" = gpu ]; then
@@ -356,9 +359,9 @@ fi
 table1() {
     local py=$1 data=$2 mesh=$3 limit=$4 steps=$5 runs=$6 csv=$7 mode=$8
     shift 8
-    local train_s=$((limit - 60)) max_time arm pids=() rc=0
+    local train_s=$((limit - 60)) fit arm pids=() rc=0
     [ "$train_s" -lt 20 ] && train_s=20
-    max_time=$(printf '00:%02d:%02d:%02d' $((train_s / 3600)) $((train_s / 60 % 60)) $((train_s % 60)))  # DD:HH:MM:SS
+    fit=$(max_time "$train_s")
     mkdir -p "$runs"
     echo "table1: 4 arms at once, each ${steps} steps or ${train_s} s of fitting"
     for arm in vanilla eve ap si; do
@@ -366,7 +369,7 @@ table1() {
             t0=$(date +%s)
             "$py" train.py "$@" object=bunny "object.mesh=$mesh" "parameterization=$arm" seed=0 data=ipa \
                 "data.root=$data" data.generate=null "data.cache_dir=$runs/cache_$arm" example_predictions=0 \
-                "trainer.max_steps=$steps" "+trainer.max_time=\"$max_time\"" \
+                "trainer.max_steps=$steps" "+trainer.max_time=\"$fit\"" \
                 trainer.enable_progress_bar=false hydra.run.dir="$runs/$arm" >"$runs/$arm.log" 2>&1
             echo "$? $(($(date +%s) - t0))" >"$runs/$arm.status"
         ) &
@@ -460,8 +463,7 @@ if [ -n "${ARMS_DATA:-}" ]; then
     fit_s=$((ARMS_S - 150))
     [ "$fit_s" -lt 30 ] && fit_s=30
     if [ "$MODE" = gpu ]; then
-        ARMS_EXTRA=(trainer=gpu "+trainer.max_time=\"$(printf '00:%02d:%02d:%02d' $((fit_s / 3600)) $((fit_s / 60 % 60)) \
-            $((fit_s % 60)))\"")
+        ARMS_EXTRA=(trainer=gpu "+trainer.max_time=\"$(max_time "$fit_s")\"")
         ARMS_STEPS=${ARMS_STEPS:-1350} ARMS_SEEDS=${ARMS_SEEDS:-0 1 2} ARMS_JOBS=${ARMS_JOBS:-18}
     else  # two arms of a few steps
         ARMS_EXTRA=(trainer=cpu model=tiny data.train_groups=2 data.cache_workers=1)
