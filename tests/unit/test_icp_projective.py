@@ -15,6 +15,7 @@ from opnet.geometry.icp import (
     ICPSettings,
     SceneCloud,
     refine_pose,
+    refine_poses_nearest,
     refine_poses_projective,
 )
 from opnet.geometry.search import SearchSettings, model_axis, search_pose, search_poses
@@ -45,6 +46,28 @@ def test_a_projective_batch_gives_each_pose_what_it_gets_alone() -> None:
     assert [r.status for r in batch][-1] == "rejected"
     empty = SceneCloud.from_depth(np.full((64, 64), np.nan), CAM.fx, CAM.fy, 31.5, 31.5)
     assert refine_poses_projective(R, t, model, empty, space, settings)[0].status == "no_depth"
+
+
+@pytest.mark.parametrize("name", ["bracket", "shaft"])
+def test_batched_nearest_point_icp_is_refine_pose_of_each(name: str) -> None:
+    """All hypotheses in one k-d tree and one batch: each gets what :func:`refine_pose` gives it alone
+    (the same pairs, steps, halvings, stopping rules and guard), a far one no depth, a turned one rejected."""
+    _, R_gt, scene, model, space = _setup(name)
+    rng = np.random.default_rng(3)
+    starts = [_perturbed(R_gt, rng, deg=d, mm=d) for d in (1.0, 4.0, 8.0, 12.0)]
+    R, t = np.array([s[0] for s in starts]), np.array([s[1] for s in starts])
+    R = np.concatenate((R, R_gt[None])); t = np.concatenate((t, [T_GT + [0.0, 0.0, 0.5]]))  # behind the part: no depth
+    for settings in (ICPSettings(max_rotation_deg=6.0), ICPSettings(min_gain=0.0, converged=(1e-6, 1e-7)),
+                     ICPSettings(min_gain=0.05), ICPSettings(local_points=500, iterations=3)):
+        batch = refine_poses_nearest(R, t, model, scene, space, settings)
+        alone = [refine_pose(Rk, tk, model, scene, space, settings) for Rk, tk in zip(R, t, strict=True)]
+        assert [r.status for r in batch] == [r.status for r in alone]
+        for a, b in zip(batch, alone, strict=True):
+            assert np.allclose(a.R, b.R, atol=1e-9) and np.allclose(a.t, b.t, atol=1e-10)
+            assert a.correspondences == b.correspondences
+            assert np.allclose(a.residual_after, b.residual_after, rtol=1e-9, equal_nan=True)
+    statuses = [r.status for r in refine_poses_nearest(R, t, model, scene, space, ICPSettings(max_rotation_deg=6.0))]
+    assert statuses[-1] == "no_depth" and "rejected" in statuses and statuses[0] == "refined"
 
 
 def test_projective_icp_needs_a_depth_image_and_a_known_association() -> None:

@@ -1,0 +1,156 @@
+"""Refinement speed and AP per frame: one checkpoint's hypotheses over a split, refined by each variant.
+
+The network runs once over the split (its hypotheses and the scenes' depth images are kept in
+``--cache``, so further variants skip it); each variant of ``conf/refine/search.yaml`` (``--variant
+LABEL:icp.KEY=VALUE,search.KEY=VALUE``) then refines every frame, timed per frame and per stage
+(:data:`opnet.geometry.icp.STAGES`). Printed: AP (Brégier, max occlusion 0.5), found share,
+milliseconds per frame (mean, median, worst) and by stage, and the wall time's CPU share (a
+loaded machine shows there). Target for the plate frames: at most 300 ms per frame on 2 cores.
+
+    python scripts/bench/bench_refine.py --ckpt models/cell_ipd_plate.ckpt \\
+        --data root=outputs/data/cells/val_c6 --data test_root=outputs/data/cells/val_c6 --data cache=false \\
+        --decoding averaging=false [--scenes 20] [--variant "LABEL:search.keep=2"] [--profile]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import cProfile
+import os
+import pickle
+import pstats
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import numpy as np
+import yaml
+from omegaconf import OmegaConf
+
+from opnet.fileio.atomic import write_bytes_atomic
+from opnet.geometry.icp import STAGES, Refiner, settings_from_config
+from opnet.metrics.bregier import evaluate_scenes
+from opnet.metrics.diagnostics import scene_outcomes
+from opnet.paths import REPO_ROOT
+
+
+def key_values(values: list[str], option: str) -> dict[str, Any]:
+    """``["a=1", "b=x"]`` -> {"a": 1, "b": "x"} (YAML values); ValueError naming a bad one."""
+    out: dict[str, Any] = {}
+    for text in values:
+        key, sep, value = text.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{option} {text!r}: expected KEY=VALUE")
+        out[key] = yaml.safe_load(value)
+    return out
+
+
+def frames(ckpt: str, data: dict[str, Any], decoding: dict[str, Any], scenes: int, cache: Path) -> tuple[Any, list]:
+    """The object and [(name, gt, hypotheses, depth, camera)] of the first ``scenes`` test scenes, from ``cache``
+    when it was made by the same arguments."""
+    key = {"ckpt": str(Path(ckpt).resolve()), "mtime": Path(ckpt).stat().st_mtime, "data": data,
+           "decoding": decoding, "scenes": scenes}  # fmt: skip
+    from opnet.cli.build import build_datamodule, load_checkpoint
+    from opnet.cli.eval import with_decoding_overrides
+    from opnet.evaluation import predict_scenes
+
+    system, cfg = load_checkpoint(ckpt)
+    obj = system.parameterization.obj
+    if cache.is_file():
+        saved = pickle.loads(cache.read_bytes())
+        if saved["key"] == key:
+            return obj, saved["frames"]
+    system.parameterization = with_decoding_overrides(system.parameterization, decoding or None)
+    if data:
+        cfg = OmegaConf.merge(cfg, {"data": {**data, **({"generate": None} if cfg.data.get("generate") else {})}})
+    dm = build_datamodule(cfg, obj, train=False)
+    dm.setup("test")
+    split = dm.splits["test"]
+    predicted = predict_scenes(system, dm.test_dataloader())
+    out = []
+    for i in range(len(split)):
+        record = split.record(i)
+        if record.name in predicted:
+            gt, hyps = predicted[record.name]
+            out.append((record.name, gt, hyps, np.asarray(record.depth, np.float64), record.camera))
+        if len(out) >= scenes:
+            break
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(cache, pickle.dumps({"key": key, "frames": out}))
+    return obj, out
+
+
+def variant(text: str, base: dict[str, Any]) -> tuple[str, Any]:
+    """``LABEL:icp.KEY=VALUE,search.KEY=VALUE`` -> (label, ICPSettings) over ``base`` (the refine config)."""
+    label, _, rest = text.partition(":")
+    conf = copy.deepcopy(base)
+    for item in filter(None, rest.split(",")):
+        key, sep, value = item.partition("=")
+        section, _, name = key.partition(".")
+        if not sep or section not in ("icp", "search") or not name:
+            raise ValueError(f"--variant {text!r}: expected LABEL:icp.KEY=VALUE,search.KEY=VALUE")
+        conf[section][name] = yaml.safe_load(value)
+    return label.strip(), settings_from_config(conf)
+
+
+def run_variant(obj: Any, data: list, settings: Any, profile: bool) -> dict[str, Any]:
+    """Refine every frame with ``settings``: AP, found share, ms per frame, by stage."""
+    refiner = Refiner.for_object(obj, settings)
+    scenes, ms, stages = {}, [], {}
+    cpu0 = time.process_time()
+    wall0 = time.perf_counter()
+    prof = cProfile.Profile() if profile else None
+    for name, gt, hyps, depth, camera in data:
+        start = time.perf_counter()
+        if prof is not None:
+            prof.enable()
+        refined, _ = refiner(hyps, depth, camera, stages)
+        if prof is not None:
+            prof.disable()
+        ms.append(1000 * (time.perf_counter() - start))
+        scenes[name] = (gt, refined)
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    if prof is not None:
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(25)
+    result = evaluate_scenes(scenes, obj.pose_space, max_occlusion=0.5)
+    outcomes = scene_outcomes(scenes, obj.pose_space, obj.diameter, 0.5)
+    find = sum(int(o.find.sum()) for o in outcomes)
+    found = sum(int((o.find & (o.outcome == "matched")).sum()) for o in outcomes)
+    n = max(len(data), 1)
+    return {"ap": result.ap, "found": found / max(find, 1), "ms_mean": float(np.mean(ms)), "ms_p50": float(np.median(ms)),
+            "ms_max": float(np.max(ms)), "cpu_share": cpu / max(wall, 1e-9),
+            **{f"{k}_ms": 1000 * stages.get(k, 0.0) / n for k in STAGES}}  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--ckpt", default="models/cell_ipd_plate.ckpt")
+    ap.add_argument("--data", action="append", default=[], help="KEY=VALUE of the checkpoint's data section")
+    ap.add_argument("--decoding", action="append", default=[], help="KEY=VALUE as eval.py's +decoding.KEY")
+    ap.add_argument("--scenes", type=int, default=20)
+    ap.add_argument("--variant", action="append", default=[], help="LABEL:icp.KEY=VALUE,search.KEY=VALUE")
+    ap.add_argument("--no-base", action="store_true", help="only the variants, not conf/refine/search.yaml itself")
+    ap.add_argument("--cache", type=Path, default=REPO_ROOT / "outputs" / "bench_refine" / "frames.pkl")
+    ap.add_argument("--profile", action="store_true", help="print the cProfile of each variant")
+    args = ap.parse_args(argv)
+    data, decoding = key_values(args.data, "--data"), key_values(args.decoding, "--decoding")
+    obj, frames_ = frames(args.ckpt, data, decoding, args.scenes, args.cache)
+    base = OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
+    arms = ([] if args.no_base else [("search.yaml", settings_from_config(base))]) + [variant(v, base) for v in args.variant]
+    hyps = sum(len(f[2].score) for f in frames_)
+    print(f"{len(frames_)} frames, {hyps / max(len(frames_), 1):.1f} hypotheses per frame")
+    cols = ["ap", "found", "ms_mean", "ms_p50", "ms_max", "cpu_share", *(f"{k}_ms" for k in STAGES)]
+    print("| variant | " + " | ".join(cols) + " |")
+    print("|---" * (len(cols) + 1) + "|")
+    for label, settings in arms:
+        row = run_variant(obj, frames_, settings, args.profile)
+        print(f"| {label} | " + " | ".join(f"{row[c]:.3f}" if c in ("ap", "found", "cpu_share") else f"{row[c]:.0f}"
+                                          for c in cols) + " |", flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
