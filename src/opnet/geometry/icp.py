@@ -33,7 +33,9 @@ by ICP again and scored by its agreement; duplicates the searches made are dropp
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -743,6 +745,24 @@ def _merged(t: np.ndarray, score: np.ndarray, radius: float) -> np.ndarray:
     return out
 
 
+@functools.cache
+def _blas_controller() -> Any:
+    """threadpoolctl's controller of the loaded BLAS libraries (None without threadpoolctl), made once."""
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # the torch-free runtime's minimal install: BLAS as configured
+        return None
+    return ThreadpoolController()
+
+
+def serial_blas() -> contextlib.AbstractContextManager:
+    """A context in which numpy's matrix products run on one thread. The refinement's products are small (a few
+    hundred points by 3 per pose): threads cost more than they give, and far more when another process keeps a
+    core busy (they wait for it). On 2 cores beside a busy process the search took half the CPU time this way."""
+    controller = _blas_controller()
+    return contextlib.nullcontext() if controller is None else controller.limit(limits=1, user_api="blas")
+
+
 def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCloud, space: Any,
                  settings: ICPSettings = ICPSettings(), timings: dict[str, float] | None = None,
                  ) -> tuple[Any, list[str]]:  # fmt: skip
@@ -751,10 +771,12 @@ def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCl
     ``timings``: the seconds of each of :data:`STAGES` added to it."""
     if depth.shape != (camera.height, camera.width):
         raise ValueError(f"icp: depth of shape {depth.shape} does not match the camera ({camera.height}, {camera.width})")
-    scene = _Stages(timings)("scene", SceneCloud.from_depth, depth, camera.fx, camera.fy, camera.cx, camera.cy,
-                             settings.stride)  # fmt: skip
-    R, t, status, score = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space,
-                                            settings, np.asarray(depth, np.float64), camera, timings)  # fmt: skip
+    with serial_blas():
+        scene = _Stages(timings)("scene", SceneCloud.from_depth, depth, camera.fx, camera.fy, camera.cx, camera.cy,
+                                 settings.stride)  # fmt: skip
+        # the search scores in float32 (:func:`opnet.geometry.search.agreement`): depth to a tenth of a micron
+        R, t, status, score = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space,
+                                                settings, np.asarray(depth, np.float32), camera, timings)  # fmt: skip
     keep = np.array([s != "suppressed" for s in status], bool)
     visibility = None if hypotheses.visibility is None else np.asarray(hypotheses.visibility)[keep]
     return type(hypotheses)(R[keep], t[keep], score[keep], visibility), status

@@ -157,7 +157,13 @@ def agreement(points: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: 
     those that count, e.g. facing the camera) with a z-depth image (H, W) (NaN: missing): per pose,
     (points measured within ``tolerance`` - ``see_through_weight`` x points measured behind the model
     by more) / valid points."""
-    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    return agreement_xyz(points[..., 0], points[..., 1], points[..., 2], valid, depth, camera, tolerance,
+                         see_through_weight)  # fmt: skip
+
+
+def agreement_xyz(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: Any,
+                  tolerance: float, see_through_weight: float) -> np.ndarray:  # fmt: skip
+    """:func:`agreement` of points given by their coordinates x, y, z (..., K) each."""
     inv = np.divide(1.0, z, out=np.zeros_like(z), where=z > 0)  # behind the camera: never inside
     u = x * (camera.fx * inv) + (camera.cx + 0.5)  # the pixel is floor(u); u >= 0 makes the cast a floor
     v = y * (camera.fy * inv) + (camera.cy + 0.5)
@@ -169,6 +175,40 @@ def agreement(points: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: 
     agree = np.count_nonzero(np.abs(r) <= tolerance, -1)  # NaN compares False: missing depth counts neither way
     through = np.count_nonzero(r > tolerance, -1)
     return (agree - see_through_weight * through) / np.maximum(np.count_nonzero(valid, -1), 1)
+
+
+def posed_xyz(R: np.ndarray, t: np.ndarray, model: Any, dtype: Any = np.float64,
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """All the model points at poses (N, 3, 3), (N, 3), camera frame: x, y, z (N, P) each of ``dtype`` (one
+    matrix product per coordinate), and which face the camera (N, P)."""
+    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
+    points = model.points.T.astype(dtype)
+    x, y, z = (R[:, k].astype(dtype) @ points + t[:, k : k + 1].astype(dtype) for k in range(3))
+    # (R n) . (R p + t) = n . p + n . (R^T t): one (N, P) product, no turned normals
+    local_t = np.einsum("nji,nj->ni", R, t)
+    facing = local_t @ model.normals.T + np.sum(model.normals * model.points, 1) < 0
+    return x, y, z, facing
+
+
+def facing_xyz(R: np.ndarray, t: np.ndarray, model: Any, dtype: Any = np.float64,
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The model points facing the camera at poses (N, 3, 3), (N, 3), packed: x, y, z (N, K) each of ``dtype``,
+    and which of them are real (N, K) (K: the most any pose has; the rest pad with point 0, masked out).
+    Agreement counts only these, at half the work of all the points."""
+    x, y, z, facing = posed_xyz(R, t, model, dtype)
+    count = facing.sum(1)
+    K = int(count.max(initial=0))
+    rows, cols = np.nonzero(facing)  # row-major: each pose's facing points in model order
+    slot = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
+    chosen = np.zeros((len(facing), K), np.intp)
+    chosen[rows, slot] = cols
+    return (*(np.take_along_axis(c, chosen, 1) for c in (x, y, z)), np.arange(K) < count[:, None])
+
+
+def _dtype(depth: np.ndarray) -> Any:
+    """The float type points are scored in against ``depth``: its own (float32 halves the memory traffic:
+    millimetre tolerances at metres lose nothing in it)."""
+    return depth.dtype if depth.dtype in (np.float32, np.float64) else np.float64
 
 
 def turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -216,16 +256,17 @@ def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera
     shifts = (offsets[None, :, None, None] * e1[:, None, None] + offsets[None, None, :, None] * e2[:, None, None])
     shifts = shifts.reshape(N, -1, 3)  # (N, M, 3), row-major (i, j)
     Rs = (rodrigues(n[:, None], angles[None]) @ R[:, None]).reshape(-1, 3, 3)  # (N A, 3, 3)
-    posed, facing = facing_points(Rs, np.repeat(t, A, 0), model)  # (N A, K, 3), (N A, K)
-    M, K = shifts.shape[1], posed.shape[1]
+    x, y, z, facing = facing_xyz(Rs, np.repeat(t, A, 0), model, _dtype(depth))  # (N A, K) each
+    M, P = shifts.shape[1], x.shape[1]
     best_score, best_shift = np.empty(N * A), np.empty(N * A, np.intp)
-    rows = max(1, BATCH_POINTS // max(M * K, 1))
+    rows = max(1, BATCH_POINTS // max(M * P, 1))
     D = model.diameter
     for r0 in range(0, N * A, rows):
         sl = slice(r0, r0 + rows)
-        cand = posed[sl, None] + shifts[np.arange(N * A)[sl] // A][:, :, None]  # (r, M, K, 3)
-        valid = np.broadcast_to(facing[sl, None], cand.shape[:-1])
-        scores = agreement(cand, valid, depth, camera, settings.tolerance * D, settings.see_through_weight)
+        sh = shifts[np.arange(N * A)[sl] // A][:, :, None]  # (r, M, 1, 3)
+        valid = np.broadcast_to(facing[sl, None], (len(sh), M, P))
+        scores = agreement_xyz(x[sl, None] + sh[..., 0], y[sl, None] + sh[..., 1], z[sl, None] + sh[..., 2], valid,
+                               depth, camera, settings.tolerance * D, settings.see_through_weight)  # fmt: skip
         best_shift[sl] = scores.argmax(1)
         best_score[sl] = scores[np.arange(len(scores)), best_shift[sl]]
     best_score, best_shift = best_score.reshape(N, A), best_shift.reshape(N, A)
@@ -318,8 +359,10 @@ def _refine_turns(starts: tuple[np.ndarray, np.ndarray, np.ndarray], model: Any,
             dv[:, :, 3 + j] = steps_t[live][..., None] * e[:, None]
         Rn = dR @ R[live][:, :, None]
         tn = t[live][:, :, None] + dv  # turns about the axis through the pose's origin, as the grid's
-        sc = score_poses(Rn.reshape(-1, 3, 3), tn.reshape(-1, 3), model, depth, camera, settings).reshape(L, S, 7)
-        sc[..., 0] = score[live]
+        sc = np.empty((L, S, 7))
+        sc[..., 0] = score[live]  # staying keeps its score: only the moves are scored
+        sc[..., 1:] = score_poses(Rn[:, :, 1:].reshape(-1, 3, 3), tn[:, :, 1:].reshape(-1, 3), model, depth, camera,
+                                  settings).reshape(L, S, 6)  # fmt: skip
         best = sc.argmax(-1)
         stay = best == 0
         sr, st = steps_r[live], steps_t[live]
@@ -402,26 +445,15 @@ def _moves(step_rad: np.ndarray, step_m: np.ndarray) -> tuple[np.ndarray, np.nda
 def score_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
                 settings: SearchSettings) -> np.ndarray:  # fmt: skip
     """Agreement of poses (N, 3, 3), (N, 3) (their model points facing the camera), in one batch."""
-    p, facing = facing_points(R, t, model)
-    return agreement(p, facing, depth, camera, settings.tolerance * model.diameter, settings.see_through_weight)
+    x, y, z, facing = facing_xyz(R, t, model, _dtype(depth))
+    return agreement_xyz(x, y, z, facing, depth, camera, settings.tolerance * model.diameter,
+                         settings.see_through_weight)  # fmt: skip
 
 
 def facing_points(R: np.ndarray, t: np.ndarray, model: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The model points facing the camera at poses (N, 3, 3), (N, 3), packed: (N, K, 3) and which of them
-    are real (N, K) (K: the most any pose has; the rest pad). Agreement counts only these, at half the work
-    of all the points."""
-    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
-    # (R n) . (R p + t) = n . p + n . (R^T t): one (P, N) product, no turned normals
-    local_t = (np.swapaxes(R, 1, 2) @ t[:, :, None])[..., 0]  # R^T t (N, 3)
-    facing = local_t @ model.normals.T + np.sum(model.normals * model.points, 1) < 0
-    count = facing.sum(1)
-    K = int(count.max(initial=0))
-    rows, cols = np.nonzero(facing)  # row-major: each pose's facing points in model order
-    slot = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
-    chosen = np.zeros((len(R), K), np.intp)  # the pad repeats point 0 (masked out)
-    chosen[rows, slot] = cols
-    packed = model.points[chosen] @ np.swapaxes(R, 1, 2) + t[:, None]
-    return packed, np.arange(K) < count[:, None]
+    """:func:`facing_xyz` as points: (N, K, 3) and which of them are real (N, K)."""
+    x, y, z, valid = facing_xyz(R, t, model)
+    return np.stack((x, y, z), -1), valid
 
 
 def local_search(R: np.ndarray, t: np.ndarray, centre: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
@@ -441,7 +473,10 @@ def local_search(R: np.ndarray, t: np.ndarray, centre: np.ndarray, model: Any, d
         c = R @ centre + t  # the centroid in the camera frame (C, 3)
         Rn = dR @ R[:, None]
         tn = np.einsum("cmij,cj->cmi", dR, t - c) + c[:, None] + dv
-        s = score_poses(Rn.reshape(-1, 3, 3), tn.reshape(-1, 3), model, depth, camera, settings).reshape(C, 13)
+        s = np.empty((C, 13))
+        s[:, 0] = score  # staying keeps its score: only the moves are scored
+        s[:, 1:] = score_poses(Rn[:, 1:].reshape(-1, 3, 3), tn[:, 1:].reshape(-1, 3), model, depth, camera,
+                               settings).reshape(C, 12)  # fmt: skip
         best = s.argmax(1)  # ties: the first, i.e. no move
         stay = best == 0
         step_r[stay] /= 2
@@ -491,12 +526,16 @@ __all__ = [
     "SCORES",
     "SearchSettings",
     "agreement",
+    "agreement_xyz",
     "ambiguity_turns",
     "axis_permutations",
+    "facing_points",
+    "facing_xyz",
     "is_flat",
     "local_search",
     "model_axis",
     "pose_agreement",
+    "posed_xyz",
     "resolve_mode",
     "rodrigues",
     "score_poses",
