@@ -8,6 +8,7 @@ outside Lightning's loop, by :func:`opnet.evaluation.evaluate` (train.py, eval.p
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import Any
@@ -23,6 +24,7 @@ from opnet.metrics.plot import pr_curve_figure
 from opnet.metrics.records import HypothesisSet
 from opnet.metrics.torchmetric import PoseAP
 from opnet.parameterizations.base import Parameterization
+from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, RunSettings
 from opnet.visualize import draw_positions
 
 log = logging.getLogger(__name__)
@@ -43,6 +45,9 @@ class OPNetSystem(L.LightningModule):
         max_occlusion: occlusion rate up to which instances must be found (0.5).
         log_images: how many validation images per epoch to draw to TensorBoard.
         config: the resolved run configuration, stored in checkpoints to rebuild the system.
+        settings: what the trained model needs at inference (framing, decoding, object;
+            :mod:`opnet.run_settings`), saved as their own checkpoint entry; default: read from
+            ``config``, with the parameterization's decoding.
     """
 
     def __init__(
@@ -57,25 +62,59 @@ class OPNetSystem(L.LightningModule):
         max_occlusion: float = 0.5,
         log_images: int = 4,
         config: dict[str, Any] | None = None,
+        settings: RunSettings | None = None,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(ignore=["backbone", "parameterization", "loss"])
+        self.save_hyperparameters(ignore=["backbone", "parameterization", "loss", "settings"])
         self.backbone = backbone
         self.parameterization = parameterization
         self.loss = loss
+        if settings is None:
+            settings = RunSettings.from_training_config(config or {}, decoding=DecodingSettings.of(parameterization))
+        self.settings = settings
         space, diameter = parameterization.obj.pose_space, parameterization.obj.diameter
         self.val_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
         self._val_images: list[torch.Tensor] = []
 
+    @property
+    def obj(self) -> Any:
+        """The object the system estimates (its parameterization's :class:`~opnet.objects.model.ObjectModel`)."""
+        return self.parameterization.obj
+
+    @property
+    def settings(self) -> RunSettings:
+        """What the trained model needs at inference (:class:`~opnet.run_settings.RunSettings`): the
+        framing, the training clip planes and the object as given, the decoding the parameterization
+        decodes with now."""
+        return self._run_settings.with_decoding(DecodingSettings.of(self.parameterization))
+
+    @settings.setter
+    def settings(self, settings: RunSettings) -> None:
+        self._run_settings = settings
+        self.set_decoding(settings.decoding)
+
+    def set_decoding(self, decoding: DecodingSettings) -> None:
+        """Decode with ``decoding`` from now on: the parameterization becomes a copy with those
+        settings (its encoding unchanged)."""
+        if decoding == DecodingSettings.of(self.parameterization):
+            return
+        param = self.parameterization.with_decoding(**decoding.overrides())
+        if decoding.averaging is not None and param.averaging.keep_noise != decoding.averaging.keep_noise:
+            param.averaging = dataclasses.replace(param.averaging, keep_noise=decoding.averaging.keep_noise)
+        self.parameterization = param
+
     def on_fit_start(self) -> None:
-        """Record the training scenes' clip planes in the run config the checkpoints carry
-        (``trained_clip``): predict.py and the ONNX runtime normalize a new image's depth with them,
-        whatever planes its camera file gives (:func:`trained_clip`)."""
-        config, datamodule = self.hparams.get("config"), getattr(self.trainer, "datamodule", None)
+        """Record the training scenes' clip planes in :attr:`settings` (``trained_clip``), which the
+        checkpoints carry: predict.py and the ONNX runtime normalize a new image's depth with them,
+        whatever planes its camera file gives."""
+        datamodule = getattr(self.trainer, "datamodule", None)
         train = (getattr(datamodule, "splits", None) or {}).get("train")
-        if isinstance(config, dict) and train is not None and hasattr(train, "clip_planes"):
-            planes = train.clip_planes()
-            config["trained_clip"] = list(planes) if planes is not None else None
+        if train is not None and hasattr(train, "clip_planes"):
+            self.settings = self.settings.with_trained_clip(train.clip_planes())
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Save :attr:`settings` as their own entry (:data:`opnet.run_settings.CHECKPOINT_KEY`), plain data."""
+        checkpoint[CHECKPOINT_KEY] = self.settings.to_dict()
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) normalized depth -> (B, C, G, G) parameterization output."""

@@ -19,6 +19,7 @@ import torch
 
 from opnet.cli.build import read_checkpoint
 from opnet.paths import REPO_ROOT
+from opnet.run_settings import CHECKPOINT_KEY
 from opnet.tools import record_trained_clip as record
 from opnet.tools import tune_decoding as tune
 
@@ -40,7 +41,8 @@ def files(checkpoint: Path, tmp_path: Path) -> Iterator[dict[str, Path | None]]:
     (tmp_path / "notes.ckpt").write_text("not a checkpoint\n")
     torch.save({"state_dict": _Code()}, tmp_path / "code.ckpt")
     ckpt = read_checkpoint(checkpoint)
-    del ckpt["hyper_parameters"]["config"]["trained_clip"]  # record_trained_clip has to read the dataset
+    del ckpt[CHECKPOINT_KEY]  # a checkpoint of before the settings entry and the recorded planes
+    ckpt["hyper_parameters"]["config"].pop("trained_clip", None)  # record_trained_clip has to read the dataset
     ckpt["hyper_parameters"]["config"]["data"]["root"] = str(tmp_path / "gone")
     torch.save(ckpt, tmp_path / "no_data.ckpt")
     (tmp_path / "folder").mkdir()

@@ -1,4 +1,5 @@
-"""train.py records the training scenes' clip planes in its checkpoints (``trained_clip``), and
+"""train.py records the training scenes' clip planes in its checkpoints (``trained_clip`` of the settings
+entry; of the run config in checkpoints written before it), and
 predict.py, the ONNX export and the torch-free runtime normalize a new image's depth with them
 whatever planes its camera gives (``clip=camera`` / ``--camera-clip``: the camera's own)."""
 
@@ -21,6 +22,7 @@ from opnet.datasets.ipa import IPADataset
 from opnet.deploy.export import export_onnx
 from opnet.geometry.camera import with_clip
 from opnet.paths import REPO_ROOT
+from opnet.run_settings import CHECKPOINT_KEY
 
 
 def _planes(tiny_dataset: Path) -> tuple[float, float]:
@@ -48,8 +50,9 @@ def _predict(ckpt: Path, tiny_dataset: Path, out: Path, clip: str, capsys) -> tu
 def test_checkpoints_record_the_training_planes_and_predict_uses_them(checkpoint: Path, tiny_dataset: Path,
                                                                       tmp_path: Path, capsys) -> None:
     planes = _planes(tiny_dataset)
-    _, cfg = load_checkpoint(checkpoint)
-    assert tuple(cfg.trained_clip) == pytest.approx(planes)
+    system, _ = load_checkpoint(checkpoint)
+    assert system.settings.input.trained_clip == pytest.approx(planes)
+    assert read_checkpoint(checkpoint)[CHECKPOINT_KEY]["trained_clip"] == pytest.approx(list(planes))
     model, said = _predict(checkpoint, tiny_dataset, tmp_path / "model", "model", capsys)
     assert f"clip planes: [{planes[0]:g}, {planes[1]:g}] m (the model's training planes)" in said
     given, _ = _predict(checkpoint, tiny_dataset, tmp_path / "given", f"[{planes[0]},{planes[1]}]", capsys)
@@ -63,7 +66,8 @@ def test_checkpoints_record_the_training_planes_and_predict_uses_them(checkpoint
 def test_a_checkpoint_without_planes_or_with_bad_ones(checkpoint: Path, tiny_dataset: Path, tmp_path: Path,
                                                       capsys) -> None:
     ckpt = read_checkpoint(checkpoint)
-    del ckpt["hyper_parameters"]["config"]["trained_clip"]  # written before train.py recorded them
+    del ckpt[CHECKPOINT_KEY]  # written before train.py recorded them: no settings entry, nor planes in its config
+    ckpt["hyper_parameters"]["config"].pop("trained_clip", None)
     old = tmp_path / "old.ckpt"
     torch.save(ckpt, old)
     _, said = _predict(old, tiny_dataset, tmp_path / "old", "model", capsys)
@@ -80,11 +84,13 @@ def test_record_trained_clip_reads_the_planes_of_an_old_checkpoints_datasets(che
                                                                              tmp_path: Path, capsys) -> None:
     from opnet.tools import record_trained_clip as script
     ckpt = read_checkpoint(checkpoint)
-    del ckpt["hyper_parameters"]["config"]["trained_clip"]
+    del ckpt[CHECKPOINT_KEY]
+    ckpt["hyper_parameters"]["config"].pop("trained_clip", None)
     old = tmp_path / "old.ckpt"
     torch.save(ckpt, old)
     assert script.main([str(old), "--in-place"]) == 0  # the config's data.root: the tiny dataset
     assert tuple(load_checkpoint(old)[1].trained_clip) == pytest.approx(_planes(tiny_dataset))
+    assert load_checkpoint(old)[0].settings.input.trained_clip == pytest.approx(_planes(tiny_dataset))
     assert f"{old}: trained_clip [" in capsys.readouterr().out
     assert script.main([str(old), "--write", str(tmp_path / "c.ckpt"), "--data", str(tmp_path / "gone")]) == 2
     assert f"{tmp_path / 'gone'}: training dataset not found" in capsys.readouterr().err
@@ -94,7 +100,7 @@ def test_record_trained_clip_reads_the_planes_of_an_old_checkpoints_datasets(che
 def test_eval_warns_when_the_scenes_planes_are_not_the_models(checkpoint: Path, tiny_dataset: Path, tmp_path: Path,
                                                               caplog) -> None:
     ckpt = read_checkpoint(checkpoint)
-    ckpt["hyper_parameters"]["config"]["trained_clip"] = [0.4, 1.9]
+    ckpt[CHECKPOINT_KEY]["trained_clip"] = [0.4, 1.9]
     other = tmp_path / "other.ckpt"
     torch.save(ckpt, other)
     with caplog.at_level("WARNING"):

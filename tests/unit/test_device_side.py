@@ -31,7 +31,7 @@ from opnet.data.sample import collate, make_sample
 from opnet.datasets.depth_inputs import DepthImage
 from opnet.datasets.ipa import IPADataset
 from opnet.geometry import Camera
-from opnet.geometry.camera import trained_clip, with_clip
+from opnet.geometry.camera import with_clip
 from opnet.geometry.pose_numpy import pose_distance
 from opnet.metrics.records import HypothesisSet
 from opnet.objects import builtin_object
@@ -230,8 +230,8 @@ def test_device_side_prediction_equals_the_host_with_a_trained_model_on_a_real_f
     from opnet.datasets.bop import BOPDataset
 
     ckpt = REPO_ROOT / "models" / "real_ipd_plate.ckpt"
-    system, run_cfg = load_checkpoint(str(ckpt))
-    clip = trained_clip(run_cfg, ckpt)
+    system, _ = load_checkpoint(str(ckpt))
+    clip = system.settings.input.trained_clip
     frames = BOPDataset(shared / "data" / "ipd_real_obj18" / "test", 18, clip=clip)
     for i in range(len(frames)):
         record = frames[i]

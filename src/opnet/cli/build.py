@@ -19,6 +19,7 @@ from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.base import Parameterization
+from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, RunSettings
 from opnet.settings_schema import TRAINING, check_value, read_settings
 from opnet.system import OPNetSystem
 
@@ -126,7 +127,8 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     with config_group("loss"):
         loss: MultiTaskLoss = instantiate(cfg.loss)
     optim = plain(cfg.get("optim", {})) or {}
-    system = OPNetSystem(backbone, parameterization, loss, config=run_config(cfg), **optim)
+    settings = RunSettings.from_training_config(cfg, decoding=DecodingSettings.of(parameterization))
+    system = OPNetSystem(backbone, parameterization, loss, config=run_config(cfg), settings=settings, **optim)
     return Components(obj, parameterization, system)
 
 
@@ -198,17 +200,52 @@ def check_saved_settings(cfg: DictConfig, path: str | Path) -> None:
     read_settings(cfg, TRAINING, f"{path}: the checkpoint's config")
 
 
+def checkpoint_settings(ckpt: dict[str, Any], path: str | Path) -> RunSettings | None:
+    """The settings a checkpoint saved as their own entry (:data:`opnet.run_settings.CHECKPOINT_KEY`),
+    every key checked; None for a checkpoint written before the entry existed (its settings are
+    in its run config: :func:`saved_settings`).
+
+    Raises:
+        SettingError: ``<path>: the checkpoint's opnet_settings <key>=<value>: expected ...``.
+    """
+    if CHECKPOINT_KEY not in ckpt:
+        return None
+    return RunSettings.from_dict(ckpt[CHECKPOINT_KEY], f"{path}: the checkpoint's {CHECKPOINT_KEY}")
+
+
+def saved_settings(cfg: DictConfig, path: str | Path, decoding: DecodingSettings) -> RunSettings:
+    """The settings of a checkpoint written before the settings entry existed, read from its run
+    config: the framing (``data.*``) and the clip planes train.py recorded there (``trained_clip``),
+    the object (``object``), and ``decoding``, the parameterization's built from that config.
+
+    Raises:
+        SettingError: ``<path>: the checkpoint's config <key>=<value>: expected ...``.
+    """
+    return RunSettings.from_training_config(cfg, f"{path}: the checkpoint's config", decoding=decoding)
+
+
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
-    """Rebuild a trained system from a checkpoint written by ``train.py``."""
+    """Rebuild a trained system from a checkpoint written by ``train.py``: the network from its run
+    config and weights, its :attr:`~opnet.system.OPNetSystem.settings` from its settings entry
+    (:func:`checkpoint_settings`; the system decodes as they say) or, in a checkpoint written before
+    the entry, from its run config (:func:`saved_settings`)."""
     ckpt = read_checkpoint(path, map_location)
     cfg = checkpoint_config(ckpt, path)
     check_saved_settings(cfg, path)
+    settings = checkpoint_settings(ckpt, path)
     if not isinstance(ckpt.get("state_dict"), dict):
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     try:
         system = build_components(cfg).system
     except (ValueError, FileNotFoundError) as e:  # keys its components do not take, a mesh it names is gone
         raise ValueError(f"{path}: the checkpoint's config: {e}") from None
+    if settings is None:
+        system.settings = saved_settings(cfg, path, DecodingSettings.of(system.parameterization))
+    else:
+        if settings.object != system.settings.object:
+            raise ValueError(f"{path}: the checkpoint's {CHECKPOINT_KEY} object differs from its config's object "
+                             "(one was edited without the other); the system is built from the config's")
+        system.settings = settings  # the system decodes as they say
     try:
         system.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, ValueError) as e:  # missing or unexpected keys, wrong tensor shapes

@@ -21,9 +21,9 @@ from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.evaluation import OnScenes, Scenes, evaluate, scoring
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
-from opnet.geometry.camera import trained_clip
 from opnet.geometry.icp import STAGES, STATUSES, ICPSettings, Refiner, settings_from_config
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
+from opnet.run_settings import InputSettings
 from opnet.settings_schema import SettingError
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -156,6 +156,22 @@ def with_decoding_overrides(param: Any, overrides: Any) -> Any:
     return param.with_decoding(**settings)
 
 
+def apply_decoding_overrides(system: OPNetSystem, overrides: Any) -> None:
+    """Make ``system`` decode with its settings' decoding overridden by ``decoding=`` (eval.py's and
+    predict.py's ``+decoding.*``; :meth:`opnet.run_settings.DecodingSettings.with_overrides`); nothing
+    given: unchanged. A bad value or an unknown key is one ``SettingError`` naming it as written."""
+    if isinstance(overrides, DictConfig):
+        overrides = OmegaConf.to_container(overrides)
+    system.set_decoding(system.settings.decoding.with_overrides(overrides))
+
+
+def framing_overrides(framing: InputSettings) -> dict[str, Any]:
+    """The ``data.*`` keys of the model's framing (input size, canvas fit, region of interest), with
+    which a data module frames its scenes as the model was trained to see them."""
+    return {"input_size": framing.size, "fit": framing.fit,
+            "roi": list(framing.roi) if isinstance(framing.roi, tuple) else framing.roi}
+
+
 def warn_other_clip(samples: Any, trained: tuple[float, float] | None) -> None:
     """Log a warning when the scenes' cameras normalize depth with other clip planes than the
     model's training scenes did (the network then sees its inputs scaled otherwise): scenes whose
@@ -180,10 +196,13 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 def _evaluate(cfg: DictConfig, out_dir: Path, started: float) -> dict[str, Any]:
     """The evaluation of :func:`run` into ``out_dir`` (locked)."""
     system, run_cfg = load_checkpoint(cfg.ckpt)
-    system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
+    apply_decoding_overrides(system, cfg.get("decoding"))
     log.info("inference: %s", system.configure_inference(cfg.get("inference")))
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
-    trained = trained_clip(run_cfg, cfg.ckpt)
+    for key, value in framing_overrides(system.settings.input).items():  # the model's, unless eval.py's data.* says
+        if key not in overrides and run_cfg.data.get(key) != value:
+            overrides[key] = value
+    trained = system.settings.input.trained_clip
     if trained is not None and overrides.get("clip") is None:
         # BOP scenes are normalized with the model's training planes, not a range guessed from their first image
         overrides["clip"] = list(trained)

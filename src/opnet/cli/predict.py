@@ -42,7 +42,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import load_checkpoint
-from opnet.cli.eval import with_decoding_overrides
+from opnet.cli.eval import apply_decoding_overrides
 from opnet.data.preprocess import to_network_input
 from opnet.data.preprocess_torch import to_network_input as device_input
 from opnet.datasets.depth_inputs import (
@@ -55,7 +55,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import write_bytes_atomic
 from opnet.data.roi import crop_image, parse_roi
-from opnet.geometry.camera import describe_clip, trained_clip, with_clip, working_clip
+from opnet.geometry.camera import describe_clip, with_clip, working_clip
 from opnet.geometry.icp import Refiner, settings_from_config
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
@@ -70,11 +70,11 @@ def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint
 
     Args:
         roi: the region of interest (:mod:`opnet.data.roi`, parsed); ``"checkpoint"``: the
-            training's ``data.roi``.
+            training's (the system's :class:`~opnet.run_settings.InputSettings`).
     """
-    data = system.hparams.get("config", {}).get("data", {})
-    size, fit = int(data.get("input_size", 128)), str(data.get("fit", "pad"))  # the training's framing
-    roi = parse_roi(data.get("roi")) if roi == "checkpoint" else roi
+    framing = system.settings.input  # the training's
+    size, fit = framing.size, framing.fit
+    roi = framing.roi if roi == "checkpoint" else roi
     depth, camera = crop_image(image.depth, image.camera, roi, f"{image.path}: roi")
     graphed = system.graphed_pipeline(camera, size, fit)
     if graphed is not None:  # on a GPU: preprocessing, network and decoding replayed as one CUDA graph
@@ -156,10 +156,10 @@ def run(cfg: DictConfig) -> int:
     camera_cfg = OmegaConf.to_container(cfg.camera, resolve=True) if cfg.get("camera") is not None else None
     given = given_camera(camera_cfg)
     icp = settings_from_config(cfg.get("refine"))
-    system, run_cfg = load_checkpoint(cfg.ckpt)
-    system.parameterization = with_decoding_overrides(system.parameterization, cfg.get("decoding"))
+    system, _ = load_checkpoint(cfg.ckpt)
+    apply_decoding_overrides(system, cfg.get("decoding"))
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
-    trained = trained_clip(run_cfg, cfg.ckpt)
+    trained = system.settings.input.trained_clip
     clip = working_clip(cfg.get("clip"), trained)
     print(describe_clip(clip, trained))
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None

@@ -30,7 +30,6 @@ import torch
 
 from opnet import __version__
 from opnet.fileio.atomic import temporary_beside, write_errors_named
-from opnet.geometry.camera import trained_clip
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
 from opnet.parameterizations.base import Parameterization
@@ -75,10 +74,16 @@ def parameterization_name(param: Parameterization) -> str:
 
 
 def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
-    """Everything the torch-free runtime needs besides the graph."""
+    """Everything the torch-free runtime needs besides the graph: the system's settings
+    (:attr:`~opnet.system.OPNetSystem.settings`: framing, training clip planes, decoding, written by
+    their ``to_metadata``), its object's pose space and ICP points, the network's layout.
+
+    Args:
+        cfg: the run config; unused (the settings travel with the system), kept for the callers.
+    """
     param: Parameterization = system.parameterization
-    data = cfg.get("data", {}) or {}
-    avg = param.averaging
+    settings = system.settings
+    framing = settings.input.to_metadata()
     return {
         "format": 1,
         "opnet_version": __version__,
@@ -90,32 +95,16 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "slots": param.slots,
         "channels_per_slot": param.channels_per_slot,
         "out_channels": param.out_channels,
-        "input": {"size": int(data.get("input_size", 128)), "fit": str(data.get("fit", "pad")), "interpolation": "area",
-                  "roi": _roi_json(data.get("roi")),
+        "input": {**framing["input"],
                   "layout": "NCHW float32, (z - clip_start) / (clip_end - clip_start), missing depth filled"},
         "camera_input": ["fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"],
         # the training scenes' clip planes: the runtime normalizes an input's depth with them
-        "trained_clip": _clip_json(trained_clip(cfg, ckpt)),
+        "trained_clip": framing["trained_clip"],
         "outputs": list(OUTPUTS),
-        "decoding": {"threshold": param.threshold, "score": param.score, "min_visibility": param.min_visibility,
-                     "averaging": None if avg is None else {"eps": avg.eps, "min_samples": avg.min_samples,
-                                                            "cluster_score": avg.cluster_score,
-                                                            "keep_noise": avg.keep_noise}},
+        **settings.decoding.to_metadata(),
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
         "icp_model": icp_model_metadata(param.obj),
     }
-
-
-def _clip_json(clip: tuple[float, float] | None) -> list[float] | None:
-    return None if clip is None else [float(clip[0]), float(clip[1])]
-
-
-def _roi_json(value: Any) -> Any:
-    """The checkpoint's region of interest as JSON: null, "auto" or [x0, y0, x1, y1]."""
-    from opnet.data.roi import parse_roi
-
-    roi = parse_roi(value)
-    return list(roi) if isinstance(roi, tuple) else roi
 
 
 def icp_model_metadata(obj: Any) -> dict[str, Any] | None:

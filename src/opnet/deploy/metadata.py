@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
+from opnet.run_settings import DecodingSettings, InputSettings
 from opnet.settings_schema import METADATA, Flag, Number, SettingError, Spec, Whole, read_settings
 
 MAX_ICP_POINTS = 20_000  # points of the ICP model cloud in the metadata
@@ -74,7 +75,9 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         ``{"grid_size", "slots", "channels_per_slot", "input_size", "fit", "interpolation",
         "threshold", "score", "min_visibility", "averaging" (None or eps, min_samples,
         cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam),
-        "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far))}``.
+        "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far)),
+        "input" (:class:`~opnet.run_settings.InputSettings`), "decoding"
+        (:class:`~opnet.run_settings.DecodingSettings`)}``: the flat keys are those two's values.
     Raises:
         ValueError: ``<path>: opnet metadata <key>=<value>: expected <what>`` (a ``SettingError``) for the
         first bad field, ``<path>: opnet metadata lacks <key>; ...`` for a missing one.
@@ -102,16 +105,19 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         raise f.fail("decoding.averaging", avg, "null or a mapping")
     for key in AVERAGING_REQUIRED if avg is not None else ():
         f.get(avg, key, "decoding.averaging.")
-    s = read_settings(meta, METADATA, f.source)
+    s = read_settings(meta, METADATA, f.source)  # every value the schema knows, in its order
+    framing = InputSettings.from_metadata(meta, f.source)  # absent trained_clip: exported before it was recorded
+    decoding = DecodingSettings.from_metadata(meta, f.source)
+    averaging = decoding.averaging
     out: dict[str, Any] = {
         "grid_size": s["grid"], "slots": s["slots"],
         "channels_per_slot": f.value(meta, "channels_per_slot", Whole(1, 1024)),
-        "input_size": s["input_size"], "fit": s.get("fit", "pad"), "interpolation": s.get("interpolation", "area"),
-        "roi": s.get("roi"), "threshold": s["threshold"], "score": s["score"], "min_visibility": s["min_visibility"],
-        "averaging": None if avg is None else {"eps": s["averaging.eps"], "min_samples": s["averaging.min_samples"],
-                                               "cluster_score": s["averaging.cluster_score"],
-                                               "keep_noise": s.get("averaging.keep_noise", False)},
-        "trained_clip": s.get("trained_clip"),  # absent: exported before it was recorded
+        "input_size": framing.size, "fit": framing.fit, "interpolation": framing.interpolation, "roi": framing.roi,
+        "threshold": decoding.threshold, "score": decoding.score, "min_visibility": decoding.min_visibility,
+        "averaging": None if averaging is None else {"eps": averaging.eps, "min_samples": averaging.min_samples,
+                                                     "cluster_score": averaging.cluster_score,
+                                                     "keep_noise": averaging.keep_noise},
+        "trained_clip": framing.trained_clip, "input": framing, "decoding": decoding,
     }
     ps = f.mapping(meta, "pose_space")
     group = f.array(ps, "group", (-1, 3, 3), "pose_space.", max_size=8 * MAX_GROUP_SIZE)

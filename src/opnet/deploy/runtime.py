@@ -33,6 +33,7 @@ from opnet.metrics.records import HypothesisSet
 from opnet.data.roi import crop_image, parse_roi
 from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner
 from opnet.parameterizations.averaging import PoseAveraging
+from opnet.run_settings import DecodingSettings, InputSettings
 
 METADATA_KEY = "opnet"
 
@@ -84,16 +85,20 @@ class OnnxPoseEstimator:
         self.settings = validate_metadata(self.meta, self.path)
         self._check_graph()
         s = self.settings
-        self.threshold, self.score, self.min_visibility = s["threshold"], s["score"], s["min_visibility"]
+        #: the exported framing and decoding (:mod:`opnet.run_settings`)
+        self.input: InputSettings = s["input"]
+        self.decoding: DecodingSettings = s["decoding"]
+        d = self.decoding
+        self.threshold, self.score, self.min_visibility = d.threshold, d.score, d.min_visibility
         ps = s["pose_space"]
         space = PoseSpaceArrays(ps["Lambda"], ps["group"], ps["delta"], ps["revolution"], ps["lam"])
-        avg = s["averaging"]
-        self.averaging = None if avg is None or not averaging else PoseAveraging(space, avg["eps"], avg["min_samples"],
-                                                                avg["cluster_score"], avg["keep_noise"])
-        self.input_size = s["input_size"]
-        self.fit = s["fit"]
-        self.roi = s["roi"] if roi == "model" else parse_roi(roi, "roi")
-        self.trained_clip: tuple[float, float] | None = s["trained_clip"]
+        avg = d.averaging
+        self.averaging = None if avg is None or not averaging else PoseAveraging(space, avg.eps, avg.min_samples,
+                                                                avg.cluster_score, avg.keep_noise)
+        self.input_size = self.input.size
+        self.fit = self.input.fit
+        self.roi = self.input.roi if roi == "model" else parse_roi(roi, "roi")
+        self.trained_clip: tuple[float, float] | None = self.input.trained_clip
         self.clip = working_clip(clip, self.trained_clip)
         self.refiner: Refiner | None = None
         if icp is not None:
@@ -123,7 +128,7 @@ class OnnxPoseEstimator:
         """(1, 1, S, S) float32 network input and (1, 8) float64 input camera of one image."""
         depth, camera = crop_image(np.asarray(depth, dtype=np.float32), camera, self.roi, "roi")
         image, cam = to_network_input(depth, camera, size=self.input_size,
-                                      interpolation=_INTERPOLATION[self.settings["interpolation"]],
+                                      interpolation=_INTERPOLATION[self.input.interpolation],
                                       fit=self.fit)
         row = [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
         return image[None, None].astype(np.float32), np.asarray([row], dtype=np.float64)

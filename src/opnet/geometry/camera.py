@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from opnet.settings_schema import MAX_CLIP_END_M, SETTINGS, read_settings
+from opnet.settings_schema import MAX_CLIP_END_M, SETTINGS
 
 if TYPE_CHECKING:
     import torch
@@ -34,7 +34,7 @@ def parse_clip(value: object, option: str = "clip") -> tuple[float, float] | Non
 
 
 #: ``clip`` values of predict.py and the ONNX runtime that are no planes: the model's training
-#: planes (its checkpoint's ``trained_clip``), or the input camera's own
+#: planes (``trained_clip`` of its :class:`~opnet.run_settings.InputSettings`), or the input camera's own
 CLIP_SOURCES = ("model", "camera")
 
 
@@ -49,16 +49,6 @@ def working_clip(value: object, trained: tuple[float, float] | None, option: str
     if isinstance(value, str):
         raise ValueError(f"{option}={value!r}: expected {', '.join(CLIP_SOURCES)} or [near, far] in metres")
     return parse_clip(value, option)
-
-
-def trained_clip(config: Any, source: object) -> tuple[float, float] | None:
-    """The clip planes of the training scenes' cameras that a run config (a checkpoint's, read from
-    ``source``) records as ``trained_clip`` (train.py records them), or None.
-
-    Raises:
-        SettingError: naming ``source``: not [near, far] metres.
-    """
-    return read_settings(config, {"trained_clip": "trained_clip"}, f"{source}: the checkpoint's config").get("trained_clip")
 
 
 def describe_clip(clip: tuple[float, float] | None, trained: tuple[float, float] | None) -> str:

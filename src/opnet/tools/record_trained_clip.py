@@ -2,8 +2,9 @@
 
     opnet-record-trained-clip <ckpt> [--data ROOT ...] (--write <file.ckpt> | --in-place)
 
-train.py stores the clip planes of its training scenes' cameras in the run config of every
-checkpoint (``trained_clip``): predict.py and the ONNX runtime normalize a new image's depth with
+train.py stores the clip planes of its training scenes' cameras in every checkpoint (``trained_clip``
+of its settings entry, :mod:`opnet.run_settings`; the run config's ``trained_clip`` in checkpoints
+written before that entry): predict.py and the ONNX runtime normalize a new image's depth with
 them. For an older checkpoint this reads the planes from its training datasets (the config's
 ``data.root`` unless ``--data`` names them; their scenes must share one pair), writes them into a
 copy (or the file itself with ``--in-place``) atomically, and reads it back. A refused checkpoint, a
@@ -24,7 +25,7 @@ from opnet.cli.build import load_checkpoint, read_checkpoint  # noqa: E402
 from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
 from opnet.data.datamodule import ConcatScenes, SceneSamples, as_paths  # noqa: E402
 from opnet.datasets import open_dataset  # noqa: E402
-from opnet.geometry.camera import trained_clip  # noqa: E402
+from opnet.run_settings import CHECKPOINT_KEY
 
 #: scenes whose cameras are read, spread over the datasets
 PROBES = 64
@@ -51,11 +52,13 @@ def datasets_clip(roots: list[Path]) -> tuple[float, float]:
 def record(src: Path, dest: Path, roots: list[Path] | None = None) -> tuple[float, float]:
     """Write ``src`` with its training planes recorded to ``dest`` (may be ``src``); the planes."""
     ckpt = read_checkpoint(src)
-    _, cfg = load_checkpoint(src)
+    system, cfg = load_checkpoint(src)
     planes = datasets_clip(roots or as_paths(cfg.data.get("root")))
     ckpt["hyper_parameters"]["config"]["trained_clip"] = [float(planes[0]), float(planes[1])]
+    if CHECKPOINT_KEY in ckpt:  # the settings the checkpoint is read with
+        ckpt[CHECKPOINT_KEY] = system.settings.with_trained_clip(planes).to_dict()
     save_checkpoint(ckpt, dest)
-    if trained_clip(load_checkpoint(dest)[1], dest) != planes:
+    if load_checkpoint(dest)[0].settings.input.trained_clip != planes:
         raise ValueError(f"{dest}: the written checkpoint does not read back with trained_clip {planes}")
     return planes
 

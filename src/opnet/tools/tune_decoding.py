@@ -45,6 +45,7 @@ from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E
 from opnet.metrics.records import GroundTruthSet  # noqa: E402
 from opnet.parameterizations.averaging import PoseAveraging  # noqa: E402
 from opnet.parameterizations.base import Parameterization  # noqa: E402
+from opnet.run_settings import CHECKPOINT_KEY, RunSettings
 
 SEARCH: dict[str, list[Any]] = {
     "averaging": [False, True],
@@ -138,11 +139,16 @@ def _rows(batch: Batch, keep: list[int]) -> Batch:
                  [batch.gt_sets[j] for j in keep], [batch.names[j] for j in keep])
 
 
-def decoder(param: Parameterization, settings: dict[str, Any]) -> Parameterization:
-    """The parameterization with the decoding ``settings`` (keys of :data:`SEARCH`)."""
+def decoding_overrides(settings: dict[str, Any]) -> dict[str, Any]:
+    """The decoding ``settings`` (keys of :data:`SEARCH`) as ``decoding=`` overrides spell them."""
     plain = {k: v for k, v in settings.items() if k not in (*AVERAGING_KEYS, "averaging")}
     plain["averaging"] = {k: v for k, v in settings.items() if k in AVERAGING_KEYS} if settings["averaging"] else False
-    return param.with_decoding(**plain)
+    return plain
+
+
+def decoder(param: Parameterization, settings: dict[str, Any]) -> Parameterization:
+    """The parameterization with the decoding ``settings`` (keys of :data:`SEARCH`)."""
+    return param.with_decoding(**decoding_overrides(settings))
 
 
 def current_settings(param: Parameterization) -> dict[str, Any]:
@@ -183,8 +189,9 @@ CONFIG_KEYS = {"averaging": "averaging", "score": "score", "min_visibility": "mi
 
 
 def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]) -> None:
-    """A copy of checkpoint ``src`` whose saved config decodes with ``settings``, written atomically
-    to ``dest`` and read back: its parameterization must decode as tuned.
+    """A copy of checkpoint ``src`` whose saved config (and settings entry, :mod:`opnet.run_settings`,
+    where it has one) decodes with ``settings``, written atomically to ``dest`` and read back: its
+    parameterization must decode as tuned.
 
     Raises:
         ValueError: ``dest`` is ``src`` or cannot be written, or the copy does not load with the tuned decoding.
@@ -197,6 +204,10 @@ def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]
     param = ckpt["hyper_parameters"]["config"]["parameterization"]
     for key, value in settings.items():
         param[CONFIG_KEYS[key]] = value
+    if CHECKPOINT_KEY in ckpt:  # the settings the checkpoint is read with
+        saved = RunSettings.from_dict(ckpt[CHECKPOINT_KEY], f"{src}: the checkpoint's {CHECKPOINT_KEY}")
+        tuned = saved.decoding.with_overrides(decoding_overrides(settings))
+        ckpt[CHECKPOINT_KEY] = saved.with_decoding(tuned).to_dict()
     save_checkpoint(ckpt, dest)
     system, _ = load_checkpoint(dest)
     loaded = current_settings(system.parameterization)

@@ -1,0 +1,419 @@
+"""What a trained model needs at inference, typed: its framing, its decoding and its object.
+
+A run's settings are made once at the edge (train.py, from its Hydra config, in
+:func:`opnet.cli.build.build_components`), held by the system (``OPNetSystem.settings``) and saved
+as their own checkpoint entry (:data:`CHECKPOINT_KEY`, :meth:`RunSettings.to_dict`); predict.py,
+eval.py, the ONNX export and its runtime read them back from there (:func:`opnet.cli.build.load_checkpoint`,
+:meth:`RunSettings.from_dict`), not from the run config. A checkpoint written before the entry
+existed is read from its run config (:meth:`RunSettings.from_training_config`).
+
+One vocabulary: the entry, the ONNX metadata and eval.py's / predict.py's ``+decoding.*`` overrides
+spell the keys alike (``decoding.averaging.eps``, :data:`~opnet.settings_schema.METADATA`); a run
+config's own spellings (``parameterization.averaging_eps``, :data:`~opnet.settings_schema.TRAINING`)
+are read only where a config is. Every value is checked by the one schema
+(:mod:`opnet.settings_schema`): a bad one is one :class:`~opnet.settings_schema.SettingError`
+naming the source file and the key.
+
+Standard library and numpy only: the torch-free ONNX runtime imports it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from opnet.settings_schema import (
+    METADATA,
+    OVERRIDE,
+    TRAINING,
+    Box,
+    SettingError,
+    check_settings,
+    read_settings,
+)
+
+#: the checkpoint entry that holds :meth:`RunSettings.to_dict`
+CHECKPOINT_KEY = "opnet_settings"
+#: the layout of that entry
+FORMAT = 1
+
+#: the settings of the decoding and of the input, by their schema names
+DECODING_NAMES = ("threshold", "min_visibility", "score", "averaging", "averaging.eps", "averaging.min_samples",
+                  "averaging.cluster_score", "averaging.keep_noise")  # fmt: skip
+INPUT_NAMES = ("input_size", "fit", "interpolation", "roi", "trained_clip")
+#: the top-level keys of the checkpoint entry
+ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object")
+
+
+class _Missing:
+    def __repr__(self) -> str:
+        return "<missing>"
+
+
+MISSING = _Missing()
+
+
+def _spelled(names: Sequence[str], keys: Mapping[str, str]) -> dict[str, str]:
+    return {name: keys[name] for name in names if name in keys}
+
+
+def _nest(values: Mapping[str, Any], keys: Mapping[str, str]) -> dict[str, Any]:
+    """The settings ``values`` (by name) as the nested mapping ``keys`` spells (``decoding.averaging.eps``)."""
+    tree: dict[str, Any] = {}
+    for name, value in values.items():
+        *parents, leaf = keys[name].split(".")
+        node = tree
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
+
+
+def _require(tree: Any, keys: Sequence[str], source: str) -> None:
+    """Every key of ``keys`` (dotted) is in ``tree``; a missing one is a :class:`SettingError` naming it."""
+    for key in keys:
+        node = tree
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                raise SettingError(key, MISSING, "missing; the entry is written whole", source)
+            node = node[part]
+
+
+def _plain(value: Any, key: str, source: str) -> Any:
+    """``value`` as JSON-able data (mappings with text keys, lists, text, numbers, booleans, None)."""
+    if value is None or isinstance(value, str | bool):
+        return value
+    if isinstance(value, int | float):
+        if isinstance(value, float) and not math.isfinite(value):
+            raise SettingError(key, value, "expected a finite number", source)
+        return value
+    if isinstance(value, Mapping):
+        if not all(isinstance(k, str) for k in value):
+            raise SettingError(key, value, "expected a mapping with text keys", source)
+        return {k: _plain(v, f"{key}.{k}", source) for k, v in value.items()}
+    if isinstance(value, Sequence) and not isinstance(value, bytes):
+        return [_plain(v, f"{key}.{i}", source) for i, v in enumerate(value)]
+    raise SettingError(key, value, "expected plain data (text, numbers, lists, mappings)", source)
+
+
+def _checked(instance: Any, values: Mapping[str, Any], fields: Mapping[str, str]) -> None:
+    """Set the frozen ``instance``'s fields to the schema's typed ``values`` (by schema name)."""
+    typed = check_settings(values, METADATA)
+    for name, field in fields.items():
+        object.__setattr__(instance, field, typed[name])
+
+
+@dataclass(frozen=True)
+class AveragingSettings:
+    """The pose averaging of the decoding (:class:`opnet.parameterizations.averaging.PoseAveraging`).
+
+    Attributes:
+        eps: DBSCAN radius as a fraction of δ.
+        min_samples: DBSCAN core-point threshold.
+        cluster_score: a cluster's score from its members': "max", "sum" or "mean".
+        keep_noise: keep DBSCAN noise points (only with min_samples > 1) as single hypotheses.
+    """
+
+    eps: float = 0.5
+    min_samples: int = 1
+    cluster_score: str = "max"
+    keep_noise: bool = False
+
+    def __post_init__(self) -> None:
+        _checked(self, {"averaging.eps": self.eps, "averaging.min_samples": self.min_samples,
+                        "averaging.cluster_score": self.cluster_score, "averaging.keep_noise": self.keep_noise},
+                 {"averaging.eps": "eps", "averaging.min_samples": "min_samples",
+                  "averaging.cluster_score": "cluster_score", "averaging.keep_noise": "keep_noise"})  # fmt: skip
+
+
+@dataclass(frozen=True)
+class DecodingSettings:
+    """How a network output becomes pose hypotheses (docs/method.md#decoding).
+
+    Attributes:
+        threshold: presence threshold τ of a hypothesis.
+        min_visibility: decode only cells whose predicted visibility reaches this (0: all).
+        score: a hypothesis' score: "p", "p*v" or "v".
+        averaging: the pose averaging, or None (every cell's hypothesis kept).
+    """
+
+    threshold: float = 0.1
+    min_visibility: float = 0.0
+    score: str = "p"
+    averaging: AveragingSettings | None = None
+
+    def __post_init__(self) -> None:
+        _checked(self, {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score},
+                 {"threshold": "threshold", "min_visibility": "min_visibility", "score": "score"})
+        if self.averaging is not None and not isinstance(self.averaging, AveragingSettings):
+            raise SettingError("decoding.averaging", self.averaging, "expected None or AveragingSettings")
+
+    @classmethod
+    def _from_values(cls, s: Mapping[str, Any]) -> DecodingSettings:
+        """From typed settings by schema name; absent ones take the defaults."""
+        averaging = None
+        if s.get("averaging"):
+            given = {name.split(".")[1]: value for name, value in s.items() if name.startswith("averaging.")}
+            averaging = AveragingSettings(**given)
+        return cls(**{k: s[k] for k in ("threshold", "min_visibility", "score") if k in s}, averaging=averaging)
+
+    def _values(self) -> dict[str, Any]:
+        """The settings by schema name (the averaging's only when it is on)."""
+        values: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility,
+                                  "score": self.score}
+        if self.averaging is None:
+            values["averaging"] = None
+        else:
+            values.update({f"averaging.{f.name}": getattr(self.averaging, f.name)
+                           for f in dataclasses.fields(AveragingSettings)})
+        return values
+
+    @classmethod
+    def from_training_config(cls, cfg: Any, source: str = "") -> DecodingSettings:
+        """The decoding a run config (train.py's, a checkpoint's saved one) sets under
+        ``parameterization.*``; absent keys take this class's defaults (averaging off).
+
+        Raises:
+            SettingError: ``[<source> ]parameterization.<key>=<value>: expected ...``.
+        """
+        keys = _spelled(DECODING_NAMES, TRAINING)
+        return cls._from_values(read_settings(cfg, keys, source))
+
+    @classmethod
+    def of(cls, parameterization: Any) -> DecodingSettings:
+        """The decoding a parameterization (:class:`opnet.parameterizations.base.Parameterization`) is set to."""
+        avg = parameterization.averaging
+        averaging = None if avg is None else AveragingSettings(avg.eps, avg.min_samples, avg.cluster_score,
+                                                              avg.keep_noise)
+        return cls(parameterization.threshold, parameterization.min_visibility, parameterization.score, averaging)
+
+    def with_overrides(self, overrides: Any, source: str = "") -> DecodingSettings:
+        """These settings with eval.py's / predict.py's ``decoding=`` overrides: ``threshold``,
+        ``min_visibility``, ``score`` and ``averaging`` (false, true, or a mapping of ``eps``,
+        ``min_samples``, ``cluster_score`` over the current ones, which turns it on); None or empty:
+        unchanged.
+
+        Raises:
+            SettingError: a bad value or an unknown key, named as written (``decoding.averaging.eps``).
+        """
+        if not overrides:
+            return self
+        if not isinstance(overrides, Mapping):
+            raise SettingError("decoding", overrides, "expected a mapping of threshold, score, min_visibility, "
+                               "averaging", source)  # fmt: skip
+        given = read_settings({"decoding": overrides}, OVERRIDE, source, closed=("decoding", "decoding.averaging"))
+        changes = {k: given[k] for k in ("threshold", "min_visibility", "score") if k in given}
+        if given.get("averaging") is False:
+            changes["averaging"] = None
+        elif given.get("averaging"):
+            tuned = {name.split(".")[1]: value for name, value in given.items() if name.startswith("averaging.")}
+            changes["averaging"] = dataclasses.replace(self.averaging or AveragingSettings(), **tuned)
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_overrides(cls, overrides: Any, base: DecodingSettings | None = None, source: str = "") -> DecodingSettings:
+        """``base`` (default: the defaults) with the ``decoding=`` overrides (:meth:`with_overrides`)."""
+        return (base or cls()).with_overrides(overrides, source)
+
+    def overrides(self) -> dict[str, Any]:
+        """These settings as ``decoding=`` overrides spell them (``Parameterization.with_decoding``);
+        ``keep_noise`` is none of them."""
+        out: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score}
+        avg = self.averaging
+        out["averaging"] = False if avg is None else {"eps": avg.eps, "min_samples": avg.min_samples,
+                                                      "cluster_score": avg.cluster_score}
+        return out
+
+    def to_metadata(self) -> dict[str, Any]:
+        """``{"decoding": {...}}``: the settings as the ONNX metadata and the checkpoint entry spell them."""
+        return _nest(self._values(), METADATA)
+
+    @classmethod
+    def from_metadata(cls, meta: Any, source: str = "", required: bool = False) -> DecodingSettings:
+        """The settings of :meth:`to_metadata`'s layout (an ONNX export's metadata, a checkpoint's
+        entry); absent ones take the defaults unless ``required``.
+
+        Raises:
+            SettingError: ``[<source> ]decoding.<key>=<value>: expected ...``; with ``required``, a
+            missing key (``<missing>``) or an unknown one too.
+        """
+        keys = _spelled(DECODING_NAMES, METADATA)
+        if required:
+            _require(meta, [keys[n] for n in ("threshold", "min_visibility", "score", "averaging")], source)
+            avg = meta["decoding"]["averaging"]
+            if isinstance(avg, Mapping):
+                _require(meta, [keys[n] for n in DECODING_NAMES if n.startswith("averaging.")], source)
+        closed = ("decoding", "decoding.averaging") if required else ()
+        return cls._from_values(read_settings(meta, keys, source, closed=closed))
+
+
+@dataclass(frozen=True)
+class InputSettings:
+    """How a depth image becomes the network input (docs/method.md#network-input).
+
+    Attributes:
+        size: the side of the square network input, pixels.
+        fit: how the image becomes the square canvas: "pad", "crop", "image" or "image_crop".
+        roi: the region of interest (:mod:`opnet.data.roi`): None, an ``(x0, y0, x1, y1)`` pixel box,
+            ``"auto"`` or ``"auto:S"``.
+        interpolation: the resize the input is made with ("area").
+        trained_clip: the clip planes (near, far) of the training scenes' cameras, metres, with which
+            a new image's depth is normalized; None where the run recorded none.
+    """
+
+    size: int = 128
+    fit: str = "pad"
+    roi: Box | str | None = None
+    interpolation: str = "area"
+    trained_clip: tuple[float, float] | None = None
+
+    _FIELDS: ClassVar[dict[str, str]] = {"input_size": "size", "fit": "fit", "interpolation": "interpolation",
+                                         "roi": "roi", "trained_clip": "trained_clip"}  # fmt: skip
+
+    def __post_init__(self) -> None:
+        _checked(self, {name: getattr(self, field) for name, field in self._FIELDS.items()}, self._FIELDS)
+
+    @classmethod
+    def _from_values(cls, s: Mapping[str, Any]) -> InputSettings:
+        return cls(**{field: s[name] for name, field in cls._FIELDS.items() if name in s})
+
+    def _values(self) -> dict[str, Any]:
+        values = {name: getattr(self, field) for name, field in self._FIELDS.items()}
+        values["roi"] = list(self.roi) if isinstance(self.roi, tuple) else self.roi
+        values["trained_clip"] = None if self.trained_clip is None else list(self.trained_clip)
+        return values
+
+    @classmethod
+    def from_training_config(cls, cfg: Any, source: str = "") -> InputSettings:
+        """The framing a run config sets (``data.input_size``, ``data.fit``, ``data.roi``) and the
+        clip planes train.py recorded in it (``trained_clip``, checkpoints written before the
+        settings entry); absent keys take the defaults.
+
+        Raises:
+            SettingError: ``[<source> ]<key>=<value>: expected ...``, the key as the config spells it.
+        """
+        return cls._from_values(read_settings(cfg, _spelled(INPUT_NAMES, TRAINING), source))
+
+    def to_metadata(self) -> dict[str, Any]:
+        """``{"input": {"size", "fit", "interpolation", "roi"}, "trained_clip": ...}``: the settings as
+        the ONNX metadata and the checkpoint entry spell them."""
+        return _nest(self._values(), METADATA)
+
+    @classmethod
+    def from_metadata(cls, meta: Any, source: str = "", required: bool = False) -> InputSettings:
+        """The settings of :meth:`to_metadata`'s layout; absent ones take the defaults (an export of
+        before ``trained_clip`` was recorded: None) unless ``required``.
+
+        Raises:
+            SettingError: ``[<source> ]<key>=<value>: expected ...``, the key as the metadata spells it.
+        """
+        keys = _spelled(INPUT_NAMES, METADATA)
+        if required:
+            _require(meta, list(keys.values()), source)
+        return cls._from_values(read_settings(meta, keys, source, closed=("input",) if required else ()))
+
+    def with_trained_clip(self, planes: Sequence[float] | None) -> InputSettings:
+        """These settings with the training scenes' clip planes ``planes`` (None: none recorded)."""
+        return dataclasses.replace(self, trained_clip=None if planes is None else (float(planes[0]), float(planes[1])))
+
+
+@dataclass(frozen=True)
+class ObjectSettings:
+    """The object a model was trained for: its object config (``conf/object/``: name, mesh, mesh_scale,
+    symmetry, model_rotation, ...) as plain data, from which :func:`opnet.objects.config.object_from_config`
+    builds it again.
+
+    Attributes:
+        config: the object config, JSON-able; read it, do not change it.
+    """
+
+    config: Mapping[str, Any]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "config", self.checked(self.config))
+
+    @staticmethod
+    def checked(config: Any, key: str = "object", source: str = "") -> dict[str, Any]:
+        """``config`` as a plain dict holding a ``name``; a :class:`SettingError` naming ``key`` otherwise."""
+        if not isinstance(config, Mapping):
+            raise SettingError(key, config, "expected an object config (a mapping with a name)", source)
+        name = config.get("name")
+        if not isinstance(name, str) or not name:
+            raise SettingError(f"{key}.name", name, "expected the object's name", source)
+        return _plain(config, key, source)
+
+    @property
+    def name(self) -> str:
+        return self.config["name"]
+
+    @classmethod
+    def from_training_config(cls, cfg: Any, source: str = "") -> ObjectSettings | None:
+        """The ``object`` section of a run config (None when it has none)."""
+        config = cfg.get("object") if isinstance(cfg, Mapping) else None
+        return None if config is None else cls(cls.checked(config, "object", source))
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Everything a trained model needs at inference besides its weights and its network.
+
+    Attributes:
+        input: the framing and the training clip planes.
+        decoding: the decoding.
+        object: the object, or None (a system built without an object config).
+    """
+
+    input: InputSettings = InputSettings()
+    decoding: DecodingSettings = DecodingSettings()
+    object: ObjectSettings | None = None
+
+    @classmethod
+    def from_training_config(cls, cfg: Any, source: str = "", decoding: DecodingSettings | None = None) -> RunSettings:
+        """The settings of a run config: train.py's, or the saved one of a checkpoint written before
+        the settings entry (with its ``trained_clip``). ``decoding``: the decoding the parameterization
+        built from it has (its class's defaults fill keys the config lacks); default: the config's
+        keys (:meth:`DecodingSettings.from_training_config`).
+
+        Raises:
+            SettingError: ``[<source> ]<key>=<value>: expected ...``, the key as the config spells it.
+        """
+        return cls(InputSettings.from_training_config(cfg, source),
+                   decoding if decoding is not None else DecodingSettings.from_training_config(cfg, source),
+                   ObjectSettings.from_training_config(cfg, source))  # fmt: skip
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data: ``{"format", "input", "trained_clip", "decoding", "object"}``, the input
+        and the decoding spelt as in the ONNX metadata (:mod:`opnet.deploy.metadata`)."""
+        return {"format": FORMAT, **self.input.to_metadata(), **self.decoding.to_metadata(),
+                "object": None if self.object is None else _plain(self.object.config, "object", "")}
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str = "") -> RunSettings:
+        """The settings :meth:`to_dict` wrote, every key checked (``source``: ``<file>: the checkpoint's
+        opnet_settings``).
+
+        Raises:
+            SettingError: one line, ``<source> <key>=<value>: expected ...``: a missing, unknown or bad key.
+        """
+        if not isinstance(d, Mapping):
+            raise SettingError(CHECKPOINT_KEY, d, "expected a mapping", source)
+        for key in d:
+            if key not in ENTRY_KEYS:
+                raise SettingError(str(key), d[key], f"unknown setting; expected one of {', '.join(ENTRY_KEYS)}",
+                                   source)  # fmt: skip
+        _require(d, ["format"], source)
+        if d["format"] != FORMAT or isinstance(d["format"], bool):
+            raise SettingError("format", d["format"], f"expected {FORMAT} (written by another opnet version)", source)
+        _require(d, ["object"], source)
+        obj = None if d["object"] is None else ObjectSettings(ObjectSettings.checked(d["object"], "object", source))
+        return cls(InputSettings.from_metadata(d, source, required=True),
+                   DecodingSettings.from_metadata(d, source, required=True), obj)  # fmt: skip
+
+    def with_decoding(self, decoding: DecodingSettings) -> RunSettings:
+        return dataclasses.replace(self, decoding=decoding)
+
+    def with_trained_clip(self, planes: Sequence[float] | None) -> RunSettings:
+        return dataclasses.replace(self, input=self.input.with_trained_clip(planes))

@@ -1,0 +1,106 @@
+"""A freshly trained checkpoint holds its settings as their own entry (``opnet_settings``), and predict.py,
+eval.py, the export and the ONNX runtime read them from there; the same checkpoint in the layout of before
+the entry (its settings in its run config) loads to equal settings."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+from conftest import compose_cfg
+
+from opnet.cli import eval as eval_cli
+from opnet.cli import predict as predict_cli
+from opnet.cli.build import load_checkpoint, read_checkpoint
+from opnet.datasets.ipa import IPADataset
+from opnet.deploy.export import export_onnx
+from opnet.run_settings import CHECKPOINT_KEY, RunSettings
+
+
+def _old_layout(ckpt: dict[str, Any]) -> dict[str, Any]:
+    """``ckpt`` as train.py wrote it before the settings entry: the clip planes in the run config."""
+    entry = ckpt.pop(CHECKPOINT_KEY)
+    ckpt["hyper_parameters"]["config"]["trained_clip"] = entry["trained_clip"]
+    return ckpt
+
+
+def _with_entry(checkpoint: Path, path: Path, **changes: Any) -> Path:
+    """A copy of ``checkpoint`` whose settings entry has ``changes`` (``decoding={...}``, ``input={...}``)."""
+    ckpt = read_checkpoint(checkpoint)
+    for section, values in changes.items():
+        ckpt[CHECKPOINT_KEY][section].update(values)
+    torch.save(ckpt, path)
+    return path
+
+
+def test_a_trained_checkpoint_holds_its_settings_and_the_old_layout_reads_alike(checkpoint: Path,
+                                                                                tmp_path: Path) -> None:
+    ckpt = read_checkpoint(checkpoint)
+    entry = ckpt[CHECKPOINT_KEY]
+    assert json.loads(json.dumps(entry)) == entry  # plain data
+    system, cfg = load_checkpoint(checkpoint)
+    assert system.settings == RunSettings.from_dict(entry, "x")
+    assert system.settings.object.name == "zbracket" == system.obj.name
+    assert system.settings.input.trained_clip is not None
+    assert "trained_clip" not in cfg  # the planes travel in the settings, not in the run config
+    old = tmp_path / "old.ckpt"
+    torch.save(_old_layout(ckpt), old)
+    assert load_checkpoint(old)[0].settings == system.settings
+
+
+def _predict(ckpt: Path, tiny_dataset: Path, out: Path, *extra: str) -> list[dict[str, Any]]:
+    record = IPADataset(tiny_dataset)[5]
+    npy = out.parent / "frame.npy"
+    if not npy.exists():
+        np.save(npy, record.depth.astype(np.float32))
+    c = record.camera
+    args = [f"ckpt={ckpt}", f"input={npy}", f"out={out}", f"camera.fx={c.fx}", f"camera.fy={c.fy}",
+            f"camera.cx={c.cx}", f"camera.cy={c.cy}", f"camera.clip_start={c.clip_start}",
+            f"camera.clip_end={c.clip_end}", *extra]  # fmt: skip
+    assert predict_cli.run(compose_cfg("predict", args)) == 0
+    return json.loads((out / f"{npy.stem}.json").read_text())["poses"]
+
+
+def test_predict_reads_the_decoding_and_the_framing_from_the_entry(checkpoint: Path, tiny_dataset: Path,
+                                                                   tmp_path: Path) -> None:
+    edited = _with_entry(checkpoint, tmp_path / "edited.ckpt", decoding={"threshold": 0.0, "averaging": None},
+                         input={"roi": [8, 4, 120, 116]})  # fmt: skip
+    by_entry = _predict(edited, tiny_dataset, tmp_path / "entry")
+    by_command_line = _predict(checkpoint, tiny_dataset, tmp_path / "command_line", "+decoding.threshold=0.0",
+                               "+decoding.averaging=false", "roi=[8,4,120,116]")  # fmt: skip
+    plain = _predict(checkpoint, tiny_dataset, tmp_path / "plain")
+    assert len(by_entry) > len(plain)  # every cell a hypothesis
+    assert by_entry == by_command_line
+
+
+def test_eval_reads_the_decoding_from_the_entry(checkpoint: Path, tmp_path: Path) -> None:
+    edited = _with_entry(checkpoint, tmp_path / "edited.ckpt", decoding={"threshold": 0.0, "averaging": None})
+    by_entry = eval_cli.run(compose_cfg("eval", [f"ckpt={edited}", f"out={tmp_path / 'entry'}", "examples=0"]))
+    by_command_line = eval_cli.run(compose_cfg("eval", [f"ckpt={checkpoint}", f"out={tmp_path / 'command_line'}",
+                                                        "examples=0", "+decoding.threshold=0.0",
+                                                        "+decoding.averaging=false"]))  # fmt: skip
+    results = [sorted((p.name, p.read_text()) for p in (tmp_path / name / "results").glob("*.json"))
+               for name in ("entry", "command_line")]  # fmt: skip
+    assert results[0] and results[0] == results[1]
+    assert by_entry["ap"] == by_command_line["ap"]
+
+
+def test_the_export_and_its_runtime_carry_the_entrys_settings(checkpoint: Path, tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    edited = _with_entry(checkpoint, tmp_path / "edited.ckpt",
+                         decoding={"threshold": 0.25, "averaging": {"eps": 0.75, "min_samples": 2,
+                                                                    "cluster_score": "mean", "keep_noise": True}})
+    system, cfg = load_checkpoint(edited)
+    meta = export_onnx(system, cfg, edited, tmp_path / "m.onnx")
+    assert meta["decoding"] == system.settings.decoding.to_metadata()["decoding"]
+    assert meta["decoding"]["averaging"]["keep_noise"] is True
+    assert system.parameterization.averaging.keep_noise is True
+    estimator = OnnxPoseEstimator(tmp_path / "m.onnx")
+    assert estimator.decoding == system.settings.decoding
+    assert estimator.input == system.settings.input
