@@ -2,14 +2,16 @@
 
 The network runs once over the split (its hypotheses and the scenes' depth images are kept in
 ``--cache``, so further variants skip it); each variant of ``conf/refine/search.yaml`` (``--variant
-LABEL:icp.KEY=VALUE,search.KEY=VALUE``) then refines every frame, timed per frame and per stage
+LABEL:icp.KEY=VALUE,search.KEY=VALUE``, or another group of ``conf/refine/``: ``--refine NAME``) then
+refines every frame, timed per frame and per stage
 (:data:`opnet.geometry.icp.STAGES`). Printed: AP (Brégier, max occlusion 0.5), found share,
 milliseconds per frame (mean, median, worst) and by stage, and the wall time's CPU share (a
 loaded machine shows there). Target for the plate frames: at most 300 ms per frame on 2 cores.
 
     python scripts/bench/bench_refine.py --ckpt models/cell_ipd_plate.ckpt \\
         --data root=outputs/data/cells/val_c6 --data test_root=outputs/data/cells/val_c6 --data cache=false \\
-        --decoding averaging=false [--scenes 20] [--variant "LABEL:search.keep=2"] [--profile]
+        --decoding averaging=false [--scenes 20] [--refine search_fast] [--variant "LABEL:search.keep=2"] \\
+        [--profile] [--out results/verification/speed.md]
 """
 
 from __future__ import annotations
@@ -19,7 +21,10 @@ import copy
 import cProfile
 import os
 import pickle
+import platform
 import pstats
+import shlex
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -30,7 +35,7 @@ import numpy as np
 import yaml
 from omegaconf import OmegaConf
 
-from opnet.fileio.atomic import write_bytes_atomic
+from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.geometry.icp import STAGES, Refiner, settings_from_config
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import scene_outcomes
@@ -96,6 +101,28 @@ def variant(text: str, base: dict[str, Any]) -> tuple[str, Any]:
     return label.strip(), settings_from_config(conf)
 
 
+def refine_group(name: str) -> dict[str, Any]:
+    """The composed ``refine=<name>`` group (its defaults list resolved), as a plain dict."""
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        cfg = compose(config_name="eval", overrides=[f"refine={name}"])
+    return OmegaConf.to_container(cfg.refine, resolve=True)
+
+
+def cpu_name() -> str:
+    """The CPU's model name (Linux), else the platform's word for it."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "this CPU"
+
+
 def run_variant(obj: Any, data: list, settings: Any, profile: bool) -> dict[str, Any]:
     """Refine every frame with ``settings``: AP, found share, ms per frame, by stage."""
     refiner = Refiner.for_object(obj, settings)
@@ -132,7 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--decoding", action="append", default=[], help="KEY=VALUE as eval.py's +decoding.KEY")
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--variant", action="append", default=[], help="LABEL:icp.KEY=VALUE,search.KEY=VALUE")
+    ap.add_argument("--refine", action="append", default=[], help="another group of conf/refine/ (NAME)")
     ap.add_argument("--no-base", action="store_true", help="only the variants, not conf/refine/search.yaml itself")
+    ap.add_argument("--out", type=Path, help="also write the table here (markdown, with the command)")
     ap.add_argument("--cache", type=Path, default=REPO_ROOT / "outputs" / "bench_refine" / "frames.pkl")
     ap.add_argument("--profile", action="store_true", help="print the cProfile of each variant")
     args = ap.parse_args(argv)
@@ -140,15 +169,27 @@ def main(argv: list[str] | None = None) -> int:
     obj, frames_ = frames(args.ckpt, data, decoding, args.scenes, args.cache)
     base = OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
     arms = ([] if args.no_base else [("search.yaml", settings_from_config(base))]) + [variant(v, base) for v in args.variant]
+    arms += [(f"refine={name}", settings_from_config(refine_group(name))) for name in args.refine]
     hyps = sum(len(f[2].score) for f in frames_)
-    print(f"{len(frames_)} frames, {hyps / max(len(frames_), 1):.1f} hypotheses per frame")
+    lines = [f"{len(frames_)} frames, {hyps / max(len(frames_), 1):.1f} hypotheses per frame", ""]
     cols = ["ap", "found", "ms_mean", "ms_p50", "ms_max", "cpu_share", *(f"{k}_ms" for k in STAGES)]
-    print("| variant | " + " | ".join(cols) + " |")
-    print("|---" * (len(cols) + 1) + "|")
+    lines += ["| variant | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    print("\n".join(lines), flush=True)
     for label, settings in arms:
         row = run_variant(obj, frames_, settings, args.profile)
-        print(f"| {label} | " + " | ".join(f"{row[c]:.3f}" if c in ("ap", "found", "cpu_share") else f"{row[c]:.0f}"
-                                          for c in cols) + " |", flush=True)  # fmt: skip
+        lines.append(f"| {label} | " + " | ".join(f"{row[c]:.3f}" if c in ("ap", "found", "cpu_share") else f"{row[c]:.0f}"
+                                                  for c in cols) + " |")  # fmt: skip
+        print(lines[-1], flush=True)
+    if args.out:
+        command = "python scripts/bench/bench_refine.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+        explained = ("`ap`: Brégier AP (max occlusion 0.5) of the refined hypotheses; `found`: share of the parts to find "
+                     "that were matched; `ms_*`: wall milliseconds of the refinement per frame (mean, median, worst); "
+                     "`cpu_share`: process CPU time over wall time (above 1: both cores at work); `<stage>_ms`: mean "
+                     "milliseconds per frame of each stage (the slowest thread's where they ran side by side): scene "
+                     "(the depth as points), icp, search, polish (ICP of the searched poses), rank. Checkpoint: "
+                     f"`{os.path.relpath(Path(args.ckpt).resolve(), REPO_ROOT)}`; nothing else ran on the machine.")
+        write_text_atomic(args.out, f"# Refinement speed\n\nMade by `{command}` on {cpu_name()} ({os.cpu_count()} "
+                          "cores).\n\n" + "\n".join(lines) + "\n\n" + explained + "\n")  # fmt: skip
     return 0
 
 

@@ -5,13 +5,22 @@ the search never leaves a right pose; bad settings are one clear error."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
 
 from opnet.geometry.camera import Camera
-from opnet.geometry.icp import ICPSettings, ModelCloud, SceneCloud, _rotation, refine_hypotheses, refine_pose, \
-    settings_from_config
+from opnet.geometry.icp import (
+    ICPSettings,
+    ModelCloud,
+    SceneCloud,
+    _rotation,
+    refine_hypotheses,
+    refine_pose,
+    settings_from_config,
+)
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.geometry.search import SearchSettings, agreement, model_axis, pose_agreement, search_pose
 from opnet.objects.model import ObjectModel
@@ -209,3 +218,41 @@ def test_icp_on_a_thinned_neighbourhood_stops_short_on_a_plate_every_second_pixe
     assert _angle(R_gt, strided.R) < 0.5 and np.linalg.norm(strided.t - T_GT) < 5e-4
     with pytest.raises(ValueError, match="icp.local_points must be an integer >= 0"):
         ICPSettings(local_points=-1)
+
+
+def test_every_refine_option_composes_to_settings_and_search_fast_is_search_with_its_speed_keys() -> None:
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import REPO_ROOT, config_dir
+
+    settings = {}
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        for path in sorted((REPO_ROOT / "conf" / "refine").glob("*.yaml")):
+            settings[path.stem] = settings_from_config(compose(config_name="eval", overrides=[f"refine={path.stem}"]).refine)
+    assert {"none", "icp", "search", "search_fast"} <= set(settings) and settings["none"] is None
+    fast, full = settings["search_fast"], settings["search"]
+    changed = {f.name for f in dataclasses.fields(full) if getattr(full, f.name) != getattr(fast, f.name)}
+    assert changed == {"association", "polish_association", "iterations", "min_gain"}
+    assert (fast.association, fast.polish_association) == ("projective", "nearest") and fast.search == full.search
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_threads_share_an_images_hypotheses_and_change_no_result(plate_scene, threads: int) -> None:
+    from opnet.geometry.icp import refine_image
+    from opnet.metrics.records import HypothesisSet
+
+    _, R_gt, depth, model, space = plate_scene
+    poses = [_turned(R_gt, a, s) for a, s in ((180.0, (5.0, 5.0)), (20.0, (-6.0, 0.0)), (90.0, (0.0, 7.0)),
+                                             (0.0, (0.0, 0.0)), (45.0, (3.0, -3.0)))]  # fmt: skip
+    hyps = HypothesisSet(np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]),
+                         np.array([0.9, 0.5, 0.2, 0.7, 0.4]))  # fmt: skip
+    base = ICPSettings(budget_ms=None, search=SearchSettings(suppress=0.0, merge=0.0))
+    one_timings, many_timings = {}, {}
+    one, s1 = refine_image(hyps, depth, CAM, model, space, dataclasses.replace(base, threads=1), one_timings)
+    many, s2 = refine_image(hyps, depth, CAM, model, space, dataclasses.replace(base, threads=threads), many_timings)
+    assert s1 == s2 == ["searched"] * 5
+    assert np.allclose(one.R, many.R, atol=1e-9) and np.allclose(one.t, many.t, atol=1e-10)
+    assert np.array_equal(one.score, many.score)
+    assert set(one_timings) == set(many_timings) == {"scene", "icp", "search", "polish", "rank"}
+    with pytest.raises(ValueError, match="icp.threads must be a positive integer, got 0"):
+        ICPSettings(threads=0)

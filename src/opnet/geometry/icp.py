@@ -37,6 +37,7 @@ import contextlib
 import dataclasses
 import functools
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -61,6 +62,8 @@ from opnet.geometry.search import (
 #: how ICP pairs a model point with the scene: its nearest scene point (a k-d tree per hypothesis) | the
 #: scene point of the pixel it projects onto (every hypothesis in one batch, several times faster)
 ASSOCIATIONS = ("nearest", "projective")
+#: the most threads an image's refinement may take
+MAX_THREADS = 64
 STATUSES = ("refined", "searched", "suppressed", "no_depth", "rejected", "budget")
 
 
@@ -90,6 +93,9 @@ class ICPSettings:
             metric or a gripper can tell).
         min_gain: nearest-point ICP also stops when a step lowers the cost by less than this share of it (0:
             only by ``converged`` or when no step lowers it).
+        threads: an image's hypotheses are refined in this many threads when there is no time budget (each
+            thread a share of them, in batches; numpy's loops and the k-d tree release the interpreter): 2 keeps
+            both cores of a 2-core CPU busy, 1 refines in the calling thread. Results do not depend on it.
         search: None (ICP only), or the depth-agreement search (:mod:`opnet.geometry.search`) run
             after ICP on each hypothesis within the budget, its best pose polished by ICP again.
     """
@@ -109,6 +115,7 @@ class ICPSettings:
     polish_association: str | None = None
     converged: tuple[float, float] = (1e-4, 1e-5)
     min_gain: float = 1e-3
+    threads: int = 2
     search: SearchSettings | None = None
 
     def __post_init__(self) -> None:
@@ -117,10 +124,12 @@ class ICPSettings:
         for key, value in positive.items():
             if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
                 raise ValueError(f"icp.{key} must be a positive number, got {value!r}")
-        for key in ("iterations", "min_points", "model_points", "stride"):
+        for key in ("iterations", "min_points", "model_points", "stride", "threads"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"icp.{key} must be a positive integer, got {value!r}")
+        if self.threads > MAX_THREADS:
+            raise ValueError(f"icp.threads must be at most {MAX_THREADS}, got {self.threads!r}")
         if isinstance(self.local_points, bool) or not isinstance(self.local_points, int) or self.local_points < 0:
             raise ValueError(f"icp.local_points must be an integer >= 0 (0: all), got {self.local_points!r}")
         converged = self.converged
@@ -414,11 +423,12 @@ def _neighbourhoods(t: np.ndarray, scene: SceneCloud, settings: ICPSettings, dia
 
 
 def refine_poses_nearest(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneCloud, space: Any,
-                         settings: ICPSettings = ICPSettings()) -> list[ICPResult]:  # fmt: skip
+                         settings: ICPSettings = ICPSettings(), workers: int = -1) -> list[ICPResult]:  # fmt: skip
     """:func:`refine_pose` of many poses (H, 3, 3), (H, 3) at once: the same nearest points (each hypothesis's
     own neighbourhood, all in one k-d tree), cost, step, halving, stopping rules and guard, every hypothesis's
     step computed and tried in one batch (a handful of tree queries per frame instead of a dozen per
-    hypothesis). Equal to :func:`refine_pose` of each pose up to rounding."""
+    hypothesis). Equal to :func:`refine_pose` of each pose up to rounding. ``workers``: the k-d tree's threads
+    (-1: one per core)."""
     R0, t0 = np.array(R, np.float64).reshape(-1, 3, 3), np.array(t, np.float64).reshape(-1, 3)
     H, D = len(R0), model.diameter
     max_d, huber = settings.max_distance * D, settings.huber * D
@@ -430,7 +440,7 @@ def refine_poses_nearest(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene:
         p, facing = facing_points(Rs, ts, model)
         if not p.shape[1]:
             return p, p.copy(), p.copy(), facing
-        dist, k = tree.query((p + apart[idx, None]).reshape(-1, 3), distance_upper_bound=max_d, workers=-1)
+        dist, k = tree.query((p + apart[idx, None]).reshape(-1, 3), distance_upper_bound=max_d, workers=workers)
         dist, k = dist.reshape(facing.shape), k.reshape(facing.shape)
         kept = facing & np.isfinite(dist)
         k = np.where(kept, k, 0)
@@ -641,22 +651,18 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     order = [int(k) for k in np.argsort(-score_in, kind="stable") if not merged[k]]
     for k in np.flatnonzero(merged):
         status[k] = "suppressed"
-    # hypotheses go in chunks, best first, each chunk's ICP and search in batches: all in one without a time
-    # budget; under one, a chunk at a time (nearest-point ICP: one hypothesis, as the budget always counted)
-    chunk = len(order) if settings.budget_ms is None else PROJECTIVE_CHUNK if settings.association == "projective" else 1
-    clock = _Stages(timings)
-    start = time.perf_counter()
-    for c0 in range(0, len(order), max(chunk, 1)):
-        if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
-            break
-        ks = order[c0 : c0 + chunk]
-        first = clock("icp", _refine_many, R_out[ks], t_out[ks], model, scene, space, settings)
+    polish = settings if settings.polish_association is None else \
+        dataclasses.replace(settings, association=settings.polish_association)  # fmt: skip
+
+    def refine_chunk(ks: list[int], clock: _Stages, workers: int) -> None:
+        """ICP, the search and ICP again of the hypotheses ``ks``, each stage in one batch, in place."""
+        first = clock("icp", _refine_many, R_out[ks], t_out[ks], model, scene, space, settings, workers)
         starts = [(R_out[k].copy(), t_out[k].copy()) for k in ks]
         for k, result in zip(ks, first, strict=True):
             R_out[k], t_out[k], status[k] = result.R, result.t, result.status
         todo = [j for j, result in enumerate(first) if search is not None and result.status != "no_depth"]
         if not todo:
-            continue
+            return
         found = [ks[j] for j in todo]
         clock.start()
         if mode == "turn":
@@ -668,12 +674,36 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
                                 depth, camera, space, search, flips) for j in todo]  # fmt: skip
             Rs, ts = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
         clock.stop("search")
-        polish = settings if settings.polish_association is None else \
-            dataclasses.replace(settings, association=settings.polish_association)  # fmt: skip
-        for k, result in zip(found, clock("polish", _refine_many, Rs, ts, model, scene, space, polish), strict=True):
+        for k, result in zip(found, clock("polish", _refine_many, Rs, ts, model, scene, space, polish, workers),
+                             strict=True):  # fmt: skip
             R_out[k], t_out[k], status[k] = result.R, result.t, "searched"
+
+    if settings.budget_ms is None and settings.threads > 1 and len(order) > 1:
+        # no budget: every hypothesis, a share per thread (each hypothesis's result is what it gets alone)
+        parts = [order[i :: settings.threads] for i in range(min(settings.threads, len(order)))]
+        clocks = [_Stages({} if timings is not None else None) for _ in parts]
+        with ThreadPoolExecutor(len(parts)) as pool:
+            for done in [pool.submit(refine_chunk, part, clock, 1) for part, clock in zip(parts, clocks, strict=True)]:
+                done.result()
+        if timings is not None:  # a stage's time: its slowest thread's (they ran side by side)
+            for stage in STAGES:
+                spent = [c.timings[stage] for c in clocks if stage in c.timings]
+                if spent:
+                    timings[stage] = timings.get(stage, 0.0) + max(spent)
+    else:
+        # hypotheses go in chunks, best first: all in one without a time budget; under one, a chunk at a time
+        # (nearest-point ICP: one hypothesis, as the budget always counted)
+        chunk = len(order) if settings.budget_ms is None else PROJECTIVE_CHUNK if settings.association == "projective" \
+            else 1  # fmt: skip
+        clock = _Stages(timings)
+        start = time.perf_counter()
+        for c0 in range(0, len(order), max(chunk, 1)):
+            if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
+                break
+            refine_chunk(order[c0 : c0 + chunk], clock, -1)
     if search is None:
         return R_out, t_out, status, score_in.copy()
+    clock = _Stages(timings)
     clock.start()
     agree = np.full(len(R_out), -np.inf)
     if (~merged).any():
@@ -723,11 +753,11 @@ PROJECTIVE_CHUNK = 8
 
 
 def _refine_many(R: np.ndarray, t: np.ndarray, model: ModelCloud, scene: SceneCloud, space: Any,
-                 settings: ICPSettings) -> list[ICPResult]:  # fmt: skip
-    """ICP of poses (N, 3, 3), (N, 3): projective in one batch, or nearest-point one by one."""
+                 settings: ICPSettings, workers: int = -1) -> list[ICPResult]:  # fmt: skip
+    """ICP of poses (N, 3, 3), (N, 3) in one batch, projective or nearest-point (``workers``: the k-d tree's)."""
     if settings.association == "projective":
         return refine_poses_projective(R, t, model, scene, space, settings)
-    return refine_poses_nearest(R, t, model, scene, space, settings)
+    return refine_poses_nearest(R, t, model, scene, space, settings, workers)
 
 
 def _merged(t: np.ndarray, score: np.ndarray, radius: float) -> np.ndarray:
