@@ -21,7 +21,6 @@ import copy
 import cProfile
 import os
 import pickle
-import platform
 import pstats
 import shlex
 import sys
@@ -40,6 +39,7 @@ from opnet.geometry.icp import STAGES, Refiner, settings_from_config
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.diagnostics import scene_outcomes
 from opnet.paths import REPO_ROOT
+from opnet.studies.results import cpu_model
 
 
 def key_values(values: list[str], option: str) -> dict[str, Any]:
@@ -112,17 +112,6 @@ def refine_group(name: str) -> dict[str, Any]:
     return OmegaConf.to_container(cfg.refine, resolve=True)
 
 
-def cpu_name() -> str:
-    """The CPU's model name (Linux), else the platform's word for it."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "this CPU"
-
-
 def run_variant(obj: Any, data: list, settings: Any, profile: bool) -> dict[str, Any]:
     """Refine every frame with ``settings``: AP, found share, ms per frame, by stage."""
     refiner = Refiner.for_object(obj, settings)
@@ -188,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
                      "milliseconds per frame of each stage (the slowest thread's where they ran side by side): scene "
                      "(the depth as points), icp, search, polish (ICP of the searched poses), rank. Checkpoint: "
                      f"`{os.path.relpath(Path(args.ckpt).resolve(), REPO_ROOT)}`; nothing else ran on the machine.")
-        write_text_atomic(args.out, f"# Refinement speed\n\nMade by `{command}` on {cpu_name()} ({os.cpu_count()} "
+        write_text_atomic(args.out, f"# Refinement speed\n\nMade by `{command}` on {cpu_model()} ({os.cpu_count()} "
                           "cores).\n\n" + "\n".join(lines) + "\n\n" + explained + "\n")  # fmt: skip
     return 0
 

@@ -314,11 +314,14 @@ def block_real_ipd_seeds(results: Path, prefix: str = "") -> str:
 
 def block_cells(results: Path, prefix: str = "") -> str:
     """A cell whose bin moves: generated piles where the bin stood in training and where it did not
-    (scripts/experiments/cells/cells.py), and the real frames scored by the recipe (results/real_ipd/cell.csv; its first scoring,
-    before the refinement's speed settings changed, cell_first_scoring.csv)."""
-    first, real = results / "real_ipd" / "cell_first_scoring.csv", results / "real_ipd" / "cell.csv"
-    earlier = [{**r, "refine": f"{r['refine']} (first scoring, earlier speed settings)"}
-               for r in (_csv(first) if first.is_file() else []) if r["refine"] != "none"]
+    (scripts/experiments/cells/cells.py), and the real frames scored by the recipe (results/real_ipd/cell.csv; its earlier
+    scorings with the search, before its speed settings changed and before the refinement was made faster,
+    cell_first_scoring.csv and cell_second_scoring.csv)."""
+    real = results / "real_ipd" / "cell.csv"
+    earlier = [{**r, "refine": f"{r['refine']} ({label})"}
+               for name, label in (("first", "first scoring, earlier speed settings"), ("second", "second scoring"))
+               for path in [results / "real_ipd" / f"cell_{name}_scoring.csv"]
+               for r in (_csv(path) if path.is_file() else []) if r["refine"] != "none"]
     rows = [[r["policy"], r["model"], r["placement"], r["refine"], r["scenes"], f"**{float(r['ap']):.3f}**",
              f"{100 * float(r['found']):.1f}", f"{100 * float(r['found_of_all']):.1f}" if r.get("found_of_all") else "–",
              f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]

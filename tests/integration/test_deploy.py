@@ -220,7 +220,7 @@ def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpo
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     bad = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o2"),
                           "--icp-budget-ms", "5"], capture_output=True, text=True, cwd=REPO_ROOT)
-    assert bad.returncode == 2 and bad.stderr.strip() == "error: --icp-budget-ms is a setting of --icp or --search, neither is given"
+    assert bad.returncode == 2 and bad.stderr.strip() == "error: --icp-budget-ms is a setting of --icp, --search or --search-fast, none is given"
     # the depth-agreement search: the runtime refines and re-scores as eval.py's refine=search does
     from opnet.geometry.search import SearchSettings
 

@@ -234,6 +234,9 @@ def test_every_refine_option_composes_to_settings_and_search_fast_is_search_with
     changed = {f.name for f in dataclasses.fields(full) if getattr(full, f.name) != getattr(fast, f.name)}
     assert changed == {"association", "polish_association", "iterations", "min_gain"}
     assert (fast.association, fast.polish_association) == ("projective", "nearest") and fast.search == full.search
+    from opnet.geometry.icp import search_settings
+
+    assert fast == search_settings(fast=True) and full == search_settings()  # the runtime's, which reads no config
 
 
 @pytest.mark.parametrize("threads", [2, 3])

@@ -836,10 +836,15 @@ class Refiner:
         return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings, timings)
 
 
-def search_settings(budget_ms: float | None = None) -> ICPSettings:
+def search_settings(budget_ms: float | None = None, fast: bool = False) -> ICPSettings:
     """The settings of ``conf/refine/search.yaml`` (ICP with a wider reach and a looser guard, then
-    the search; a test keeps the two equal), for the runtime, which reads no config."""
-    return ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, stride=4, search=SearchSettings())
+    the search), or with ``fast`` of ``search_fast.yaml`` (the first ICP projective, ten steps, a 1 % gain
+    to go on), for the runtime, which reads no config; a test keeps them equal to the configs."""
+    settings = ICPSettings(max_distance=0.2, max_rotation_deg=45.0, budget_ms=budget_ms, stride=4, search=SearchSettings())
+    if fast:
+        settings = dataclasses.replace(settings, association="projective", polish_association="nearest", iterations=10,
+                                       min_gain=0.01)  # fmt: skip
+    return settings
 
 
 def settings_from_config(refine: Any) -> ICPSettings | None:
