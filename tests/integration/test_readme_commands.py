@@ -19,6 +19,7 @@ import re
 import shlex
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -100,85 +101,95 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
 
     run("resume an interrupted run", [("<same overrides>", shlex.join(["experiment=quickstart", *qs_extra])),
                                       ("<run dir>", str(qs_dir))], ["trainer.max_epochs=2"])
-    run("train a parameterization", [], [*TINY_DATA, *TINY_FIT, "model=tiny", f"hydra.run.dir={ws / 'eve_run'}"])
 
-    run("sweep the paper's six variants", [], [*TINY_DATA, *TINY_FIT, "model=tiny"])
-    sweep = next((ws / "outputs" / "train" / "multiruns").iterdir())
-    assert len([p for p in sweep.iterdir() if p.is_dir()]) == 6
-    run("compare a sweep (Table I layout)", [("outputs/train/multiruns/<date_time>", str(sweep))])
-    assert (sweep / "comparison.md").is_file()
-    # TensorBoard is a server: its command is checked to exist and the sweep to hold event files
-    assert fill(rows["TensorBoard over a sweep"], [("outputs/train/multiruns/<date_time>", str(sweep))])[0] == "tensorboard"
-    assert subprocess.run(["tensorboard", "--version_tb"], capture_output=True, timeout=120).returncode == 0
-    assert len(list(sweep.rglob("events.out.tfevents*"))) >= 6
-    done.add("TensorBoard over a sweep")
+    # the rest in two lanes side by side (each command a process of its own; the two cores both at work): one
+    # trains, the other evaluates, predicts, generates and exports; neither writes what the other reads
+    def lane_training() -> None:
+        run("train a parameterization", [], [*TINY_DATA, *TINY_FIT, "model=tiny", f"hydra.run.dir={ws / 'eve_run'}"])
 
-    run("evaluate a checkpoint", [("<run dir>", str(qs_dir)), ("<other data>", str(data)),
-                                  ("<score all of other data>", str(data))], ["examples=0"])
+        run("sweep the paper's six variants", [], [*TINY_DATA, *TINY_FIT, "model=tiny"])
+        sweep = next((ws / "outputs" / "train" / "multiruns").iterdir())
+        assert len([p for p in sweep.iterdir() if p.is_dir()]) == 6
+        run("compare a sweep (Table I layout)", [("outputs/train/multiruns/<date_time>", str(sweep))])
+        assert (sweep / "comparison.md").is_file()
+        # TensorBoard is a server: its command is checked to exist and the sweep to hold event files
+        assert fill(rows["TensorBoard over a sweep"], [("outputs/train/multiruns/<date_time>", str(sweep))])[0] == "tensorboard"
+        assert subprocess.run(["tensorboard", "--version_tb"], capture_output=True, timeout=120).returncode == 0
+        assert len(list(sweep.rglob("events.out.tfevents*"))) >= 6
+        done.add("TensorBoard over a sweep")
 
-    run("refine the poses with ICP against the depth (eval, predict)", [("<ckpt>", str(ckpt))],
-        ["examples=0", f"out={ws / 'eval_icp'}"])
-    assert "icp" in json.loads((ws / "eval_icp" / "summary.json").read_text())
-    run("refine flat parts: ICP + the depth-agreement search, ranked by agreement (eval, predict)", [("<ckpt>", str(ckpt))],
-        ["examples=0", f"out={ws / 'eval_search'}", "refine.search.turn_step_deg=45", "refine.search.shift=0.04"])
-    searched = json.loads((ws / "eval_search" / "summary.json").read_text())["icp"]
-    assert searched["settings"]["search"]["turn_step_deg"] == 45 and "searched" in searched["statuses"]
-    run("evaluate with another decoding than the checkpoint's", [("<ckpt>", str(ckpt))],
-        ["examples=0", f"out={ws / 'eval_decoding'}"])
-    assert (ws / "eval_decoding" / "summary.json").is_file()
-    run("estimate poses", [("<ckpt>", str(ckpt)), ("<depth png, .npy, or folder>", str(data / "p_depth")),
-                           ("<dir>", str(ws / "pred"))])
-    assert len(list((ws / "pred" / "results").glob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
-    frame = ws / "camera_frame.png"  # a frame of "your camera": no camera file anywhere above it
-    depth = np.full((120, 160), 1.1, np.float32)
-    depth[40:80, 60:100] = 1.0
-    write_png(frame, np.round(depth * 1000).astype(np.uint16))
-    printed = run("estimate poses on your camera's 16-bit PNG",
-                  [("<ckpt>", str(ckpt)), ("<png or folder>", str(frame)), ("<px>", "150"), ("<px>", "150"),
-                   ("<px>", "79.5"), ("<px>", "59.5"), ("<m>", "0.5"), ("<m>", "1.5")],
-                  [f"out={ws / 'pred_camera'}"]).stdout
-    assert "camera: fx=150 fy=150 cx=79.5 cy=59.5 160x120" in printed and "depth = value x 0.001 m" in printed
-    assert (ws / "pred_camera" / "camera_frame.json").is_file()
+        bop = ws / "bop"
+        run("write a dataset as BOP", [("<ipa dataset>", str(data)), ("<bop dataset>", str(bop))])
+        run("train on a BOP split", [("<bop dataset>", str(bop))],
+            ["model=tiny", "data.num_workers=0", *TINY_FIT, f"hydra.run.dir={ws / 'bop_run'}"])
+        assert (ws / "bop_run" / "test" / "bop_results.csv").is_file()
+        run("paper network on a GPU", [], ["trainer=cpu", "trainer.precision=32", *TINY_DATA, *TINY_FIT,
+                                           "data.batch_size=2", "data.num_workers=0", f"hydra.run.dir={ws / 'paper_run'}"])
 
-    gen = ws / "generated"
-    run("generate data", [("<dir>", str(gen))], ["cycles=2", "drops=3", "scene.resolution=128", "previews=0"])
-    assert (gen / "parameter.json").is_file()
+    def lane_inference() -> None:
+        run("evaluate a checkpoint", [("<run dir>", str(qs_dir)), ("<other data>", str(data)),
+                                      ("<score all of other data>", str(data))], ["examples=0"])
 
-    cam = ws / "camera.yaml"  # an off-centre camera of non-square pixels
-    cam.write_text("fx: 140.0\nfy: 142.0\ncx: 50.3\ncy: 44.6\nwidth: 128\nheight: 96\nclip_start: 0.3\nclip_end: 2.0\n")
-    run("generate with your camera and a depth-sensor model",
-        [("<camera.yaml or camera_params.txt>", str(cam)), ("<dir>", str(ws / "gen_camera"))],
-        ["cycles=1", "drops=3", "previews=0"])
-    assert json.loads((ws / "gen_camera" / "parameter.json").read_text())["opnet_intrinsics"] == [140.0, 142.0, 50.3, 44.6]
-    run("generate bulk piles (70–80 parts, many hidden)", [("<dir>", str(ws / "gen_bulk"))],
-        ["drops=10", "cycles=1", "workers=1", "scene.resolution=96", "previews=0"])
-    dense = run("train on dense bulk piles seen by your camera (generates them first)",
-                [("<o>", "bracket"), ("<camera.yaml or camera_params.txt>", str(cam)), ("<m>", "1.0")],
-                ["data.generate.cycles=6", "data.generate.drops=4", "data.generate.workers=1", "scene.views=2",
-                 "model=tiny", *TINY_FIT, f"hydra.run.dir={ws / 'dense_run'}"]).stdout
-    assert "run directory : " in dense
-    dense_data = next((ws / "outputs" / "data").glob("dense_bracket_c6_v2_d4_s0*"))
-    assert json.loads((dense_data / "generation.json").read_text())["scene"]["views"] == 2
-    model = ws / "model.onnx"
-    printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
-    assert model.is_file() and "ONNX Runtime vs PyTorch" in printed
-    run("estimate poses without PyTorch", [("<model.onnx>", str(model)),
-                                           ("<depth png, .npy, or folder>", str(data / "p_depth" / "cycle_0000")),
-                                           ("<dir>", str(ws / "pred_onnx"))])
-    assert len(list((ws / "pred_onnx" / "results").glob("*.json"))) == len(list((data / "p_depth" / "cycle_0000").glob("*.png")))
+        run("refine the poses with ICP against the depth (eval, predict)", [("<ckpt>", str(ckpt))],
+            ["examples=0", f"out={ws / 'eval_icp'}"])
+        assert "icp" in json.loads((ws / "eval_icp" / "summary.json").read_text())
+        run("refine flat parts: ICP + the depth-agreement search, ranked by agreement (eval, predict)", [("<ckpt>", str(ckpt))],
+            ["examples=0", f"out={ws / 'eval_search'}", "refine.search.turn_step_deg=45", "refine.search.shift=0.04"])
+        searched = json.loads((ws / "eval_search" / "summary.json").read_text())["icp"]
+        assert searched["settings"]["search"]["turn_step_deg"] == 45 and "searched" in searched["statuses"]
+        run("evaluate with another decoding than the checkpoint's", [("<ckpt>", str(ckpt))],
+            ["examples=0", f"out={ws / 'eval_decoding'}"])
+        assert (ws / "eval_decoding" / "summary.json").is_file()
+        run("estimate poses", [("<ckpt>", str(ckpt)), ("<depth png, .npy, or folder>", str(data / "p_depth")),
+                               ("<dir>", str(ws / "pred"))])
+        assert len(list((ws / "pred" / "results").glob("*.json"))) == len(list((data / "p_depth").rglob("*.png")))
+        frame = ws / "camera_frame.png"  # a frame of "your camera": no camera file anywhere above it
+        depth = np.full((120, 160), 1.1, np.float32)
+        depth[40:80, 60:100] = 1.0
+        write_png(frame, np.round(depth * 1000).astype(np.uint16))
+        printed = run("estimate poses on your camera's 16-bit PNG",
+                      [("<ckpt>", str(ckpt)), ("<png or folder>", str(frame)), ("<px>", "150"), ("<px>", "150"),
+                       ("<px>", "79.5"), ("<px>", "59.5"), ("<m>", "0.5"), ("<m>", "1.5")],
+                      [f"out={ws / 'pred_camera'}"]).stdout
+        assert "camera: fx=150 fy=150 cx=79.5 cy=59.5 160x120" in printed and "depth = value x 0.001 m" in printed
+        assert (ws / "pred_camera" / "camera_frame.json").is_file()
 
-    run("score any results", [("<dir>", str(qs_dir / "test" / "gt")), ("<dir>", str(qs_dir / "test" / "results")),
-                              ("<json>", str(data / "poseutils.json"))],
-        ["--out", str(ws / "summary.json"), "--plot", str(ws / "pr.png")])  # the README's relative names: in ws
-    assert (ws / "pr.png").stat().st_size > 1000
-    bop = ws / "bop"
-    run("write a dataset as BOP", [("<ipa dataset>", str(data)), ("<bop dataset>", str(bop))])
-    run("train on a BOP split", [("<bop dataset>", str(bop))],
-        ["model=tiny", "data.num_workers=0", *TINY_FIT, f"hydra.run.dir={ws / 'bop_run'}"])
-    assert (ws / "bop_run" / "test" / "bop_results.csv").is_file()
-    run("parameterization ceiling", [("<dir>", str(gen)), ("<dir>", str(data)), ("<dir>", str(ws / "ceiling"))])
-    assert (ws / "ceiling" / "ceiling.csv").is_file()
+        gen = ws / "generated"
+        run("generate data", [("<dir>", str(gen))], ["cycles=2", "drops=3", "scene.resolution=128", "previews=0"])
+        assert (gen / "parameter.json").is_file()
 
-    run("paper network on a GPU", [], ["trainer=cpu", "trainer.precision=32", *TINY_DATA, *TINY_FIT,
-                                       "data.batch_size=2", "data.num_workers=0", f"hydra.run.dir={ws / 'paper_run'}"])
+        cam = ws / "camera.yaml"  # an off-centre camera of non-square pixels
+        cam.write_text("fx: 140.0\nfy: 142.0\ncx: 50.3\ncy: 44.6\nwidth: 128\nheight: 96\nclip_start: 0.3\nclip_end: 2.0\n")
+        run("generate with your camera and a depth-sensor model",
+            [("<camera.yaml or camera_params.txt>", str(cam)), ("<dir>", str(ws / "gen_camera"))],
+            ["cycles=1", "drops=3", "previews=0"])
+        assert json.loads((ws / "gen_camera" / "parameter.json").read_text())["opnet_intrinsics"] == [140.0, 142.0, 50.3, 44.6]
+        run("generate bulk piles (70–80 parts, many hidden)", [("<dir>", str(ws / "gen_bulk"))],
+            ["drops=10", "cycles=1", "workers=1", "scene.resolution=96", "previews=0"])
+        dense = run("train on dense bulk piles seen by your camera (generates them first)",
+                    [("<o>", "bracket"), ("<camera.yaml or camera_params.txt>", str(cam)), ("<m>", "1.0")],
+                    ["data.generate.cycles=6", "data.generate.drops=4", "data.generate.workers=1", "scene.views=2",
+                     "model=tiny", *TINY_FIT, f"hydra.run.dir={ws / 'dense_run'}"]).stdout
+        assert "run directory : " in dense
+        dense_data = next((ws / "outputs" / "data").glob("dense_bracket_c6_v2_d4_s0*"))
+        assert json.loads((dense_data / "generation.json").read_text())["scene"]["views"] == 2
+        model = ws / "model.onnx"
+        printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
+        assert model.is_file() and "ONNX Runtime vs PyTorch" in printed
+        run("estimate poses without PyTorch", [("<model.onnx>", str(model)),
+                                               ("<depth png, .npy, or folder>", str(data / "p_depth" / "cycle_0000")),
+                                               ("<dir>", str(ws / "pred_onnx"))])
+        assert len(list((ws / "pred_onnx" / "results").glob("*.json"))) == len(list((data / "p_depth" / "cycle_0000").glob("*.png")))
+
+        run("score any results", [("<dir>", str(qs_dir / "test" / "gt")), ("<dir>", str(qs_dir / "test" / "results")),
+                                  ("<json>", str(data / "poseutils.json"))],
+            ["--out", str(ws / "summary.json"), "--plot", str(ws / "pr.png")])  # the README's relative names: in ws
+        assert (ws / "pr.png").stat().st_size > 1000
+        run("parameterization ceiling", [("<dir>", str(gen)), ("<dir>", str(data)), ("<dir>", str(ws / "ceiling"))])
+        assert (ws / "ceiling" / "ceiling.csv").is_file()
+
+
+    with ThreadPoolExecutor(2) as pool:
+        for lane in [pool.submit(lane_training), pool.submit(lane_inference)]:
+            lane.result()  # a lane's failure, with its message
     assert set(rows) == done, f"task table rows without a runner here: {sorted(set(rows) - done)}"
