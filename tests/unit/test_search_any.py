@@ -9,12 +9,19 @@ import pytest
 import trimesh
 
 from opnet.geometry.camera import Camera
-from opnet.geometry.icp import ICPSettings, ModelCloud, SceneCloud, _rotation, refine_image
+from opnet.geometry.icp import ICPSettings, ModelCloud, _rotation, refine_image
 from opnet.geometry.pose_numpy import PoseSpaceArrays, pose_distance
-from opnet.geometry.search import SearchSettings, ambiguity_turns, is_flat, resolve_mode, search_any
+from opnet.geometry.search import (
+    SearchSettings,
+    ambiguity_turns,
+    is_flat,
+    resolve_mode,
+    search_any,
+    search_any_many,
+)
 from opnet.metrics.records import HypothesisSet
-from opnet.objects.model import ObjectModel
 from opnet.objects.library import builtin_object
+from opnet.objects.model import ObjectModel
 from opnet.synthesis.layout import homogeneous
 from opnet.synthesis.rendering import SceneRenderer
 
@@ -81,6 +88,22 @@ def test_the_search_never_leaves_the_right_pose(block_scene) -> None:
     obj, R_gt, t_gt, depth, model, space = block_scene
     R, t, score = search_any(R_gt, t_gt, model, depth, CAM, space, SearchSettings())
     assert pose_distance(space, R, t, R_gt, t_gt) < 0.002 and score > 0.8
+
+
+@pytest.mark.parametrize("keep", [0, 3])
+def test_many_hypotheses_in_one_batch_get_what_each_gets_alone(block_scene, keep: int) -> None:
+    _, R_gt, t_gt, depth, model, space = block_scene
+    turns = ambiguity_turns(model.points, space)
+    G, centre = turns
+    starts = [_off(R_gt, t_gt, G[w], centre, d, d) for w, d in ((1, 5.0), (0, 2.0), (7, 8.0), (11, 3.0))]
+    R = np.stack([[starts[i][0], starts[(i + 1) % 4][0]] for i in range(4)])  # (4 hypotheses, 2 starts)
+    t = np.stack([[starts[i][1], starts[(i + 1) % 4][1]] for i in range(4)])
+    settings = SearchSettings(keep=keep)
+    Rb, tb, score = search_any_many(R, t, model, depth, CAM, space, settings, turns)
+    for n in range(4):
+        Ra, ta, sa = search_any(R[n], t[n], model, depth, CAM, space, settings, turns)
+        assert np.allclose(Rb[n], Ra, atol=1e-9) and np.allclose(tb[n], ta, atol=1e-10) and np.isclose(score[n], sa)
+    assert keep == 0 or (score > 0.8).sum() >= 3  # with the local search most come back to the part
 
 
 @pytest.mark.parametrize(("name", "expected"), [("bracket", 24), ("zbracket", 12), ("shaft", 6), ("pin", 3)])

@@ -53,7 +53,7 @@ from opnet.geometry.search import (
     resolve_mode,
     rodrigues,
     score_poses,
-    search_any,
+    search_any_many,
     search_poses,
     skew,
     turns,
@@ -670,9 +670,9 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
         else:
             # from the refined pose and from the hypothesis itself: ICP may have pulled a turned hypothesis
             # further off
-            pairs = [search_any(np.stack((R_out[ks[j]], starts[j][0])), np.stack((t_out[ks[j]], starts[j][1])), model,
-                                depth, camera, space, search, flips) for j in todo]  # fmt: skip
-            Rs, ts = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+            Rs, ts, _ = search_any_many(np.stack([(R_out[ks[j]], starts[j][0]) for j in todo]),
+                                        np.stack([(t_out[ks[j]], starts[j][1]) for j in todo]), model, depth, camera,
+                                        space, search, flips)  # fmt: skip
         clock.stop("search")
         for k, result in zip(found, clock("polish", _refine_many, Rs, ts, model, scene, space, polish, workers),
                              strict=True):  # fmt: skip

@@ -488,30 +488,52 @@ def local_search(R: np.ndarray, t: np.ndarray, centre: np.ndarray, model: Any, d
 def search_any(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, space: Any,
                settings: SearchSettings, turns_and_centre: tuple[np.ndarray, np.ndarray] | None = None,
                ) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
-    """``mode: flips`` from one pose (3, 3), (3,) or several starts (S, 3, 3), (S, 3) (module docstring):
-    the ambiguity turns of every start scored in one batch, at twice the tolerance (a turned hypothesis
-    is a few degrees and millimetres out), the ``keep`` best searched locally; the best pose and its
-    agreement (the first start itself unless beaten).
+    """``mode: flips`` from one pose (3, 3), (3,) or several starts (S, 3, 3), (S, 3): :func:`search_any_many`
+    of one hypothesis; the best pose and its agreement."""
+    R, t = np.asarray(R, np.float64).reshape(1, -1, 3, 3), np.asarray(t, np.float64).reshape(1, -1, 3)
+    Rb, tb, score = search_any_many(R, t, model, depth, camera, space, settings, turns_and_centre)
+    return Rb[0], tb[0], float(score[0])
+
+
+def search_any_many(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, space: Any,
+                    settings: SearchSettings, turns_and_centre: tuple[np.ndarray, np.ndarray] | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """``mode: flips`` (module docstring) for N hypotheses of S starts each, (N, S, 3, 3), (N, S, 3), every
+    stage of all of them in one batch: the ambiguity turns of every start scored at twice the tolerance (a
+    turned hypothesis is a few degrees and millimetres out), each hypothesis's ``keep`` best searched
+    locally; per hypothesis the best pose and its agreement (its first start itself unless beaten). Each
+    hypothesis's result is what it gets alone.
 
     Args:
         turns_and_centre: :func:`ambiguity_turns` of the model (made once per object by the caller).
+    Returns:
+        R (N, 3, 3), t (N, 3), agreement (N,).
     """
-    R, t = np.asarray(R, np.float64).reshape(-1, 3, 3), np.asarray(t, np.float64).reshape(-1, 3)
+    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
+    N, S = R.shape[:2]
     G, centre = turns_and_centre if turns_and_centre is not None else ambiguity_turns(model.points, space)
-    Rc = (R[:, None] @ G).reshape(-1, 3, 3)  # (S * C, 3, 3): turned about the centroid, which stays
-    tc = (np.einsum("sij,j->si", R, centre) + t)[:, None].repeat(len(G), 1).reshape(-1, 3) - Rc @ centre
+    C = len(G)
+    Rc = (R[:, :, None] @ G).reshape(N, S * C, 3, 3)  # turned about the centroid, which stays
+    tc = ((np.einsum("nsij,j->nsi", R, centre) + t)[:, :, None] - (R[:, :, None] @ G) @ centre).reshape(N, S * C, 3)
     loose = dataclasses.replace(settings, tolerance=2.0 * settings.tolerance)
-    score = score_poses(Rc, tc, model, depth, camera, loose)
-    here = float(score_poses(R[:1], t[:1], model, depth, camera, settings)[0])
+    score = score_poses(Rc.reshape(-1, 3, 3), tc.reshape(-1, 3), model, depth, camera, loose).reshape(N, S * C)
+    here = score_poses(R[:, 0], t[:, 0], model, depth, camera, settings)
+    rows = np.arange(N)
     if settings.keep == 0:
-        k = int(np.argmax(score))
-        return Rc[k], tc[k], float(score_poses(Rc[k : k + 1], tc[k : k + 1], model, depth, camera, settings)[0])
-    order = np.argsort(-score, kind="stable")[: settings.keep]
-    Rl, tl, sl = local_search(Rc[order], tc[order], centre, model, depth, camera, settings)
-    k = int(np.argmax(sl))
-    if sl[k] <= here:
-        return R[0], t[0], here
-    return Rl[k], tl[k], float(sl[k])
+        k = np.argmax(score, axis=1)
+        Rk, tk = Rc[rows, k], tc[rows, k]
+        return Rk, tk, score_poses(Rk, tk, model, depth, camera, settings)
+    order = np.argsort(-score, axis=1, kind="stable")[:, : settings.keep]  # (N, keep)
+    keep = order.shape[1]
+    Rl, tl, sl = local_search(Rc[rows[:, None], order].reshape(-1, 3, 3), tc[rows[:, None], order].reshape(-1, 3),
+                              centre, model, depth, camera, settings)  # fmt: skip
+    Rl, tl, sl = Rl.reshape(N, keep, 3, 3), tl.reshape(N, keep, 3), sl.reshape(N, keep)
+    k = np.argmax(sl, axis=1)
+    best = sl[rows, k]
+    stay = best <= here
+    R_out = np.where(stay[:, None, None], R[:, 0], Rl[rows, k])
+    t_out = np.where(stay[:, None], t[:, 0], tl[rows, k])
+    return R_out, t_out, np.where(stay, here, best)
 
 
 def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
@@ -540,6 +562,7 @@ __all__ = [
     "rodrigues",
     "score_poses",
     "search_any",
+    "search_any_many",
     "search_pose",
     "search_poses",
     "turns",
