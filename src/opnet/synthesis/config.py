@@ -23,12 +23,15 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
-                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg")
+                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
 #: to_dict for that engine, so their generation.json still matches ``physics=pybullet``
 _LEGACY_PHYSICS = "pybullet"
+#: the keys a bin model (``scene.bin_models``) may set, besides its ``weight``
+BIN_MODEL_KEYS = ("bin_inner", "bin_inner_y", "bin_wall_height", "bin_wall_thickness", "bin_hole_size",
+                  "bin_hole_pitch", "bin_clearance")
 
 
 def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -> Any:
@@ -91,6 +94,11 @@ class SceneConfig:
             walls, as the camera sees them (the physics keeps the solid bin); 0 = solid.
         bin_clearance: the bin stands on legs this many metres above the ground (what its holes
             show); 0 = on the ground.
+        bin_models: None (one bin for every pile, the keys above) or a list of mappings, the bins a
+            real cell swaps: each sets some of :data:`BIN_MODEL_KEYS` (the others as above) and
+            optionally a ``weight`` (> 0, default 1); each pile's bin is one of them, drawn with
+            probability weight / total from the pile's own random stream (the same for any worker
+            count). The automatic camera and clip planes are sized for all of them.
 
     Foreign parts (:mod:`opnet.synthesis.clutter`):
         clutter: this many foreign pieces (discs and flat boxes sized after the part) lie on the
@@ -205,6 +213,7 @@ class SceneConfig:
     bin_area: tuple[float, float, float, float] | None = None
     bin_yaw_deg: tuple[float, float] | None = None
     bin_tilt_deg: float = 0.0
+    bin_models: tuple | None = None
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -283,6 +292,49 @@ class SceneConfig:
              "degrees in [0, 30] (the bin's tilt off level)")
         object.__setattr__(self, "bin_area", area)  # lists of a config or JSON file, as tuples of floats
         object.__setattr__(self, "bin_yaw_deg", yaw)
+        if self.bin_models is not None:
+            object.__setattr__(self, "bin_models", self._checked_bin_models())
+
+    def _checked_bin_models(self) -> tuple[tuple[tuple[str, Any], ...], ...]:
+        """``bin_models`` checked, each model as the top-level keys are (the same bounds, an error
+        naming ``bin_models[i].<key>``), as sorted (key, value) pairs (hashable, one form per list)."""
+        models = self.bin_models
+        if isinstance(models, (str, bytes, Mapping)) or not isinstance(models, (list, tuple)) or not models:
+            raise ValueError(f"scene config: bin_models={models!r}, expected null or a non-empty list of mappings "
+                             f"of some of {list(BIN_MODEL_KEYS)} and weight")
+        out = []
+        for i, model in enumerate(models):
+            model = dict(model) if isinstance(model, Mapping) else model
+            if isinstance(model, tuple) and all(isinstance(kv, tuple) and len(kv) == 2 for kv in model):
+                model = dict(model)  # the pairs of an already checked config
+            name = f"bin_models[{i}]"
+            if not isinstance(model, dict):
+                raise ValueError(f"scene config: {name}={model!r}, expected a mapping of some of {list(BIN_MODEL_KEYS)}")  # noqa: TRY004
+            unknown = sorted(set(model) - {*BIN_MODEL_KEYS, "weight"}, key=str)
+            if unknown:
+                raise ValueError(f"scene config: {name}: unknown keys {unknown}; expected some of "
+                                 f"{[*BIN_MODEL_KEYS, 'weight']}")
+            weight = model.get("weight", 1.0)
+            if not (_number(weight) and weight > 0):
+                raise ValueError(f"scene config: {name}.weight={weight!r}, expected a number > 0 (its share of the piles)")
+            try:
+                dataclasses.replace(self, bin_models=None, **{k: v for k, v in model.items() if k != "weight"})
+            except ValueError as e:
+                raise ValueError(str(e).replace("scene config: ", f"scene config: {name}.", 1)) from None
+            out.append(tuple(sorted((k, float(v) if _number(v) else v) for k, v in model.items())))
+        return tuple(out)
+
+    def bin_model_scenes(self) -> list[SceneConfig]:
+        """The scene of each bin model (its keys set, ``bin_models`` None); ``[self]`` without models."""
+        if self.bin_models is None:
+            return [self]
+        return [dataclasses.replace(self, bin_models=None, **{k: v for k, v in m if k != "weight"})
+                for m in self.bin_models]
+
+    @property
+    def bin_model_weights(self) -> tuple[float, ...]:
+        """Each bin model's weight (1 where not given); ``(1.0,)`` without models."""
+        return tuple(dict(m).get("weight", 1.0) for m in self.bin_models or ((),))
 
     @property
     def yaw_range_deg(self) -> tuple[float, float]:
@@ -305,6 +357,7 @@ class SceneConfig:
         out = dataclasses.asdict(self)
         for key in ("bin_area", "bin_yaw_deg"):
             out[key] = None if out[key] is None else list(out[key])
+        out["bin_models"] = None if self.bin_models is None else [dict(m) for m in self.bin_models]
         for key in _LATER_FIELDS:
             if out[key] == getattr(SceneConfig, key):
                 del out[key]

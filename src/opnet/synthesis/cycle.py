@@ -4,6 +4,8 @@ Random numbers: cycle c of a dataset with seed s draws everything from
 ``SeedSequence([s, c])``, split into one stream for the per-cycle jitter and one for the drops, so
 a cycle is the same whichever worker makes it and whatever was made before. With ``scene.views``
 = K, one simulated pile p gives the cycles pK .. pK + K - 1 (one camera each, :meth:`generate_views`).
+With ``scene.bin_models``, pile p's bin model is drawn from a stream of its own
+(:func:`bin_model_rng`); each model's bin is built once per worker (physics and rendering).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from opnet.synthesis.clutter import clutter_mesh, sample_clutter
 from opnet.synthesis.collision import CollisionModel, build_collision_model
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, view_layout
-from opnet.synthesis.physics import CycleStates, CycleStats, make_simulator
+from opnet.synthesis.physics import BinSimulator, CycleStates, CycleStats, make_simulator
 from opnet.synthesis.rendering import SceneRenderer
 from opnet.synthesis.sensor import SensorModel, sensor_rng
 
@@ -39,6 +41,31 @@ def clutter_rng(seed: int, cycle: int) -> np.random.Generator:
     """The foreign pieces' generator of a cycle: the third child of ``SeedSequence([seed, cycle])``
     (the first two, :func:`cycle_rngs`, are unchanged by it)."""
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(cycle)]).spawn(3)[2])
+
+
+def bin_model_rng(seed: int, pile: int) -> np.random.Generator:
+    """The bin model's generator of a pile (``scene.bin_models``): the fourth child of
+    ``SeedSequence([seed, pile])`` (the others, :func:`cycle_rngs` and :func:`clutter_rng`, are
+    unchanged by it)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(pile)]).spawn(4)[3])
+
+
+def draw_bin_model(scene: SceneConfig, seed: int, pile: int) -> int:
+    """Index of pile ``pile``'s bin model in ``scene.bin_models`` (probability weight / total); 0
+    without models (nothing drawn)."""
+    if scene.bin_models is None:
+        return 0
+    weights = np.asarray(scene.bin_model_weights, dtype=np.float64)
+    return int(bin_model_rng(seed, pile).choice(len(weights), p=weights / weights.sum()))
+
+
+def bin_model_record(scene: SceneConfig, rig: Rig, pile: int, model: int) -> dict:
+    """What a pile's ``bin_model.json`` holds: the pile, the model's index and settings (as given in
+    ``scene.bin_models``) and the bin they made (metres)."""
+    b, used = rig.bins[model], scene.bin_model_scenes()[model]
+    bin_ = {"inner": b.sides[0], "inner_y": b.sides[1], "wall_height": b.wall_height, "wall_thickness": b.thickness,
+            "hole_size": b.hole_size, "hole_pitch": b.hole_pitch, "clearance": used.bin_clearance}
+    return {"pile": int(pile), "bin_model": int(model), "settings": dict(scene.bin_models[model]), "bin": bin_}
 
 
 def view_rng(seed: int, pile: int, view: int) -> np.random.Generator:
@@ -63,6 +90,7 @@ class CycleResult:
         layout: the cycle's jittered bin and camera poses in the world.
         stats: physics bookkeeping.
         solo_renders: solo render passes over the whole cycle (visibility denominators).
+        bin_model: with ``scene.bin_models``, the pile's model (:func:`bin_model_record`); else None.
     """
 
     cycle: int
@@ -72,6 +100,7 @@ class CycleResult:
     layout: CycleLayout
     stats: CycleStats
     solo_renders: int
+    bin_model: dict | None = None
 
 
 class CycleGenerator:
@@ -103,19 +132,33 @@ class CycleGenerator:
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects
         self.collision = collision or build_collision_model(obj.mesh, self.scene)
-        self.simulator = make_simulator(self.rig, self.collision, self.scene)
+        self._model_scenes = self.scene.bin_model_scenes()
+        #: per bin model (0 without models): its rig, scene and simulator, made on first use
+        self._bins: dict[int, tuple[Rig, SceneConfig, BinSimulator]] = {}
+        self.simulator = self._bin(0)[2]
         self.renderer = SceneRenderer(
             obj.mesh,
             self.rig.camera,
             self.rig.bin.mesh(),
             ground_size=GROUND_SCALE * self.rig.bin.outer,
-            ground_depth=self.rig.bin.thickness + self.scene.bin_clearance,
+            ground_depth=self.rig.bin.thickness + self._model_scenes[0].bin_clearance,
             solo_cache_mm=self.scene.solo_cache_mm,
             solo_cache_deg=self.scene.solo_cache_deg,
         )
 
+    def _bin(self, model: int) -> tuple[Rig, SceneConfig, BinSimulator]:
+        """Bin model ``model``'s rig, scene and simulator, its bin added to the renderer (once)."""
+        if model not in self._bins:
+            rig, scene = self.rig.with_bin(model), self._model_scenes[model]
+            if model:  # the renderer is made with model 0's bin
+                self.renderer.add_bin(model, rig.bin.mesh(), GROUND_SCALE * rig.bin.outer,
+                                      rig.bin.thickness + scene.bin_clearance)
+            self._bins[model] = (rig, scene, make_simulator(rig, self.collision, scene))
+        return self._bins[model]
+
     def close(self) -> None:
-        self.simulator.close()
+        for _, _, simulator in self._bins.values():
+            simulator.close()
         self.renderer.close()
 
     def __enter__(self) -> Self:
@@ -144,14 +187,18 @@ class CycleGenerator:
         if not wanted or wanted[0] < 0 or wanted[-1] >= K:
             raise ValueError(f"views {wanted} outside 0..{K - 1} (scene.views={K})")
         layout_rng, drop_rng = cycle_rngs(seed, pile)
-        layout = sample_layout(self.rig, self.scene, layout_rng)
-        if self.scene.clutter:
-            pieces = sample_clutter(self.scene.clutter, self.rig.bin.sides, self.rig.object_radius, clutter_rng(seed, pile))
+        model = draw_bin_model(self.scene, seed, pile)
+        rig, scene, simulator = self._bin(model)
+        record = None if self.scene.bin_models is None else bin_model_record(self.scene, self.rig, pile, model)
+        layout = sample_layout(rig, scene, layout_rng)
+        if scene.clutter:
+            pieces = sample_clutter(scene.clutter, rig.bin.sides, rig.object_radius, clutter_rng(seed, pile))
             layout = dataclasses.replace(layout, clutter=pieces)
-        states = self.simulator.simulate(layout, self.drops, drop_rng)
+        states = simulator.simulate(layout, self.drops, drop_rng)
         for k in wanted:
-            view = layout if k == 0 else view_layout(self.rig, self.scene, layout, view_rng(seed, pile, k))
-            yield self._render_view(seed, pile * K + k, view, states)
+            view = layout if k == 0 else view_layout(rig, scene, layout, view_rng(seed, pile, k))
+            self.renderer.select_bin(model)
+            yield dataclasses.replace(self._render_view(seed, pile * K + k, view, states), bin_model=record)
 
     def _outside_clip(self, depth: np.ndarray) -> np.ndarray:
         """``scene.outside_clip``: surfaces outside the clip planes at the plane they cross ("clamp")

@@ -18,12 +18,15 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
   centre; its clip planes are used with ``camera_file_clip``, else derived as below;
 - clip planes: ``clip_start`` one diameter above the wall tops (parts rarely pile higher than the
   walls; closer points are written as missing depth), ``clip_end`` past the ground plane at the
-  image corners under the worst camera tilt.
+  image corners under the worst camera tilt;
+- several bin models (``bin_models``): each its own tote, the camera height and clip planes those
+  of the model that needs them most (the camera is one per dataset).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -159,11 +162,12 @@ class Rig:
     """Everything fixed for a dataset: bin, camera intrinsics and nominal camera pose.
 
     Attributes:
-        bin: the tote.
+        bin: the tote (with ``scene.bin_models``: the first model's; :meth:`with_bin` picks another).
         params: the ``parameter.json`` content.
         camera: the written image's camera (exactly ``params.camera()``).
         T_world_cam: (4, 4) nominal camera pose, OpenCV camera frame to world, metres.
         object_radius: metres, max distance of a mesh vertex from the model origin.
+        bins: the tote of each bin model (``scene.bin_models``; ``(bin,)`` without models).
     """
 
     bin: BinGeometry
@@ -171,6 +175,11 @@ class Rig:
     camera: Camera
     T_world_cam: np.ndarray
     object_radius: float
+    bins: tuple[BinGeometry, ...] = ()
+
+    def with_bin(self, model: int) -> Rig:
+        """The rig with bin model ``model``'s tote (the camera sized for all of them)."""
+        return dataclasses.replace(self, bin=(self.bins or (self.bin,))[model])
 
 
 @dataclass(frozen=True)
@@ -200,11 +209,9 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     """The dataset set-up for ``drops`` parts of ``obj`` per cycle (sizes: see the module docstring)."""
     if obj.mesh is None:
         raise ValueError(f"object {obj.name!r} has no mesh: the generator needs one to simulate and render")
-    extent = np.sort(obj.extent)
     D = obj.diameter
-    inner = cfg.bin_inner or max(2.0 * D, math.sqrt(drops * extent[1] * extent[2] / cfg.bin_layers))
-    wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
-    bin_geom = BinGeometry(inner, wall, cfg.bin_wall_thickness, cfg.bin_inner_y, cfg.bin_hole_size, cfg.bin_hole_pitch)
+    bins = tuple(bin_geometry(obj, drops, model) for model in cfg.bin_model_scenes())
+    bin_geom, wall = bins[0], max(b.wall_height for b in bins)  # every size below: the largest bin model's
 
     given = read_camera_file(cfg.camera_file) if cfg.camera_file else None
     if given is None:
@@ -216,15 +223,21 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
         corner_tan = max(math.hypot((u - given.cx) / fx, (v - given.cy) / fy)
                          for u in (-0.5, width - 0.5) for v in (-0.5, height - 0.5))
     tan_half_image = min(width / 2.0 / fx, height / 2.0 / fy)
-    half = bin_geom.outer / 2.0
-    if cfg.bin_area is not None:  # the bin in any yaw (its half diagonal) wherever the area lets it stand
-        half = max(map(abs, cfg.bin_area)) + math.hypot(*(side / 2.0 + bin_geom.thickness for side in bin_geom.sides))
-    h = cfg.camera_height or wall + half * (1.0 + cfg.view_margin) / tan_half_image
+
+    def reach(b: BinGeometry) -> float:  # how far from the view's centre the bin's rim may lie
+        if cfg.bin_area is None:
+            return b.outer / 2.0
+        # the bin in any yaw (its half diagonal) wherever the area lets it stand
+        return max(map(abs, cfg.bin_area)) + math.hypot(*(side / 2.0 + b.thickness for side in b.sides))
+
+    h = cfg.camera_height or max(b.wall_height + reach(b) * (1.0 + cfg.view_margin) / tan_half_image for b in bins)
     _check_jitter(cfg, h, wall, math.degrees(math.atan(tan_half_image)))
     tilt = math.tan(math.radians(cfg.camera_jitter_deg))
-    rise = bin_geom.outer * math.sin(math.radians(cfg.bin_tilt_deg))  # a tilted bin's rim rises up to this
-    clip_start = cfg.clip_start or max(h - wall - D - cfg.camera_jitter_m - rise, 0.1 * h)
-    clip_end = cfg.clip_end or (h + bin_geom.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m
+    # a tilted bin's rim rises up to outer x sin(tilt)
+    clip_start = cfg.clip_start or min(
+        max(h - b.wall_height - D - cfg.camera_jitter_m - b.outer * math.sin(math.radians(cfg.bin_tilt_deg)), 0.1 * h)
+        for b in bins)
+    clip_end = cfg.clip_end or max((h + b.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m for b in bins)
     if given is not None and cfg.camera_file_clip:
         clip_start, clip_end = cfg.clip_start or given.clip_start, cfg.clip_end or given.clip_end
     if clip_start >= clip_end:
@@ -261,13 +274,23 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     if cfg.camera_tilt_deg > 0:
         T_world_cam = tilted(T_world_cam, cfg.camera_tilt_deg, cfg.camera_azimuth_deg)
         if not (cfg.clip_start and cfg.clip_end) and not (given is not None and cfg.camera_file_clip):
-            near, far = tilted_clip(camera, T_world_cam, bin_geom, D, cfg)
+            clips = [tilted_clip(camera, T_world_cam, b, D, cfg) for b in bins]
+            near, far = min(c[0] for c in clips), max(c[1] for c in clips)
             params = dataclasses.replace(params, clip_start=float(cfg.clip_start or near), clip_end=float(cfg.clip_end or far))
             camera = params.camera()
-    rig = Rig(bin_geom, params, camera, T_world_cam, radius)
+    rig = Rig(bin_geom, params, camera, T_world_cam, radius, bins)
     check_camera_range(rig, cfg)
     check_bin_area(rig, cfg)
     return rig
+
+
+def bin_geometry(obj: ObjectModel, drops: int, cfg: SceneConfig) -> BinGeometry:
+    """The tote of ``cfg``'s bin keys for ``drops`` parts of ``obj`` (sizes: see the module docstring)."""
+    extent = np.sort(obj.extent)
+    D = obj.diameter
+    inner = cfg.bin_inner or max(2.0 * D, math.sqrt(drops * extent[1] * extent[2] / cfg.bin_layers))
+    wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
+    return BinGeometry(inner, wall, cfg.bin_wall_thickness, cfg.bin_inner_y, cfg.bin_hole_size, cfg.bin_hole_pitch)
 
 
 def check_camera_range(rig: Rig, cfg: SceneConfig) -> None:
@@ -383,16 +406,32 @@ def check_bin_area(rig: Rig, cfg: SceneConfig) -> None:
     if cfg.bin_area is None:
         return
     x0, y0, x1, y1 = cfg.bin_area
-    T_cam_world, cam = inverse_pose(rig.T_world_cam), rig.camera
-    for x, y in ((x0, y0), (x1, y0), (x0, y1), (x1, y1)):
-        p = T_cam_world[:3, :3] @ np.array([x, y, 0.0]) + T_cam_world[:3, 3]
-        u = cam.fx * p[0] / p[2] + cam.cx if p[2] > 0 else math.nan
-        v = cam.fy * p[1] / p[2] + cam.cy if p[2] > 0 else math.nan
-        if not (-0.5 <= u <= cam.width - 0.5 and -0.5 <= v <= cam.height - 0.5):
-            where = f"at pixel ({u:.0f}, {v:.0f})" if p[2] > 0 else "behind the camera"
+    corners = ((x0, y0), (x1, y0), (x0, y1), (x1, y1))
+    for x, y in corners:
+        if (where := _outside_view(rig, np.array([x, y, 0.0]))) is not None:
             raise ValueError(f"scene config: bin_area={list(cfg.bin_area)}: its corner ({x:g}, {y:g}) m lies outside "
-                             f"the camera's view ({where} of the {cam.width} x {cam.height} image); "
-                             "give an area of the floor the camera sees")
+                             f"the camera's view ({where}); give an area of the floor the camera sees")
+    if cfg.bin_models is None:
+        return
+    for i, b in enumerate(rig.bins):  # every bin model's floor, in any yaw, wherever the area lets it stand
+        r = math.hypot(*(side / 2.0 for side in b.sides))
+        for (x, y), a in itertools.product(corners, np.radians(np.arange(0.0, 360.0, 15.0))):
+            if (where := _outside_view(rig, np.array([x + r * math.cos(a), y + r * math.sin(a), 0.0]))) is not None:
+                raise ValueError(f"scene config: bin_models[{i}]: its floor ({b.sides[0]:g} x {b.sides[1]:g} m) standing "
+                                 f"at the bin_area corner ({x:g}, {y:g}) m leaves the camera's view ({where}); give a "
+                                 "smaller bin or working area, or a higher camera")
+
+
+def _outside_view(rig: Rig, point_world: np.ndarray) -> str | None:
+    """None where the nominal camera sees ``point_world``, else where it falls instead."""
+    T_cam_world, cam = inverse_pose(rig.T_world_cam), rig.camera
+    p = T_cam_world[:3, :3] @ point_world + T_cam_world[:3, 3]
+    u = cam.fx * p[0] / p[2] + cam.cx if p[2] > 0 else math.nan
+    v = cam.fy * p[1] / p[2] + cam.cy if p[2] > 0 else math.nan
+    if -0.5 <= u <= cam.width - 0.5 and -0.5 <= v <= cam.height - 0.5:
+        return None
+    where = f"at pixel ({u:.0f}, {v:.0f})" if p[2] > 0 else "behind the camera"
+    return f"{where} of the {cam.width} x {cam.height} image"
 
 
 def view_layout(rig: Rig, cfg: SceneConfig, pile: CycleLayout, rng: np.random.Generator) -> CycleLayout:

@@ -107,14 +107,30 @@ class SceneRenderer:
         self._statics: list[pyrender.Node] = []
         self._clutter: pyrender.Node | None = None
         self._ground: pyrender.Node | None = None
+        self._bins: dict[int, tuple[list[pyrender.Node], pyrender.Node | None]] = {}
+        self.add_bin(0, bin_mesh, ground_size, ground_depth)
+        self.select_bin(0)
+        self._cache: dict[int, tuple[np.ndarray, int]] = {}
+
+    def add_bin(self, key: int, bin_mesh: trimesh.Trimesh | None, ground_size: float = 0.0,
+                ground_depth: float = 0.0) -> None:  # fmt: skip
+        """Another bin and its ground plate (the constructor's arguments), drawn once :meth:`select_bin`
+        picks ``key`` (the constructor's bin is ``0``): one scene holds every bin model of a dataset."""
+        nodes, ground = [], None
         if bin_mesh is not None:
-            self._statics.append(self._scene.add(pyrender.Mesh.from_trimesh(bin_mesh, smooth=False)))
+            nodes.append(self._scene.add(pyrender.Mesh.from_trimesh(bin_mesh, smooth=False)))
         if ground_size > 0:
             plate = trimesh.creation.box(extents=(ground_size, ground_size, 0.01))
             plate.apply_translation((0.0, 0.0, -ground_depth - 0.005))
-            self._ground = self._scene.add(pyrender.Mesh.from_trimesh(plate, smooth=False))
-            self._statics.append(self._ground)
-        self._cache: dict[int, tuple[np.ndarray, int]] = {}
+            ground = self._scene.add(pyrender.Mesh.from_trimesh(plate, smooth=False))
+            nodes.append(ground)
+        self._bins[key] = (nodes, ground)
+
+    def select_bin(self, key: int) -> None:
+        """Draw bin ``key`` (:meth:`add_bin`) and its ground from now on; the others stay in the scene
+        undrawn (every pass draws only the nodes it colours)."""
+        nodes, self._ground = self._bins[key]
+        self._statics = [*nodes, *([self._clutter] if self._clutter is not None else [])]
 
     def _gl_camera(self, ox: int, oy: int) -> pyrender.IntrinsicsCamera:
         """The camera of a window whose top-left pixel is pixel (ox, oy) of the (unbounded) image."""
@@ -125,9 +141,10 @@ class SceneRenderer:
 
     def close(self) -> None:
         """Drop the scene's objects (the shared GL context stays for the next renderer)."""
-        for node in [*self._objects, *self._statics]:
+        bins = [node for nodes, _ in self._bins.values() for node in nodes]
+        for node in [*self._objects, *bins, *([self._clutter] if self._clutter is not None else [])]:
             self._scene.remove_node(node)
-        self._objects, self._statics, self._clutter, self._ground = [], [], None, None
+        self._objects, self._statics, self._clutter, self._ground, self._bins = [], [], None, None, {}
         self._cache.clear()
 
     def begin_cycle(self, T_cam_bin: np.ndarray, clutter: trimesh.Trimesh | None = None,

@@ -6,6 +6,7 @@
 <root>/poseutils.json          the official Siléane pose-utils of the object (ObjectModel.to_poseutils)
 <root>/generation.json         seed, drops and scene settings: a resumed run must match them
 <root>/gt|p_depth|p_segmentation/cycle_XXXX/...   scenes, via opnet.datasets.ipa.write_ipa_scene
+<root>/gt/cycle_XXXX/bin_model.json              with scene.bin_models: the pile's bin model and its bin
 <root>/preview/cycle_XXXX_NNN.png                 depth | segmentation, for a few scenes
 ```
 A cycle is complete when the CSVs of all its scenes 000..drops exist (each scene writes its CSV
@@ -24,7 +25,7 @@ import numpy as np
 
 from opnet.datasets.ipa import scene_paths, write_ipa_scene
 from opnet.datasets.ipa_params import IPAParameters, write_parameters
-from opnet.fileio.atomic import disk_full_named, write_text_if_changed
+from opnet.fileio.atomic import disk_full_named, write_text_atomic, write_text_if_changed
 from opnet.objects.library import BUILTINS, builtin_object
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
@@ -39,6 +40,7 @@ POSEUTILS_FILE = "poseutils.json"
 GENERATION_FILE = "generation.json"
 PREVIEW_DIR = "preview"
 MESH_COPY = "object_mesh.ply"
+BIN_MODEL_FILE = "bin_model.json"
 _SCENE_DIRS = ("gt", "p_depth", "p_segmentation")
 _FORMAT = 1
 
@@ -158,12 +160,29 @@ def clear_cycle(root: Path, cycle: int) -> None:
             f.unlink(missing_ok=True)
 
 
+def bin_model_path(root: Path, cycle: int) -> Path:
+    """The ``bin_model.json`` of ``cycle`` (written with ``scene.bin_models``)."""
+    return root / "gt" / f"cycle_{cycle:04d}" / BIN_MODEL_FILE
+
+
+def read_bin_model(root: Path, cycle: int) -> dict[str, Any]:
+    """The bin model ``cycle``'s pile was made with (:func:`opnet.synthesis.cycle.bin_model_record`)."""
+    path = bin_model_path(Path(root), cycle)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as e:
+        raise FileNotFoundError(f"{path}: not found (a dataset generated without scene.bin_models has none)") from e
+
+
 def preview_path(root: Path, cycle: int, n: int) -> Path:
     return root / PREVIEW_DIR / f"cycle_{cycle:04d}_{n:03d}.png"
 
 
 def write_cycle(root: Path, result: CycleResult, preview_scenes: tuple[int, ...] = ()) -> None:
-    """Write the previews, then every scene in order (each scene's CSV last)."""
+    """Write the pile's bin model (``scene.bin_models`` only), the previews, then every scene in
+    order (each scene's CSV last)."""
+    if result.bin_model is not None:
+        write_text_atomic(bin_model_path(root, result.cycle), _json_text(result.bin_model))
     for n in preview_scenes:
         write_preview(preview_path(root, result.cycle, n), result.records[n])
     for record in result.records:
