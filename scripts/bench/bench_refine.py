@@ -22,6 +22,7 @@ import cProfile
 import os
 import pickle
 import pstats
+import re
 import shlex
 import sys
 import time
@@ -92,7 +93,7 @@ def variant(text: str, base: dict[str, Any]) -> tuple[str, Any]:
     """``LABEL:icp.KEY=VALUE,search.KEY=VALUE`` -> (label, ICPSettings) over ``base`` (the refine config)."""
     label, _, rest = text.partition(":")
     conf = copy.deepcopy(base)
-    for item in filter(None, rest.split(",")):
+    for item in filter(None, re.split(r",(?![^\[]*\])", rest)):  # commas inside [...] belong to a value
         key, sep, value = item.partition("=")
         section, _, name = key.partition(".")
         if not sep or section not in ("icp", "search") or not name:
