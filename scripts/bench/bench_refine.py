@@ -17,12 +17,10 @@ loaded machine shows there). Target for the plate frames: at most 300 ms per fra
 from __future__ import annotations
 
 import argparse
-import copy
 import cProfile
 import os
 import pickle
 import pstats
-import re
 import shlex
 import sys
 import time
@@ -32,26 +30,13 @@ from typing import Any
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np
-import yaml
 from omegaconf import OmegaConf
 
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.geometry.icp import STAGES, Refiner, settings_from_config
-from opnet.metrics.bregier import evaluate_scenes
-from opnet.metrics.diagnostics import scene_outcomes
 from opnet.paths import REPO_ROOT
+from opnet.studies.refinement import key_values, refine_variant, score_refined
 from opnet.studies.results import cpu_model
-
-
-def key_values(values: list[str], option: str) -> dict[str, Any]:
-    """``["a=1", "b=x"]`` -> {"a": 1, "b": "x"} (YAML values); ValueError naming a bad one."""
-    out: dict[str, Any] = {}
-    for text in values:
-        key, sep, value = text.partition("=")
-        if not sep or not key:
-            raise ValueError(f"{option} {text!r}: expected KEY=VALUE")
-        out[key] = yaml.safe_load(value)
-    return out
 
 
 def frames(ckpt: str, data: dict[str, Any], decoding: dict[str, Any], scenes: int, cache: Path) -> tuple[Any, list]:
@@ -89,19 +74,6 @@ def frames(ckpt: str, data: dict[str, Any], decoding: dict[str, Any], scenes: in
     return obj, out
 
 
-def variant(text: str, base: dict[str, Any]) -> tuple[str, Any]:
-    """``LABEL:icp.KEY=VALUE,search.KEY=VALUE`` -> (label, ICPSettings) over ``base`` (the refine config)."""
-    label, _, rest = text.partition(":")
-    conf = copy.deepcopy(base)
-    for item in filter(None, re.split(r",(?![^\[]*\])", rest)):  # commas inside [...] belong to a value
-        key, sep, value = item.partition("=")
-        section, _, name = key.partition(".")
-        if not sep or section not in ("icp", "search") or not name:
-            raise ValueError(f"--variant {text!r}: expected LABEL:icp.KEY=VALUE,search.KEY=VALUE")
-        conf[section][name] = yaml.safe_load(value)
-    return label.strip(), settings_from_config(conf)
-
-
 def refine_group(name: str) -> dict[str, Any]:
     """The composed ``refine=<name>`` group (its defaults list resolved), as a plain dict."""
     from hydra import compose, initialize_config_dir
@@ -132,12 +104,9 @@ def run_variant(obj: Any, data: list, settings: Any, profile: bool) -> dict[str,
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     if prof is not None:
         pstats.Stats(prof).sort_stats("cumulative").print_stats(25)
-    result = evaluate_scenes(scenes, obj.pose_space, max_occlusion=0.5)
-    outcomes = scene_outcomes(scenes, obj.pose_space, obj.diameter, 0.5)
-    find = sum(int(o.find.sum()) for o in outcomes)
-    found = sum(int((o.find & (o.outcome == "matched")).sum()) for o in outcomes)
+    scored = score_refined(scenes, obj, 0.5)
     n = max(len(data), 1)
-    return {"ap": result.ap, "found": found / max(find, 1), "ms_mean": float(np.mean(ms)), "ms_p50": float(np.median(ms)),
+    return {"ap": scored["ap"], "found": scored["found"], "ms_mean": float(np.mean(ms)), "ms_p50": float(np.median(ms)),
             "ms_max": float(np.max(ms)), "cpu_share": cpu / max(wall, 1e-9),
             **{f"{k}_ms": 1000 * stages.get(k, 0.0) / n for k in STAGES}}  # fmt: skip
 
@@ -158,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     data, decoding = key_values(args.data, "--data"), key_values(args.decoding, "--decoding")
     obj, frames_ = frames(args.ckpt, data, decoding, args.scenes, args.cache)
     base = OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
-    arms = ([] if args.no_base else [("search.yaml", settings_from_config(base))]) + [variant(v, base) for v in args.variant]
+    arms = ([] if args.no_base else [("search.yaml", settings_from_config(base))]) + \
+        [refine_variant(v, base, "--variant") for v in args.variant]  # fmt: skip
     arms += [(f"refine={name}", settings_from_config(refine_group(name))) for name in args.refine]
     hyps = sum(len(f[2].score) for f in frames_)
     lines = [f"{len(frames_)} frames, {hyps / max(len(frames_), 1):.1f} hypotheses per frame", ""]

@@ -23,7 +23,6 @@ import copy
 import csv
 import io
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -31,18 +30,15 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-import yaml  # noqa: E402
-from omegaconf import OmegaConf  # noqa: E402
+import torch
+from omegaconf import OmegaConf
 
-from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
-from opnet.cli.eval import refine_scenes, with_decoding_overrides  # noqa: E402
-from opnet.evaluation import predict_scenes  # noqa: E402
-from opnet.geometry.icp import ICPSettings, settings_from_config  # noqa: E402
-from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
-from opnet.metrics.diagnostics import scene_outcomes  # noqa: E402
+from opnet.cli.build import build_datamodule, load_checkpoint
+from opnet.cli.eval import refine_scenes, with_decoding_overrides
+from opnet.evaluation import predict_scenes
+from opnet.geometry.icp import ICPSettings, settings_from_config
 from opnet.paths import REPO_ROOT
+from opnet.studies.refinement import key_values, refine_variant, score_refined
 
 
 def budgets(values: list[str]) -> list[float | None]:
@@ -59,49 +55,11 @@ def budgets(values: list[str]) -> list[float | None]:
     return out
 
 
-def score(scenes: dict[str, Any], obj: Any, max_occlusion: float) -> dict[str, float]:
-    """AP, found share and matched error percentiles of a set of scenes."""
-    result = evaluate_scenes(scenes, obj.pose_space, max_occlusion=max_occlusion)
-    outcomes = scene_outcomes(scenes, obj.pose_space, obj.diameter, max_occlusion)
-    t = np.concatenate([o.t_err_mm for o in outcomes]) if outcomes else np.zeros(0)
-    r = np.concatenate([o.r_err_deg for o in outcomes]) if outcomes else np.zeros(0)
-    find = sum(int(o.find.sum()) for o in outcomes)
-    found = sum(int((o.find & (o.outcome == "matched")).sum()) for o in outcomes)
-
-    def pct(x: np.ndarray, q: float) -> float:
-        return float(np.percentile(x, q)) if len(x) else float("nan")
-
-    return {"ap": result.ap, "found": found / max(find, 1), "t_mm_p50": pct(t, 50), "t_mm_p90": pct(t, 90),
-            "r_deg_p50": pct(r, 50), "r_deg_p90": pct(r, 90)}  # fmt: skip
-
-
-def key_values(values: list[str], option: str) -> dict[str, Any]:
-    """``["averaging=false", "threshold=0.05"]`` -> {"averaging": False, "threshold": 0.05} (YAML
-    values); ValueError naming a bad one."""
-    out: dict[str, Any] = {}
-    for v in values:
-        key, sep, value = v.partition("=")
-        if not sep or not key:
-            raise ValueError(f"{option} {v!r}: expected KEY=VALUE")
-        out[key] = yaml.safe_load(value) if value else None
-    return out
-
-
 def search_variant(text: str) -> tuple[str, ICPSettings]:
     """``LABEL:KEY=VALUE[,KEY=VALUE...]`` -> (label, conf/refine/search.yaml with ``icp.KEY`` / ``search.KEY``
     overridden); ValueError naming the option for anything else."""
-    label, _, pairs = text.partition(":")
-    conf = OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml")
-    try:
-        for pair in filter(None, re.split(r",(?![^\[]*\])", pairs)):  # a list value keeps its commas
-            key, value = pair.split("=", 1)
-            section, name = key.strip().split(".", 1)
-            if section not in ("icp", "search") or name not in conf[section]:
-                raise KeyError(key)
-            conf[section][name] = yaml.safe_load(value)
-        return label.strip(), settings_from_config(conf)
-    except (ValueError, KeyError) as e:
-        raise ValueError(f"--search-variant {text!r}: expected LABEL:icp.KEY=VALUE,search.KEY=VALUE ({e})") from None
+    base = OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
+    return refine_variant(text, base, "--search-variant")
 
 
 def run(ckpt: Path, split: str, budget_list: list[float | None], search: bool = False,
@@ -128,7 +86,7 @@ def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search
     name = ckpt.resolve().parent.parent.name
     shown = ",".join(f"{k}={v}" for k, v in (decoding or {}).items()) or "as trained"
     rows = [{"run": name, "object": obj.name, "decoding": shown, "refine": "none", "scenes": len(scenes),
-             **score(scenes, obj, max_occ)}]  # fmt: skip
+             **score_refined(scenes, obj, max_occ)}]  # fmt: skip
     base = dict(OmegaConf.to_container(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "icp.yaml"))["icp"])
     arms: list[tuple[str, ICPSettings]] = [
         ("icp, no budget" if b is None else f"icp, {b:g} ms budget", ICPSettings.from_config({**base, "budget_ms": b}))
@@ -142,7 +100,7 @@ def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search
         report = refine_scenes(refined, dm.splits[split], obj, settings)
         wall = time.perf_counter() - start
         rows.append({"run": name, "object": obj.name, "decoding": shown, "refine": label, "scenes": len(scenes),
-                     **score(refined, obj, max_occ), "icp_ms_per_image": report["ms_per_image"],
+                     **score_refined(refined, obj, max_occ), "icp_ms_per_image": report["ms_per_image"],
                      "wall_s": wall, **report["statuses"]})  # fmt: skip
         print(f"{name}: {label}: AP {rows[-1]['ap']:.4f}", flush=True)
     return rows

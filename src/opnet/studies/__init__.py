@@ -4,7 +4,8 @@ log file, read a run's test summary, mean ± sample sd, the checkpoint a run's t
 kept across invocations. Sweeps in the layout of the paper's Table I: :mod:`opnet.studies.sweeps`;
 training runs of a fixed budget: :mod:`opnet.studies.training`; scene presets, a depth image and a
 network output for the benchmarks: :mod:`opnet.studies.scenes`; what a table's maker and its
-renderer agree on: :mod:`opnet.studies.results`."""
+renderer agree on: :mod:`opnet.studies.results`; the refinement studies' options and score:
+:mod:`opnet.studies.refinement`."""
 
 from __future__ import annotations
 
