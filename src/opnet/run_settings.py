@@ -45,7 +45,9 @@ DECODING_NAMES = ("threshold", "min_visibility", "score", "averaging", "averagin
                   "averaging.cluster_score", "averaging.keep_noise")  # fmt: skip
 INPUT_NAMES = ("input_size", "fit", "interpolation", "roi", "trained_clip")
 #: the top-level keys of the checkpoint entry
-ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object")
+ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object", "refine")
+#: the refinements a model may be meant to run with (``deploy_refine``; conf/refine/<name>.yaml)
+REFINE_NAMES = ("icp", "search", "search_fast")
 
 
 class _Missing:
@@ -364,11 +366,24 @@ class RunSettings:
         input: the framing and the training clip planes.
         decoding: the decoding.
         object: the object, or None (a system built without an object config).
+        refine: the refinement the model is meant to run with (train.py's ``deploy_refine``: a
+            conf/refine/ name of :data:`REFINE_NAMES`), applied by eval.py and predict.py with their
+            default ``refine=model``; None: the poses as decoded.
     """
 
     input: InputSettings = InputSettings()
     decoding: DecodingSettings = DecodingSettings()
     object: ObjectSettings | None = None
+    refine: str | None = None
+
+    @staticmethod
+    def checked_refine(value: Any, key: str = "deploy_refine", source: str = "") -> str | None:
+        """``value`` as a refinement name (None: none); a SettingError naming ``key`` otherwise."""
+        if value is None or value == "none":
+            return None
+        if not isinstance(value, str) or value not in REFINE_NAMES:
+            raise SettingError(key, value, f"expected null or one of {', '.join(REFINE_NAMES)} (conf/refine/)", source)
+        return value
 
     @classmethod
     def from_training_config(cls, cfg: Any, source: str = "", decoding: DecodingSettings | None = None) -> RunSettings:
@@ -380,15 +395,18 @@ class RunSettings:
         Raises:
             SettingError: ``[<source> ]<key>=<value>: expected ...``, the key as the config spells it.
         """
+        refine = cfg.get("deploy_refine") if isinstance(cfg, Mapping) else None
         return cls(InputSettings.from_training_config(cfg, source),
                    decoding if decoding is not None else DecodingSettings.from_training_config(cfg, source),
-                   ObjectSettings.from_training_config(cfg, source))  # fmt: skip
+                   ObjectSettings.from_training_config(cfg, source),
+                   cls.checked_refine(refine, "deploy_refine", source))  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data: ``{"format", "input", "trained_clip", "decoding", "object"}``, the input
-        and the decoding spelt as in the ONNX metadata (:mod:`opnet.deploy.metadata`)."""
+        """Plain JSON-able data: ``{"format", "input", "trained_clip", "decoding", "object", "refine"}``,
+        the input and the decoding spelt as in the ONNX metadata (:mod:`opnet.deploy.metadata`)."""
         return {"format": FORMAT, **self.input.to_metadata(), **self.decoding.to_metadata(),
-                "object": None if self.object is None else _plain(self.object.config, "object", "")}
+                "object": None if self.object is None else _plain(self.object.config, "object", ""),
+                "refine": self.refine}
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "") -> RunSettings:
@@ -409,8 +427,10 @@ class RunSettings:
             raise SettingError("format", d["format"], f"expected {FORMAT} (written by another opnet version)", source)
         _require(d, ["object"], source)
         obj = None if d["object"] is None else ObjectSettings(ObjectSettings.checked(d["object"], "object", source))
+        # "refine" may be missing: entries written before it recorded no refinement
         return cls(InputSettings.from_metadata(d, source, required=True),
-                   DecodingSettings.from_metadata(d, source, required=True), obj)  # fmt: skip
+                   DecodingSettings.from_metadata(d, source, required=True), obj,
+                   cls.checked_refine(d.get("refine"), "refine", source))  # fmt: skip
 
     def with_decoding(self, decoding: DecodingSettings) -> RunSettings:
         return dataclasses.replace(self, decoding=decoding)

@@ -251,7 +251,7 @@ def test_the_entry_config_check_fails_on_a_broken_config(tmp_path: Path) -> None
     edit("data/synthetic.yaml", "OPNetDataModule", "OPNetDataModul")  # a _target_ that is no object
     [found] = problems("train")
     assert found.startswith("conf/train.yaml data._target_=opnet.data.datamodule.OPNetDataModul does not import")
-    edit("eval.yaml", "refine: none", "refine: nothing")  # an option that does not exist
+    edit("eval.yaml", "refine: model", "refine: nothing")  # an option that does not exist
     assert problems("eval")[0].startswith("conf/eval.yaml does not compose")
 
 

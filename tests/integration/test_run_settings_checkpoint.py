@@ -89,6 +89,27 @@ def test_eval_reads_the_decoding_from_the_entry(checkpoint: Path, tmp_path: Path
     assert by_entry["ap"] == by_command_line["ap"]
 
 
+def test_eval_runs_the_refinement_the_entry_records(checkpoint: Path, tmp_path: Path) -> None:
+    edited = tmp_path / "edited.ckpt"
+    ckpt = read_checkpoint(checkpoint)
+    ckpt[CHECKPOINT_KEY]["refine"] = "search_fast"
+    ckpt[CHECKPOINT_KEY]["decoding"]["threshold"] = 0.0  # every cell a hypothesis: something to refine
+    torch.save(ckpt, edited)
+    assert load_checkpoint(edited)[0].settings.refine == "search_fast"
+
+    def results(ckpt: Path, name: str, *extra: str) -> tuple[dict[str, Any], list[tuple[str, str]]]:
+        summary = eval_cli.run(compose_cfg("eval", [f"ckpt={ckpt}", f"out={tmp_path / name}", "examples=0", *extra]))
+        return summary, sorted((p.name, p.read_text()) for p in (tmp_path / name / "results").glob("*.json"))
+
+    by_entry = results(edited, "entry")
+    by_command_line = results(checkpoint, "command_line", "refine=search_fast", "+decoding.averaging=false",
+                              "+decoding.threshold=0.0")  # fmt: skip
+    assert by_entry[1] and by_entry[1] == by_command_line[1]  # the search, decoded without averaging
+    assert by_entry[0]["icp"]["statuses"] == by_command_line[0]["icp"]["statuses"]
+    as_decoded = results(edited, "none", "refine=none")  # the command line wins
+    assert as_decoded[1] == results(checkpoint, "plain", "+decoding.threshold=0.0")[1] != by_entry[1]
+
+
 def test_the_export_and_its_runtime_carry_the_entrys_settings(checkpoint: Path, tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
     from opnet.deploy.runtime import OnnxPoseEstimator

@@ -41,6 +41,7 @@ EXAMPLES = [
     RunSettings(InputSettings(roi="auto:0.8", trained_clip=(1.55, 2.05)), DecodingSettings(averaging=AveragingSettings()),
                 ObjectSettings({"name": "ipd_plate", "bop_models": "/d/models", "bop_obj_id": 18})),
     RunSettings(InputSettings(roi="auto")),
+    RunSettings(InputSettings(roi="auto:0.8"), refine="search_fast"),
 ]  # fmt: skip
 
 
@@ -101,6 +102,8 @@ CORRUPT = {
     "format 2": (_set(GOOD, "format", 2), "format=2: expected 1 (written by another opnet version)"),
     "unknown key": (_set(GOOD, "decodng", {}), "decodng={}: unknown setting; expected one of format, input"),
     "not a mapping": ([1, 2], "opnet_settings=[1, 2]: expected a mapping"),
+    "refine unknown": (_set(GOOD, "refine", "fast"), "refine='fast': expected null or one of icp, search, search_fast"),
+    "refine a flag": (_set(GOOD, "refine", True), "refine=True: expected null or one of icp, search, search_fast"),
 }  # fmt: skip
 
 
@@ -221,3 +224,34 @@ def test_the_entry_decides_how_a_checkpoint_decodes(tmp_path: Path) -> None:
     system.set_decoding(tuned)
     a, b = _hypotheses(system), _hypotheses(loaded)
     assert np.array_equal(a.t, b.t) and np.array_equal(a.score, b.score)
+
+
+def test_the_refinement_a_model_records_comes_from_deploy_refine_and_an_old_entry_records_none() -> None:
+    cfg = {"deploy_refine": "search_fast", "data": {"roi": "auto:0.8"}}
+    assert RunSettings.from_training_config(cfg).refine == "search_fast"
+    assert RunSettings.from_training_config({"deploy_refine": None}).refine is None
+    with pytest.raises(SettingError, match=r"^deploy_refine='serch': expected null or one of icp, search, search_fast"):
+        RunSettings.from_training_config({"deploy_refine": "serch"})
+    entry = EXAMPLES[-1].to_dict()
+    assert entry["refine"] == "search_fast"
+    del entry["refine"]  # an entry written before the key
+    assert RunSettings.from_dict(entry, "x").refine is None
+
+
+@pytest.mark.parametrize("name", ["icp", "search", "search_fast"])
+def test_a_recorded_refinement_is_its_group_as_hydra_composes_it(name: str) -> None:
+    from conftest import compose_cfg
+    from omegaconf import OmegaConf
+
+    from opnet.geometry.icp import model_refinement, refine_config, settings_from_config
+
+    composed = OmegaConf.to_container(compose_cfg("eval", ["ckpt=x", f"refine={name}"]).refine, resolve=True)
+    assert refine_config(name) == composed
+    default = OmegaConf.to_container(compose_cfg("eval", ["ckpt=x"]).refine, resolve=True)
+    assert default == {"method": "model"}  # eval.py's default: the model's own
+    group, by_model = model_refinement(default, name)
+    assert by_model and settings_from_config(group) == settings_from_config(composed)
+    assert model_refinement(default, None) == ({"method": "none"}, False)
+    assert model_refinement(composed, "icp") == (composed, False)  # a refinement named on the command line wins
+    with pytest.raises(ValueError, match="refine=model"):
+        settings_from_config(default)  # never read without its checkpoint

@@ -21,7 +21,14 @@ from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.evaluation import OnScenes, Scenes, evaluate, scoring
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
-from opnet.geometry.icp import STAGES, STATUSES, ICPSettings, Refiner, settings_from_config
+from opnet.geometry.icp import (
+    STAGES,
+    STATUSES,
+    ICPSettings,
+    Refiner,
+    model_refinement,
+    settings_from_config,
+)
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.run_settings import InputSettings
 from opnet.settings_schema import SettingError
@@ -165,6 +172,26 @@ def apply_decoding_overrides(system: OPNetSystem, overrides: Any) -> None:
     system.set_decoding(system.settings.decoding.with_overrides(overrides))
 
 
+def model_settings(system: OPNetSystem, refine: Any, decoding: Any) -> ICPSettings | None:
+    """eval.py's and predict.py's refinement and decoding for ``system``: ``refine=model`` (their
+    default) is the refinement the checkpoint records (none if it records none); the search decodes
+    without pose averaging (every hypothesis is refined and verified on its own) unless
+    ``+decoding.averaging`` says otherwise. Applies the decoding; returns the refinement's settings."""
+    if isinstance(refine, DictConfig):
+        refine = OmegaConf.to_container(refine, resolve=True)
+    refine, by_model = model_refinement(refine, system.settings.refine)
+    icp = settings_from_config(refine)
+    if isinstance(decoding, DictConfig):
+        decoding = OmegaConf.to_container(decoding)
+    if by_model and icp is not None and icp.search is not None and "averaging" not in (decoding or {}):
+        decoding = {**(decoding or {}), "averaging": False}
+    apply_decoding_overrides(system, decoding)
+    if by_model:
+        log.info("refinement: %s, the one the checkpoint records (refine=none: the poses as decoded)",
+                 system.settings.refine)
+    return icp
+
+
 def framing_overrides(framing: InputSettings) -> dict[str, Any]:
     """The ``data.*`` keys of the model's framing (input size, canvas fit, region of interest), with
     which a data module frames its scenes as the model was trained to see them."""
@@ -196,7 +223,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 def _evaluate(cfg: DictConfig, out_dir: Path, started: float) -> dict[str, Any]:
     """The evaluation of :func:`run` into ``out_dir`` (locked)."""
     system, run_cfg = load_checkpoint(cfg.ckpt)
-    apply_decoding_overrides(system, cfg.get("decoding"))
+    icp = model_settings(system, cfg.get("refine"), cfg.get("decoding"))
     log.info("inference: %s", system.configure_inference(cfg.get("inference")))
     overrides = {k: v for k, v in (cfg.get("data") or {}).items() if v is not None}
     for key, value in framing_overrides(system.settings.input).items():  # the model's, unless eval.py's data.* says
@@ -213,7 +240,6 @@ def _evaluate(cfg: DictConfig, out_dir: Path, started: float) -> dict[str, Any]:
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
     datamodule.setup("test")
     warn_other_clip(datamodule.splits[cfg.split], trained)
-    icp = settings_from_config(cfg.get("refine"))
     result = evaluate_split(system, datamodule, cfg.split, out_dir, examples=int(cfg.get("examples", 0)), icp=icp)
     lines = result_summary(result, str(out_dir / "ap_table.md"), time.monotonic() - started, bool(cfg.get("verbose")))
     report(["", *lines, f"results       : {out_dir}/summary.json, {out_dir}/ap_table.md (per scene), {out_dir}/results/"])

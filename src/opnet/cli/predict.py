@@ -42,9 +42,10 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from opnet.cli.build import load_checkpoint
-from opnet.cli.eval import apply_decoding_overrides
+from opnet.cli.eval import model_settings
 from opnet.data.preprocess import to_network_input
 from opnet.data.preprocess_torch import to_network_input as device_input
+from opnet.data.roi import crop_image, parse_roi
 from opnet.datasets.depth_inputs import (
     DepthImage,
     claimed_outputs,
@@ -54,9 +55,8 @@ from opnet.datasets.depth_inputs import (
     write_pose_files,
 )
 from opnet.fileio.atomic import write_bytes_atomic
-from opnet.data.roi import crop_image, parse_roi
 from opnet.geometry.camera import describe_clip, with_clip, working_clip
-from opnet.geometry.icp import Refiner, settings_from_config
+from opnet.geometry.icp import Refiner
 from opnet.metrics.records import HypothesisSet
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
@@ -155,9 +155,8 @@ def run(cfg: DictConfig) -> int:
     run, e.g. a missing checkpoint or conflicting camera values, raises ValueError instead)."""
     camera_cfg = OmegaConf.to_container(cfg.camera, resolve=True) if cfg.get("camera") is not None else None
     given = given_camera(camera_cfg)
-    icp = settings_from_config(cfg.get("refine"))
     system, _ = load_checkpoint(cfg.ckpt)
-    apply_decoding_overrides(system, cfg.get("decoding"))
+    icp = model_settings(system, cfg.get("refine"), cfg.get("decoding"))
     print(f"inference: {system.configure_inference(cfg.get('inference'))}")
     trained = system.settings.input.trained_clip
     clip = working_clip(cfg.get("clip"), trained)

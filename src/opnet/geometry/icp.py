@@ -847,6 +847,34 @@ def search_settings(budget_ms: float | None = None, fast: bool = False) -> ICPSe
     return settings
 
 
+def refine_config(name: str) -> dict[str, Any]:
+    """``conf/refine/<name>.yaml`` as Hydra composes it: the files of its defaults list first, then its own keys."""
+    from omegaconf import OmegaConf
+
+    from opnet.paths import config_dir
+
+    path = config_dir() / "refine" / f"{name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"refine={name!r}: no {path}")
+    own = OmegaConf.to_container(OmegaConf.load(path))
+    defaults = own.pop("defaults", [])
+    merged = OmegaConf.create()
+    for entry in defaults:
+        merged = OmegaConf.merge(merged, own if entry == "_self_" else refine_config(str(entry)))
+    if "_self_" not in defaults:
+        merged = OmegaConf.merge(merged, own)
+    return OmegaConf.to_container(merged)
+
+
+def model_refinement(refine: Any, recorded: str | None) -> tuple[Any, bool]:
+    """The ``refine`` group of eval.py / predict.py resolved against the refinement a model records
+    (:attr:`opnet.run_settings.RunSettings.refine`): ``refine=model`` (their default) is the recorded
+    one's group, or none where the model records none. Returns (the group, whether it came from the model)."""
+    if not refine or refine.get("method") != "model":
+        return refine, False
+    return ({"method": "none"} if recorded is None else refine_config(recorded)), recorded is not None
+
+
 def settings_from_config(refine: Any) -> ICPSettings | None:
     """The ``refine`` config group (conf/refine/): ICP settings for ``method: icp``, ICP with the
     depth-agreement search for ``method: search`` (its settings from ``refine.search``), None for
@@ -856,6 +884,8 @@ def settings_from_config(refine: Any) -> ICPSettings | None:
     method = refine.get("method", "none")
     if method == "none":
         return None
+    if method == "model":
+        raise ValueError("refine=model: the model's own refinement, resolved with its checkpoint (model_refinement)")
     if method not in ("icp", "search"):
         raise ValueError(f"refine.method={method!r}, expected none, icp or search")
     settings = ICPSettings.from_config(refine.get("icp"))
@@ -864,5 +894,23 @@ def settings_from_config(refine: Any) -> ICPSettings | None:
     return settings
 
 
-__all__ = ["ASSOCIATIONS", "STAGES", "STATUSES", "ICPResult", "ICPSettings", "ModelCloud", "Refiner", "SceneCloud", "refine_hypotheses",
-           "refine_image", "refine_pose", "refine_poses_nearest", "refine_poses_projective", "rotation_change_deg", "search_settings", "settings_from_config"]
+__all__ = [
+    "ASSOCIATIONS",
+    "STAGES",
+    "STATUSES",
+    "ICPResult",
+    "ICPSettings",
+    "ModelCloud",
+    "Refiner",
+    "SceneCloud",
+    "model_refinement",
+    "refine_config",
+    "refine_hypotheses",
+    "refine_image",
+    "refine_pose",
+    "refine_poses_nearest",
+    "refine_poses_projective",
+    "rotation_change_deg",
+    "search_settings",
+    "settings_from_config",
+]
