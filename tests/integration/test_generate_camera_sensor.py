@@ -87,3 +87,21 @@ def test_outside_clip_clamp_writes_what_a_real_frame_shows_beyond_the_working_vo
     assert np.allclose(a, b, atol=1e-3)
     with pytest.raises(ValueError, match="outside_clip"):
         run(compose_cfg("generate", ["object=pin", f"scene.outside_clip=zero", f"out={tmp_path / 'bad'}", "progress=false"]))
+
+
+def test_camera_scale_renders_half_the_file_s_pixels_with_the_sensor_scaled(tmp_path: Path) -> None:
+    cam = tmp_path / "camera.yaml"
+    cam.write_text(CAMERA_YAML)
+    out = tmp_path / "half"
+    run(compose_cfg("generate", ["object=pin", "scene.collision=convex_hull", "cycles=1", "drops=1", f"out={out}",
+                                 "progress=false", "previews=0", f"scene.camera_file={cam}", "scene.camera_scale=0.5",
+                                 "sensor=structured_light"]))  # fmt: skip
+    ds = IPADataset(out)
+    assert ds.camera == Camera(75.0, 76.0, 27.4, 25.15, 80, 60, ds.camera.clip_start, ds.camera.clip_end)
+    assert ds[len(ds) - 1].depth.shape == (60, 80)
+    assert json.loads((out / "parameter.json").read_text())["opnet_intrinsics"] == pytest.approx([75.0, 76.0, 27.4, 25.15])
+    gen = json.loads((out / "generation.json").read_text())
+    assert gen["scene"]["camera_scale"] == 0.5
+    # the sensor applied, at the rendered pixels: structured_light's 0.8, 2, 0.125 and 12 px halved
+    assert {k: gen["sensor"][k] for k in ("lateral_px", "edge_missing_px", "disparity_step_px", "blob_scale_px")} == {
+        "lateral_px": 0.4, "edge_missing_px": 1, "disparity_step_px": 0.0625, "blob_scale_px": 6.0}

@@ -84,13 +84,11 @@ def camera_file(scale: float, out: Path) -> Path:
     """The cell's camera (the frames' Photoneo) with the working clip planes, its pixels scaled by ``scale``."""
     from opnet.datasets.camera_file import read_camera_file
 
-    cam = read_camera_file(FRAMES / "camera_photoneo.yaml")
-    W, H = round(cam.width * scale), round(cam.height * scale)
-    cx, cy = (cam.cx + 0.5) * W / cam.width - 0.5, (cam.cy + 0.5) * H / cam.height - 0.5
+    cam = read_camera_file(FRAMES / "camera_photoneo.yaml").scaled(scale)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(f"# the Photoneo of the IPD frames at {scale:g} x its pixels, clip planes {CLIP} (scripts/cells.py)\n"
-                   f"fx: {cam.fx * W / cam.width!r}\nfy: {cam.fy * H / cam.height!r}\ncx: {cx!r}\ncy: {cy!r}\n"
-                   f"width: {W}\nheight: {H}\nclip_start: {CLIP[0]!r}\nclip_end: {CLIP[1]!r}\n")  # fmt: skip
+                   f"fx: {cam.fx!r}\nfy: {cam.fy!r}\ncx: {cam.cx!r}\ncy: {cam.cy!r}\n"
+                   f"width: {cam.width}\nheight: {cam.height}\nclip_start: {CLIP[0]!r}\nclip_end: {CLIP[1]!r}\n")  # fmt: skip
     return out
 
 
@@ -98,8 +96,10 @@ def generate(camera: Path, out: Path, cycles: int, views: int, seed: int, scale:
              **scene: Any) -> None:  # fmt: skip
     settings = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
                 **scene}  # fmt: skip
-    sensor = [f"sensor.{k}={v * scale if isinstance(v, float) else max(1, round(v * scale))}"
-              for k, v in PIXEL_SENSOR_KEYS.items()]  # fmt: skip
+    from opnet.synthesis.sensor import SensorModel
+
+    pixel = SensorModel(**PIXEL_SENSOR_KEYS).scaled(scale)
+    sensor = [f"sensor.{k}={getattr(pixel, k)}" for k in PIXEL_SENSOR_KEYS]
     value = lambda v: "[" + ",".join(map(str, v)) + "]" if isinstance(v, (list, tuple)) else v  # noqa: E731
     run([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", *sensor, f"cycles={cycles}",
          "drops=10", "workers=2", f"seed={seed}", f"out={out}", "progress=false", "previews=2",

@@ -181,6 +181,14 @@ class Camera:
             height=height,
         )
 
+    def scaled(self, scale: float) -> Camera:
+        """The same camera at ``scale`` x its pixels: ``round(width * scale)`` x ``round(height * scale)``,
+        the same field of view and rays (:meth:`resized`), the clip planes unchanged."""
+        width, height = round(self.width * scale), round(self.height * scale)
+        if width < 1 or height < 1:
+            raise ValueError(f"{self.width}x{self.height} pixels at {scale:g} x leave none")
+        return self.resized(width, height)
+
     def cropped(self, x0: int, y0: int, width: int, height: int) -> Camera:
         """The camera of the sub-image ``[y0:y0+height, x0:x0+width]`` (x0, y0 may be negative: padding)."""
         return replace(self, cx=self.cx - x0, cy=self.cy - y0, width=width, height=height)

@@ -23,7 +23,7 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
-                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models")
+                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -144,9 +144,15 @@ class SceneConfig:
             generated images (non-square pixels and any principal point on the image).
         camera_file_clip: use the file's clip planes (a real rig at a known ``camera_height``);
             default: derived from the bin like for the built-in camera.
+        camera_scale: render at this many times the file's pixels (a number in (0, 4]; 1 = as
+            the file says): the same field of view and pose, the sensor model's pixel-unit
+            settings scaled with it (``SensorModel.scaled``), both as written to the dataset. 0.5
+            makes the piles of a high-resolution camera 4x cheaper; a model trained on them runs
+            on the camera's full frames (its input is a metric crop resized to the network's size).
         Domain randomization around the camera: ``camera_jitter_m`` (position, height included)
-        and ``camera_jitter_deg`` (tilt) per cycle; the intrinsics stay those of the file (one
-        camera per dataset; the training's zoom augmentation varies the apparent focal length).
+        and ``camera_jitter_deg`` (tilt) per cycle; the intrinsics stay those of the file at
+        ``camera_scale`` (one camera per dataset; the training's zoom augmentation varies the
+        apparent focal length).
 
     Several views per pile:
         views: each settled pile is rendered from this many cameras, each written as a cycle of
@@ -214,6 +220,7 @@ class SceneConfig:
     bin_yaw_deg: tuple[float, float] | None = None
     bin_tilt_deg: float = 0.0
     bin_models: tuple | None = None
+    camera_scale: float = 1.0
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -256,6 +263,9 @@ class SceneConfig:
             need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
         need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
         need(isinstance(self.camera_file_clip, bool), "camera_file_clip", "true or false")
+        need(0 < self.camera_scale <= 4, "camera_scale", "a number in (0, 4] (x the pixels of scene.camera_file)")
+        need(self.camera_scale == 1 or self.camera_file is not None, "camera_scale",
+             "1 without scene.camera_file (it scales the pixels of the file's camera)")
         need(isinstance(self.views, int) and not isinstance(self.views, bool) and 1 <= self.views <= 1000, "views",
              "an integer in 1..1000 (views per settled pile)")
         need(self.camera_jitter_deg < 45.0, "camera_jitter_deg", "degrees in [0, 45) (the camera must still see the bin)")

@@ -112,7 +112,8 @@ class CycleGenerator:
         scene: camera, bin and physics settings; default :class:`SceneConfig()`.
         cycles: number of cycles of the dataset (only recorded in ``rig.params``).
         collision: a prepared collision model (default: built here, V-HACD cached on disk).
-        sensor: the depth sensor applied to every rendered depth image (default ideal: exact).
+        sensor: the depth sensor applied, as given, to every rendered depth image (default ideal:
+            exact); :func:`opnet.synthesis.generate.generate` passes it scaled by ``scene.camera_scale``.
     """
 
     def __init__(

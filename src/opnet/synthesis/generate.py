@@ -185,7 +185,9 @@ def generate_dataset(
         object_config: the object config to store in ``object.json`` (keys of conf/object/*.yaml);
             default: the built-in's name, or a copy of the mesh in ``out``.
         sensor: the depth sensor's artefacts (:mod:`opnet.synthesis.sensor`; a model or the
-            ``sensor`` config node); default ideal (exact depth).
+            ``sensor`` config node); default ideal (exact depth). Its pixel-unit settings refer to
+            the camera's pixels: with ``scene.camera_scale`` they are scaled with the image, and the
+            dataset records the scaled model (the one applied).
     Returns:
         What was done, with timings.
     Raises:
@@ -200,7 +202,7 @@ def generate_dataset(
     out, scene = Path(out), scene or SceneConfig()
     if out.exists() and not out.is_dir():  # a file, /dev/null
         raise ValueError(f"out={out}: exists and is not a folder; choose another out=")
-    sensor = sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)
+    sensor = (sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)).scaled(scene.camera_scale)
     rig = make_rig(obj, drops, cycles, scene)
     config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)
     if obj.mesh is not None:

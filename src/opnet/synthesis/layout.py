@@ -13,9 +13,10 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
 - wall height ``bin_wall_factor * D``;
 - camera height: the smallest at which the outer rim of the walls, grown by ``view_margin``, fits
   into the smaller image side (with a working area, ``bin_area``: the bin in any yaw anywhere in it);
-- a camera from a file (``camera_file``: its intrinsics and image size, any principal point):
-  the camera moves sideways so that the image centre, not the optical axis, looks at the bin
-  centre; its clip planes are used with ``camera_file_clip``, else derived as below;
+- a camera from a file (``camera_file``: its intrinsics and image size, any principal point; at
+  ``camera_scale`` x its pixels, the same field of view): the camera moves sideways so that the
+  image centre, not the optical axis, looks at the bin centre; its clip planes are used with
+  ``camera_file_clip``, else derived as below;
 - clip planes: ``clip_start`` one diameter above the wall tops (parts rarely pile higher than the
   walls; closer points are written as missing depth), ``clip_end`` past the ground plane at the
   image corners under the worst camera tilt;
@@ -213,7 +214,7 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     bins = tuple(bin_geometry(obj, drops, model) for model in cfg.bin_model_scenes())
     bin_geom, wall = bins[0], max(b.wall_height for b in bins)  # every size below: the largest bin model's
 
-    given = read_camera_file(cfg.camera_file) if cfg.camera_file else None
+    given = scaled_camera_file(cfg) if cfg.camera_file else None
     if given is None:
         width, height = cfg.image_size
         fx = fy = cfg.resolution / (2.0 * math.tan(math.radians(cfg.fov_deg) / 2.0))
@@ -282,6 +283,19 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     check_camera_range(rig, cfg)
     check_bin_area(rig, cfg)
     return rig
+
+
+def scaled_camera_file(cfg: SceneConfig) -> Camera:
+    """The camera of ``cfg.camera_file`` at ``cfg.camera_scale`` x its pixels; an image the camera
+    checks refuse (no pixel left, too many) is an error naming the file and the scale."""
+    given = read_camera_file(cfg.camera_file)
+    if cfg.camera_scale == 1:
+        return given
+    source = f"{cfg.camera_file} at scene.camera_scale={cfg.camera_scale:g}"
+    try:
+        return given.scaled(cfg.camera_scale).check_plausible(source)
+    except ValueError as e:
+        raise ValueError(str(e) if str(e).startswith(source) else f"{source}: {e}") from None
 
 
 def bin_geometry(obj: ObjectModel, drops: int, cfg: SceneConfig) -> BinGeometry:

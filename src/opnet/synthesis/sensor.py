@@ -32,7 +32,10 @@ with parameters in physical units:
    in blobs of about ``blob_scale_px``: dark, specular or saturated patches).
 
 Pixel-unit parameters (``lateral_px``, ``edge_missing_px``, ``disparity_step_px``,
-``blob_scale_px``) refer to the rendered camera's pixels. The output is a deterministic function
+``blob_scale_px``) refer to the rendered camera's pixels. A scene rendered at ``scene.camera_scale``
+x the pixels of its camera file applies :meth:`SensorModel.scaled`: each of them times the scale
+(``edge_missing_px`` rounded, at least 1 where it is > 0), so that the artefacts keep their size in
+the scene and the disparity steps their depth steps. The output is a deterministic function
 of the depth, the camera and the generator passed in; ``SensorModel()`` (the ``ideal`` preset)
 returns the depth unchanged and draws no random number.
 """
@@ -118,6 +121,20 @@ class SensorModel:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def scaled(self, scale: float) -> SensorModel:
+        """This sensor for the image at ``scale`` x the pixels of the camera its settings refer to
+        (``scene.camera_scale``): the pixel-unit settings times ``scale`` (module doc), the others
+        unchanged; ``self`` at scale 1 and for an ideal sensor (it stays ideal)."""
+        if scale == 1 or self.is_ideal:
+            return self
+        edge = max(1, round(self.edge_missing_px * scale)) if self.edge_missing_px > 0 else 0
+        try:
+            return dataclasses.replace(self, lateral_px=self.lateral_px * scale, edge_missing_px=edge,
+                                       disparity_step_px=self.disparity_step_px * scale,
+                                       blob_scale_px=self.blob_scale_px * scale)
+        except ValueError as e:  # blob_scale_px below a pixel
+            raise ValueError(f"{e} (the sensor at scene.camera_scale={scale:g})") from None
 
     @property
     def is_ideal(self) -> bool:
