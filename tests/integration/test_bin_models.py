@@ -164,3 +164,19 @@ def test_a_model_that_leaves_the_working_areas_view_is_refused() -> None:
                                          r"\(-0\.05, -0\.05\) m leaves the camera's view") as info:
         make_rig(obj, 5, 1, SceneConfig(**cfg, bin_models=[{"bin_inner": 0.2}, {"bin_inner": 0.4}]))
     assert "\n" not in str(info.value)
+    # perforations alone leave the configured bin's floor where it was: checked as the configured bin is
+    holes = [{"bin_hole_size": 0.01, "bin_hole_pitch": 0.02}, {"bin_hole_size": 0.02, "bin_hole_pitch": 0.03}]
+    make_rig(obj, 5, 1, SceneConfig(**cfg, bin_inner=0.4, bin_models=holes))
+    make_rig(obj, 5, 1, SceneConfig(**cfg, bin_inner=0.4))
+    with pytest.raises(ValueError, match=r"bin_models\[1\]: its floor"):
+        make_rig(obj, 5, 1, SceneConfig(**cfg, bin_inner=0.4, bin_models=[holes[0], {"bin_clearance": 0.1}]))
+
+
+def test_train_pys_scene_node_gives_the_models_of_the_command_line() -> None:
+    """``python train.py experiment=cell "scene.bin_models=[{...}, {...}]"``: the composed node (a Hydra
+    ListConfig of DictConfigs, as the data module hands it on) reads as the same models as plain lists."""
+    from conftest import compose_cfg
+
+    cfg = compose_cfg("train", ["scene.bin_models=[{bin_hole_size:0.012,bin_hole_pitch:0.018},{bin_inner:0.3}]"])
+    plain = [{"bin_hole_size": 0.012, "bin_hole_pitch": 0.018}, {"bin_inner": 0.3}]
+    assert SceneConfig.from_dict(dict(cfg.scene)).bin_models == SceneConfig(bin_models=plain).bin_models

@@ -53,3 +53,6 @@ def test_the_seed_table_gives_mean_sd_and_the_gap_for_policies_with_seeds() -> N
     assert lines[-1] == "| auto:0.8 | search | 2 | 0.480 ± 0.028 | 0.460 ± 0.014 | -0.020 (within 0.05) |"
     assert not any("fixed" in line for line in lines)
     assert cells.seed_table(rows[4:]) == []
+    # two input sizes of one policy are no seeds of one arm
+    sizes = [{**r, "model": f"frame{n} (input {n}, seed 0)"} for r, n in zip(rows[:4], (128, 256, 128, 256), strict=True)]
+    assert cells.seed_table(sizes) == []

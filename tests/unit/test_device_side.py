@@ -229,7 +229,7 @@ def test_device_side_prediction_equals_the_host_with_a_trained_model_on_a_real_f
     """predict.py's path end to end, both ways: the trained plate model on the IPD Photoneo frames."""
     from opnet.datasets.bop import BOPDataset
 
-    ckpt = REPO_ROOT / "models" / "real_ipd_plate.ckpt"
+    ckpt = REPO_ROOT / "models" / "fixed_box_ipd_plate.ckpt"
     system, _ = load_checkpoint(str(ckpt))
     clip = system.settings.input.trained_clip
     frames = BOPDataset(shared / "data" / "ipd_real_obj18" / "test", 18, clip=clip)

@@ -61,7 +61,9 @@ VALIDATION_SEED = 200
 CORNERS = ((0.1, 0.1, 0.2, 0.2), (-0.2, 0.1, -0.1, 0.2), (-0.2, -0.2, -0.1, -0.1), (0.1, -0.2, 0.2, -0.1))
 #: the earlier recipe's fixed box (pixels of the full frames) and its shipped model
 OLD_ROI = (560, 230, 1250, 1160)
-OLD_MODEL = REPO_ROOT / "models" / "real_ipd_plate.ckpt"
+OLD_MODEL = REPO_ROOT / "models" / "fixed_box_ipd_plate.ckpt"
+#: the one command's model (``--stage cell``: train.py experiment=cell), shipped as this file
+CELL_MODEL = REPO_ROOT / "models" / "real_ipd_plate.ckpt"
 #: the sensor model's settings in pixels (halved with the resolution)
 PIXEL_SENSOR_KEYS = {"lateral_px": 0.5, "edge_missing_px": 2, "blob_scale_px": 15.0}
 FIELDS = ("policy", "model", "placement", "refine", "scenes", "required", "ap", "found", "found_of_all",
@@ -140,7 +142,7 @@ def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str]) -> 
 
 #: the refinements scored: none, the search, and the recipe's (RECIPE_REFINE): the most accurate on the cell
 #: study's validation piles within the speed target, 300 ms per frame on 2 cores (results/verification/speed.md)
-REFINE = {"none": [], "search": ["refine=search", "+decoding.averaging=false"],
+REFINE = {"none": ["refine=none"], "search": ["refine=search", "+decoding.averaging=false"],
           "search_fast": ["refine=search_fast", "+decoding.averaging=false"]}  # fmt: skip
 RECIPE_REFINE = "search_fast"
 
@@ -205,11 +207,13 @@ def report(rows: list[dict[str, Any]], out: Path, command: str, notes: list[str]
 def seed_table(rows: list[dict[str, Any]]) -> list[str]:
     """Mean ± sample sd over the training seeds of each policy's rows that have more than one seed (AP, and
     moved minus trained: the recipe's acceptance holds where |moved - trained| <= 0.05)."""
-    groups: dict[tuple[str, str], dict[str, list[float]]] = {}
-    for r in rows:
-        groups.setdefault((r["policy"], r["refine"]), {}).setdefault(r["placement"], []).append(float(r["ap"]))
+    groups: dict[tuple[str, str, str], dict[str, list[float]]] = {}
+    for r in rows:  # the seeds of one policy at one input size (the model's name without its seed)
+        size = r.get("model", "").split(", seed")[0]
+        size = size[size.find("(input"):] if "(input" in size else size
+        groups.setdefault((r["policy"], r["refine"], size), {}).setdefault(r["placement"], []).append(float(r["ap"]))
     lines = []
-    for (policy, refine), by in groups.items():
+    for (policy, refine, _), by in groups.items():
         trained, moved = by.get("trained", []), by.get("moved", [])
         if len(trained) < 2 or len(trained) != len(moved):
             continue
@@ -278,7 +282,10 @@ SETTINGS = [
     "whole in the image (the area's corners are checked to be in view);",
     f"- the network's input (`data.roi=auto:{roi_side():g}`): 1.1 x the basket's outer diagonal (any yaw, the "
     "finder's error to spare); the policy as built for a basket that moves, the generated table above showing what "
-    "it holds where the basket moved, beside a fixed box and the whole frame;",
+    "it holds where the basket moved, beside a fixed box and the whole frame at 128 and 256 pixels (the whole frame "
+    "at 128 leaves a plate a few network pixels wide and finds almost nothing; at 256 it comes near the crop at 128, "
+    "one seed against three, for four times the network's work per frame and twice its training time): the crop "
+    "at 128 stays;",
     "- three perforations, 8 foreign pieces, the wire basket 0.6 m above the ground: generated-pile AP of the "
     "earlier recipe's arms (results/real_ipd/ab.md: foreign pieces 0.098 -> 0.242, three perforations "
     "0.242 -> 0.320); EVE, the small preset, 3000 steps: that recipe's (its arm with loss.lambda_z=10 and 6000 "
@@ -308,13 +315,45 @@ ARMS = {
     "frame256": {"roi": None, "input": 256, "seed": 0},
 }
 OLD_ARM = "fixed_box"
+#: the one command's run (``--stage cell``)
+CELL_ARM = "cell"
 
 
 def arm_policy(arm: str) -> str:
     if arm == OLD_ARM:
         return f"fixed box {list(OLD_ROI)}"
+    if arm == CELL_ARM:  # apart from the seeds of the study's own training (the table over seeds)
+        return f"auto:{roi_side():g}, one command"
     roi = ARMS[arm]["roi"]
     return roi if roi else "working area (whole frame)"
+
+
+def cell_overrides(cycles: int, views: int, scale: float, steps: int) -> list[str]:
+    """``python train.py experiment=cell`` for this cell as a user gives it: the camera's own file, its pose,
+    the working volume and area, the basket's sizes and its three perforations as bin models, the ROI policy;
+    the rest is the experiment's (its recorded refinement included)."""
+    models = ",".join(f"{{bin_hole_size:{size},bin_hole_pitch:{pitch}}}" for size, pitch in HOLES)
+    basket = ("bin_inner", "bin_inner_y", "bin_wall_height", "bin_wall_thickness", "bin_clearance")
+    return ["experiment=cell", "object=ipd_plate", "sensor=photoneo", f"scene.camera_file={FRAMES / 'camera_photoneo.yaml'}",
+            f"scene.camera_scale={scale:g}", f"scene.clip_start={CLIP[0]}", f"scene.clip_end={CLIP[1]}",
+            *(f"scene.{k}={v}" for k, v in CAMERA_POSE.items()), f"scene.bin_area=[{','.join(map(str, AREA))}]",
+            *(f"scene.{k}={BASKET[k]}" for k in basket), f"scene.bin_models=[{models}]", f"data.roi=auto:{roi_side():g}",
+            f"data.generate.cycles={cycles}", f"scene.views={views}", f"trainer.max_steps={steps}",
+            "trainer.enable_progress_bar=false"]  # fmt: skip
+
+
+def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int) -> Path:
+    """The one command for the cell (generates its piles, trains, records the ROI policy, clip planes and
+    refinement in the checkpoint), its best checkpoint shipped as ``models/real_ipd_plate.ckpt``."""
+    import shutil
+
+    run_dir = runs / CELL_ARM
+    run(train_command([*cell_overrides(cycles, views, scale, steps), "test=false"], run_dir), run_dir / "console.log")
+    ckpt = best_checkpoint(run_dir)
+    if ckpt is None:
+        raise SystemExit(f"error: {run_dir}: train.py wrote no checkpoint (see {run_dir / 'console.log'})")
+    shutil.copyfile(ckpt, CELL_MODEL)
+    return CELL_MODEL
 
 
 def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
@@ -330,8 +369,9 @@ def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--stage", choices=("all", "generate", "train", "eval", "report", "real"), default="all",
-                    help="real: score the real frames once with --real-arm (results/real_ipd/cell.md)")
+    ap.add_argument("--stage", choices=("all", "generate", "train", "cell", "eval", "report", "real"), default="all",
+                    help="cell: the one command (train.py experiment=cell) -> models/real_ipd_plate.ckpt; "
+                         "real: score the real frames once with --real-arm (results/real_ipd/cell.md)")
     ap.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
     ap.add_argument("--real-arm", default="auto", choices=list(ARMS))
     ap.add_argument("--cycles", type=int, default=200)
@@ -370,9 +410,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.stage in ("all", "train"):
         for arm in args.arms:
             train_arm(arm, train_sets, args.runs, args.steps)
-    if args.stage in ("all", "eval"):
-        for arm in [*args.arms, OLD_ARM]:
-            ckpt = OLD_MODEL if arm == OLD_ARM else best_checkpoint(args.runs / arm)
+    if args.stage in ("all", "cell"):
+        train_cell(args.runs, args.cycles, args.views, args.scale, args.steps)
+    if args.stage in ("all", "cell", "eval"):
+        arms = [CELL_ARM] if args.stage == "cell" else [*args.arms, OLD_ARM, CELL_ARM]
+        for arm in arms:
+            ckpt = {OLD_ARM: OLD_MODEL, CELL_ARM: CELL_MODEL}.get(arm) or best_checkpoint(args.runs / arm)
+            if ckpt is None or not ckpt.is_file():
+                continue  # not trained
             extra = [f"+data.roi=[{','.join(map(str, OLD_ROI))}]"] if arm == OLD_ARM else []
             for placement, sets in tests.items():
                 for refine, overrides in REFINE.items():
@@ -382,12 +427,13 @@ def main(argv: list[str] | None = None) -> int:
                     evaluate(ckpt, [r for r, _ in sets], folder, [*extra, *overrides])
     rows = []
     whole = {placement: frame_required([r for r, _ in sets]) for placement, sets in tests.items()}
-    for arm in [OLD_ARM, *ARMS]:
+    for arm in [OLD_ARM, *ARMS, CELL_ARM]:
         for placement in tests:
             for refine in REFINE:
                 summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}" / "summary.json"
                 if summary.is_file():
-                    model = "models/real_ipd_plate.ckpt" if arm == OLD_ARM else \
+                    model = {OLD_ARM: "models/fixed_box_ipd_plate.ckpt",
+                             CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)"}.get(arm) or \
                         f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
                     rows.append(row(json.loads(summary.read_text()), policy=arm_policy(arm), model=model,
                                     placement=placement, refine=refine))
@@ -397,17 +443,24 @@ def main(argv: list[str] | None = None) -> int:
              f"small preset, {args.steps} steps). `auto:S`: the network's input is a square of S m at the basket's "
              "depth centred on the basket found in each image (`data.roi`, opnet.data.bin_finder); `working area`: "
              "the whole frame (here the working area is most of it) at the input size given. "
-             f"`models/real_ipd_plate.ckpt`: the earlier recipe's model (the basket within 4 cm of the aim point in "
-             f"training) with its fixed box {list(OLD_ROI)}. `search`: `refine=search +decoding.averaging=false`; "
+             f"`models/fixed_box_ipd_plate.ckpt`: the earlier recipe's model (the basket within 4 cm of the aim point "
+             f"in training) with its fixed box {list(OLD_ROI)}. `models/real_ipd_plate.ckpt`: the one command for "
+             "the cell (`--stage cell`: `python train.py experiment=cell` with the camera's own file rendered at "
+             f"`scene.camera_scale={args.scale:g}`, its pose, the working volume and area, the basket's sizes and its "
+             "three perforations as `scene.bin_models` of one dataset, `data.roi=auto:S`; it records its "
+             "refinement, `search_fast`, which eval.py runs by default). `search`: `refine=search +decoding.averaging=false`; "
              "`search_fast` (the recipe's): `refine=search_fast +decoding.averaging=false`, the first ICP projective "
              "and ICP stopping sooner (docs/deployment.md). The `search` rows' ms/frame are from the refinement's "
              "code when they were scored (seed 0's fixed-box and whole-frame rows the oldest); `search_fast`'s from "
-             "today's, which gives `search` the same poses in about half the time (results/verification/speed.md)."]
+             "today's, which gives `search` the same poses in about half the time (results/verification/speed.md). "
+             "`frame256`'s training stopped at 1700 of its 3000 steps when a session ended and was resumed from its "
+             "last checkpoint (`ckpt_path=last`); its rows' ms/frame were measured while other jobs shared the CPU."]
     notes += ["Every setting of the recipe, and what chose it (no setting was chosen by a score on the real frames):", "",
               *SETTINGS]
-    arms = sorted({r["model"].split(" ")[0] for r in rows if r["model"] != "models/real_ipd_plate.ckpt"})
-    command = (f"`python scripts/experiments/cells/cells.py --stage generate`, then `--stage train --arms {' '.join(arms)}` and "
-               f"`--stage eval --arms {' '.join(arms)}` (`--stage report` re-makes this page)")
+    arms = sorted({r["model"].split(" ")[0] for r in rows if not r["model"].startswith("models/")})
+    command = (f"`python scripts/experiments/cells/cells.py --stage generate`, then `--stage train --arms {' '.join(arms)}`, "
+               f"`--stage cell` (the one command) and `--stage eval --arms {' '.join(arms)}` (`--stage report` re-makes "
+               "this page)")
     notes.insert(1, "`found % of the frame's parts`: matched parts over every part the metric requires in the whole "
                  "frames (visibility >= 0.5). A fixed box's own `required`, `found` and AP count only the parts "
                  "inside it (the crop scales each part's visibility by its share inside), so where the basket moved "

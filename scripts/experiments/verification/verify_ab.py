@@ -49,7 +49,7 @@ def arms(data: Path) -> dict[str, list[str]]:
                          f"--data=root={data / obj}", f"--data=test_root={data / obj}", "--data=cache=false",
                          "--data=test_min_objects=70"]  # fmt: skip
     return {"bunny": dense("bunny"), "ring_screw": dense("ring_screw"),
-            "ipd_plate": ["--ckpt=models/real_ipd_plate.ckpt", "--search", "--budget-ms", "none",
+            "ipd_plate": ["--ckpt=models/fixed_box_ipd_plate.ckpt", "--search", "--budget-ms", "none",
                           f"--data=root={PLATE_TEST}", f"--data=test_root={PLATE_TEST}", "--data=cache=false",
                           "--data=test_min_objects=8", "--data=roi=[560,230,1250,1160]", "--data=clip=[1.55,2.05]",
                           "--decoding", "averaging=false", f"--search-variant={EARLIER}",

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -309,7 +309,8 @@ class SceneConfig:
         """``bin_models`` checked, each model as the top-level keys are (the same bounds, an error
         naming ``bin_models[i].<key>``), as sorted (key, value) pairs (hashable, one form per list)."""
         models = self.bin_models
-        if isinstance(models, (str, bytes, Mapping)) or not isinstance(models, (list, tuple)) or not models:
+        # a list of a YAML file or a JSON record, or a Hydra ListConfig of train.py's scene node
+        if isinstance(models, (str, bytes, Mapping)) or not isinstance(models, Sequence) or not models:
             raise ValueError(f"scene config: bin_models={models!r}, expected null or a non-empty list of mappings "
                              f"of some of {list(BIN_MODEL_KEYS)} and weight")
         out = []

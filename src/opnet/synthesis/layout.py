@@ -410,6 +410,10 @@ def bin_lift(bin_geom: BinGeometry, R_tilt: np.ndarray) -> float:
     return float(max(0.0, -t - float((under @ R_tilt.T)[:, 2].min())))
 
 
+#: the bin model keys that move or resize a bin's floor
+FLOOR_KEYS = ("bin_inner", "bin_inner_y", "bin_wall_thickness", "bin_clearance")
+
+
 def check_bin_area(rig: Rig, cfg: SceneConfig) -> None:
     """Refuse a working area (``scene.bin_area``) whose corners the nominal camera does not see:
     a bin standing there would leave the image.
@@ -427,7 +431,11 @@ def check_bin_area(rig: Rig, cfg: SceneConfig) -> None:
                              f"the camera's view ({where}); give an area of the floor the camera sees")
     if cfg.bin_models is None:
         return
-    for i, b in enumerate(rig.bins):  # every bin model's floor, in any yaw, wherever the area lets it stand
+    for i, (b, model) in enumerate(zip(rig.bins, cfg.bin_models, strict=True)):
+        # every bin model's floor that is not the configured bin's, in any yaw, wherever the area lets it stand (a
+        # model that changes only the perforation or the wall height stands where the configured bin does)
+        if not any(key in FLOOR_KEYS for key, _ in model):
+            continue
         r = math.hypot(*(side / 2.0 for side in b.sides))
         for (x, y), a in itertools.product(corners, np.radians(np.arange(0.0, 360.0, 15.0))):
             if (where := _outside_view(rig, np.array([x + r * math.cos(a), y + r * math.sin(a), 0.0]))) is not None:
