@@ -57,9 +57,10 @@ RECIPES: dict[str, tuple[list[str], int]] = {
     "dense": (DENSE, 8),
     "dense_sized": ([*DENSE, "scene.camera_height=null", "scene.camera_file_clip=false"], 8),
 }
-#: the scene's absolute lengths (wall thickness 10 mm, jitters 5-30 mm, drop gap 10 mm) cut to a
-#: small part's size: the recipes above, measured on the 15 mm pin with these as well
-SMALL = ["scene.bin_wall_thickness=0.002", "scene.drop_gap=0.002"]
+#: the scene's absolute lengths (wall thickness 10 mm, jitters 5-30 mm, drop gap 10 mm) cut by hand to a
+#: small part's size, as measured before the generator scaled them itself (scene.small_part_d; 0 here: these
+#: values as given): the recipes above, measured on the 15 mm pin with these as well
+SMALL = ["scene.bin_wall_thickness=0.002", "scene.drop_gap=0.002", "scene.small_part_d=0"]
 RECIPES |= {
     "quickstart_small": ([*RECIPES["quickstart"][0], *SMALL, "scene.bin_jitter_m=0.002", "scene.camera_jitter_m=0.001"], 3),
     "dense_sized_small": ([*RECIPES["dense_sized"][0], *SMALL, "scene.bin_jitter_m=0.005", "scene.camera_jitter_m=0.005"], 8),

@@ -10,7 +10,7 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 
@@ -23,7 +23,8 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
-                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale")
+                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale",
+                 "small_part_d", "sized_for_d")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -138,6 +139,15 @@ class SceneConfig:
         max_redrops: attempts per drop when parts leave the bin (the world is restored each time).
         max_cycle_restarts: whole-cycle restarts (fresh random stream) when a drop exhausts its attempts.
 
+    Parts smaller than the lengths above are written for:
+        small_part_d: the absolute lengths (``bin_wall_thickness``, ``drop_gap``, ``bin_jitter_m``,
+            ``camera_jitter_m``) and ``settle_linear`` are set for parts of this diameter (metres)
+            and more; a smaller part of diameter D gets each scaled by D / ``small_part_d``
+            (:meth:`for_part`), so that a 15 mm pin falls from a gap, into walls, under jitters
+            and to a rest of its own size. 0: never scaled. The built-in parts (51 mm and more) and
+            every larger part are unaffected.
+        sized_for_d: set by :meth:`for_part` (the D the settings were scaled for), None as configured.
+
     Camera from a file (then ``resolution``, ``width``, ``height`` and ``fov_deg`` are not used):
         camera_file: a Siléane ``camera_params.txt``, an IPA ``parameter.json`` or a YAML with
             ``fx fy cx cy width height clip_start clip_end``: the intrinsics and image size of the
@@ -221,6 +231,8 @@ class SceneConfig:
     bin_tilt_deg: float = 0.0
     bin_models: tuple | None = None
     camera_scale: float = 1.0
+    small_part_d: float = 0.05
+    sized_for_d: float | None = None
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -288,6 +300,8 @@ class SceneConfig:
         need(self.clutter == 0 or self.physics == "mujoco", "clutter",
              "0 with scene.physics=pybullet (foreign pieces are MuJoCo bodies)")
         need(self.outside_clip in OUTSIDE_CLIP, "outside_clip", f"one of {OUTSIDE_CLIP}")
+        need(math.isfinite(self.small_part_d) and 0 <= self.small_part_d <= MAX_SCENE_M, "small_part_d",
+             "metres >= 0 (the part size the lengths are set for; 0: never scaled)")
         need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
              "camera_azimuth_deg", "a finite number of degrees")
         area = _numbers(self.bin_area, 4)
@@ -334,6 +348,20 @@ class SceneConfig:
                 raise ValueError(str(e).replace("scene config: ", f"scene config: {name}.", 1)) from None
             out.append(tuple(sorted((k, float(v) if _number(v) else v) for k, v in model.items())))
         return tuple(out)
+
+    #: the settings :meth:`for_part` scales for a part smaller than ``small_part_d``
+    PART_LENGTHS: ClassVar[tuple[str, ...]] = ("bin_wall_thickness", "drop_gap", "bin_jitter_m", "camera_jitter_m",
+                                               "settle_linear")
+
+    def for_part(self, diameter: float) -> SceneConfig:
+        """The settings used for a part of ``diameter`` metres: :data:`PART_LENGTHS` scaled by
+        ``diameter / small_part_d`` where that is below 1 (``self`` otherwise, and for settings already
+        sized: the same scene whoever sizes it first)."""
+        if self.sized_for_d is not None or not (0 < diameter < self.small_part_d):
+            return self
+        factor = diameter / self.small_part_d
+        return dataclasses.replace(self, sized_for_d=float(diameter),
+                                   **{k: getattr(self, k) * factor for k in self.PART_LENGTHS})
 
     def bin_model_scenes(self) -> list[SceneConfig]:
         """The scene of each bin model (its keys set, ``bin_models`` None); ``[self]`` without models."""

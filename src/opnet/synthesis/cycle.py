@@ -128,7 +128,8 @@ class CycleGenerator:
         if drops < 0:
             raise ValueError(f"drops must be >= 0, got {drops}")
         self.obj, self.drops = obj, int(drops)
-        self.scene = scene or SceneConfig()
+        # a part smaller than the scene's lengths are set for gets them scaled to its size (SceneConfig.for_part)
+        self.scene = (scene or SceneConfig()).for_part(obj.diameter) if obj.mesh is not None else scene or SceneConfig()
         self.sensor = sensor or SensorModel()
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects
