@@ -125,3 +125,28 @@ def test_the_export_and_its_runtime_carry_the_entrys_settings(checkpoint: Path, 
     estimator = OnnxPoseEstimator(tmp_path / "m.onnx")
     assert estimator.decoding == system.settings.decoding
     assert estimator.input == system.settings.input
+
+
+def test_the_export_carries_the_recorded_refinement_and_the_runtime_runs_it(checkpoint: Path, tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    from opnet.deploy.__main__ import main as deploy_main
+    from opnet.deploy.runtime import OnnxPoseEstimator, recorded_refinement
+    from opnet.geometry.icp import refine_config, settings_from_config
+
+    ckpt = read_checkpoint(checkpoint)
+    ckpt[CHECKPOINT_KEY]["refine"] = "search_fast"
+    torch.save(ckpt, tmp_path / "edited.ckpt")
+    system, cfg = load_checkpoint(tmp_path / "edited.ckpt")
+    assert system.parameterization.averaging is not None  # the tiny model decodes with averaging
+    assert export_onnx(system, cfg, tmp_path / "edited.ckpt", tmp_path / "m.onnx")["refine"] == "search_fast"
+    by_model = OnnxPoseEstimator(tmp_path / "m.onnx")
+    assert by_model.recorded_refine == "search_fast"
+    assert by_model.refiner is not None and by_model.refiner.settings == settings_from_config(refine_config("search_fast"))
+    assert by_model.averaging is None  # the search's hypotheses are not averaged first, as eval.py runs it
+    plain = OnnxPoseEstimator(tmp_path / "m.onnx", icp=None)
+    assert plain.refiner is None and plain.averaging is not None
+    assert recorded_refinement(None) is None
+    old = export_onnx(*load_checkpoint(checkpoint), checkpoint, tmp_path / "old.onnx")
+    assert old["refine"] is None and OnnxPoseEstimator(tmp_path / "old.onnx").refiner is None
+    assert deploy_main([str(tmp_path / "m.onnx"), str(tmp_path), "--out", str(tmp_path / "o"), "--no-refine",
+                        "--search"]) == 2  # fmt: skip

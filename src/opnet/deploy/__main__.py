@@ -3,13 +3,14 @@
     python -m opnet.deploy <model.onnx> <depth png, .npy or folder> --out <dir>
         [--camera <camera.yaml>] [--fx PX --fy PX --cx PX --cy PX --clip-start M --clip-end M]
         [--depth-scale 0.001] [--threads N] [--overwrite] [--clip NEAR FAR | --camera-clip]
-        [--icp] [--search | --search-fast] [--no-averaging]
+        [--icp] [--search | --search-fast | --no-refine] [--no-averaging]
 
 The inputs and cameras are predict.py's (:mod:`opnet.datasets.depth_inputs`: a dataset PNG takes
 the camera file above it, other images the intrinsics given here), and so are the outputs
 ``<out>/<name>.json`` (poses, camera frame, and world frame when known) and
 ``<out>/results/<scene>.json`` (Siléane results format). Only numpy, OpenCV, SciPy, PyYAML and
-onnxruntime are imported. An input's depth is normalized with the training scenes' clip planes
+onnxruntime are imported. Without ``--icp``, ``--search`` or ``--search-fast`` the model refines as its
+export records (train.py's ``deploy_refine``; ``--no-refine``: the poses as decoded). An input's depth is normalized with the training scenes' clip planes
 the export records (``--clip`` other planes, ``--camera-clip`` the camera's own). Outputs are never
 overwritten without ``--overwrite``; a second run into a folder another run is writing into stops at
 once. Exit status: 0, 1 when some images failed, 2 on bad arguments.
@@ -59,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
                          "across it; conf/refine/search.yaml's defaults): for flat parts; ranks poses by agreement")
     ap.add_argument("--search-fast", action="store_true",
                     help="--search in about half the time, a little less AP (conf/refine/search_fast.yaml's defaults)")
+    ap.add_argument("--no-refine", action="store_true",
+                    help="the poses as decoded, whatever refinement the model records (its default otherwise)")
     ap.add_argument("--icp-budget-ms", type=float, default=None,
                     help="with --icp or --search: milliseconds per image (default 100 with --icp, none with --search; "
                          "0 = none refined)")
@@ -71,14 +74,16 @@ def main(argv: list[str] | None = None) -> int:
         searched = args.search or args.search_fast
         if args.icp_budget_ms is not None and not (args.icp or searched):
             raise ValueError("--icp-budget-ms is a setting of --icp, --search or --search-fast, none is given")
-        icp = None
+        if args.no_refine and (args.icp or searched):
+            raise ValueError("--no-refine and --icp / --search / --search-fast: give one")
+        icp: ICPSettings | str | None = None if args.no_refine else "model"  # the model's own, by default
         if args.icp or searched:
             budget = args.icp_budget_ms if args.icp_budget_ms is not None else (None if searched else 100.0)
             icp = search_settings(budget, fast=args.search_fast) if searched else ICPSettings(budget_ms=budget)
         roi = None if args.roi in ("null", "none") else args.roi
         clip = "camera" if args.camera_clip else parse_clip(args.clip, "--clip") or "model"
-        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi, averaging=not args.no_averaging,
-                                      clip=clip)
+        estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi,
+                                      averaging=False if args.no_averaging else None, clip=clip)
         print(describe_clip(estimator.clip, estimator.trained_clip))
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:

@@ -104,6 +104,8 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         **settings.decoding.to_metadata(),
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
         "icp_model": icp_model_metadata(param.obj),
+        # the refinement the model is meant to run with (train.py's deploy_refine), None: as decoded
+        "refine": settings.refine,
     }
 
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
-from opnet.run_settings import DecodingSettings, InputSettings
+from opnet.run_settings import DecodingSettings, InputSettings, RunSettings
 from opnet.settings_schema import METADATA, Flag, Number, SettingError, Spec, Whole, read_settings
 
 MAX_ICP_POINTS = 20_000  # points of the ICP model cloud in the metadata
@@ -77,7 +77,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam),
         "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far)),
         "input" (:class:`~opnet.run_settings.InputSettings`), "decoding"
-        (:class:`~opnet.run_settings.DecodingSettings`)}``: the flat keys are those two's values.
+        (:class:`~opnet.run_settings.DecodingSettings`), "refine" (the recorded refinement's name or None)}``:
+        the flat keys are those two's values.
     Raises:
         ValueError: ``<path>: opnet metadata <key>=<value>: expected <what>`` (a ``SettingError``) for the
         first bad field, ``<path>: opnet metadata lacks <key>; ...`` for a missing one.
@@ -118,6 +119,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
                                                      "cluster_score": averaging.cluster_score,
                                                      "keep_noise": averaging.keep_noise},
         "trained_clip": framing.trained_clip, "input": framing, "decoding": decoding,
+        # absent: exported before the key (no refinement recorded)
+        "refine": RunSettings.checked_refine(meta.get("refine"), "refine", f.source),
     }
     ps = f.mapping(meta, "pose_space")
     group = f.array(ps, "group", (-1, 3, 3), "pose_space.", max_size=8 * MAX_GROUP_SIZE)

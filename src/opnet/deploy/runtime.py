@@ -31,13 +31,23 @@ from opnet.geometry.camera import Camera, with_clip, working_clip
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.data.roi import crop_image, parse_roi
-from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner
+from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.parameterizations.averaging import PoseAveraging
 from opnet.run_settings import DecodingSettings, InputSettings
 
 METADATA_KEY = "opnet"
 
 _INTERPOLATION = {"area": cv2.INTER_AREA}
+
+
+def recorded_refinement(name: str | None) -> ICPSettings | None:
+    """The settings of a refinement an export records by name, as the runtime's flags give them:
+    ``icp`` (``--icp``), ``search`` (``--search``), ``search_fast`` (``--search-fast``); None: none."""
+    if name is None:
+        return None
+    if name == "icp":
+        return ICPSettings(budget_ms=100.0)
+    return search_settings(None, fast=name == "search_fast")
 
 
 class OnnxPoseEstimator:
@@ -47,10 +57,12 @@ class OnnxPoseEstimator:
         path: the ``.onnx`` file written by ``python export.py``.
         providers: ONNX Runtime execution providers (default: CPU).
         threads: intra-op threads (default: ONNX Runtime's choice, one per core).
-        icp: ICP (and search) settings to refine with, or None. roi: the region of interest
-            ("model": the exported one). averaging: False decodes without the exported DBSCAN
-            averaging (as ``eval.py +decoding.averaging=false``; with the search, every hypothesis
-            is a start). clip: the clip planes an input's depth is normalized with: "model" (the
+        icp: ICP (and search) settings to refine with, None for none, or "model" (the default): the
+            refinement the export records (:func:`recorded_refinement`; none if it records none). roi:
+            the region of interest ("model": the exported one). averaging: False decodes without the
+            exported DBSCAN averaging (as ``eval.py +decoding.averaging=false``; with the search, every
+            hypothesis is a start), True with it, None (the default) as the model is meant to run:
+            without it where the refinement the export records is the search, else with it. clip: the clip planes an input's depth is normalized with: "model" (the
             training scenes' planes the export records; the camera's if it records none), "camera"
             (each camera's own) or (near, far) metres.
     Raises:
@@ -60,8 +72,8 @@ class OnnxPoseEstimator:
     """
 
     def __init__(self, path: str | Path, providers: Sequence[str] = ("CPUExecutionProvider",),
-                 threads: int | None = None, icp: ICPSettings | None = None, roi: Any = "model",
-                 averaging: bool = True, clip: Any = "model") -> None:
+                 threads: int | None = None, icp: ICPSettings | str | None = "model", roi: Any = "model",
+                 averaging: bool | None = None, clip: Any = "model") -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
@@ -92,6 +104,12 @@ class OnnxPoseEstimator:
         self.threshold, self.score, self.min_visibility = d.threshold, d.score, d.min_visibility
         ps = s["pose_space"]
         space = PoseSpaceArrays(ps["Lambda"], ps["group"], ps["delta"], ps["revolution"], ps["lam"])
+        #: the refinement the export records (train.py's deploy_refine), or None
+        self.recorded_refine: str | None = s["refine"]
+        by_model = isinstance(icp, str) and icp == "model"
+        icp = recorded_refinement(self.recorded_refine) if by_model else icp
+        if averaging is None:
+            averaging = not (by_model and icp is not None and icp.search is not None)
         avg = d.averaging
         self.averaging = None if avg is None or not averaging else PoseAveraging(space, avg.eps, avg.min_samples,
                                                                 avg.cluster_score, avg.keep_noise)
