@@ -228,12 +228,17 @@ def seed_table(rows: list[dict[str, Any]]) -> list[str]:
 
 def score_real_frames(run_dir: Path) -> int:
     """The three real frames scored once by the trained recipe as it stands (the checkpoint's ROI policy and
-    clip planes), as decoded and with the search: ``results/real_ipd/cell.md`` and ``cell.csv``."""
+    clip planes), as decoded and with the search: ``results/real_ipd/cell.md`` and ``cell.csv``; the one
+    command's model (``run_dir`` named ``cell``): ``results/real_ipd/cell_one_command.md`` and its CSV."""
+    one_command = run_dir.name == CELL_ARM
     ckpt = best_checkpoint(run_dir)
     if ckpt is None:
-        print(f"error: {run_dir}: no checkpoint; train first (--stage train)", file=sys.stderr)
+        print(f"error: {run_dir}: no checkpoint; train first (--stage {'cell' if one_command else 'train'})",
+              file=sys.stderr)  # fmt: skip
         return 2
-    shipped = REPO_ROOT / "models" / "cell_ipd_plate.ckpt"  # the model scored is the model shipped
+    # the model scored is the model shipped
+    shipped = CELL_MODEL if one_command else REPO_ROOT / "models" / "cell_ipd_plate.ckpt"
+    policy = f"auto:{roi_side():g}" if one_command else str(ARMS[run_dir.name]["roi"])
     if not shipped.is_file() or shipped.read_bytes() != ckpt.read_bytes():
         import shutil
 
@@ -246,7 +251,7 @@ def score_real_frames(run_dir: Path) -> int:
         run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
              f"+data.object_id={OBJECT_ID}", f"+data.clip=[{CLIP[0]},{CLIP[1]}]", "+data.cache=false", f"out={out}",
              "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
-        rows.append(row(json.loads((out / "summary.json").read_text()), policy=str(ARMS[run_dir.name]["roi"]),
+        rows.append(row(json.loads((out / "summary.json").read_text()), policy=policy,
                         model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
     stages = (json.loads((run_dir / "eval_real" / RECIPE_REFINE / "summary.json").read_text()).get("icp") or {}) \
         .get("ms_per_image_by_stage", {})  # fmt: skip
@@ -254,7 +259,7 @@ def score_real_frames(run_dir: Path) -> int:
             f"`python scripts/experiments/cells/cells.py --stage real --real-arm {run_dir.name}` (every setting fixed on "
             "generated piles before this ran: results/cells/README.md). The three Photoneo frames of IPD object 18, "
             "official `visib_fract`, the whole frame given: the ROI is the checkpoint's "
-            f"(`{ARMS[run_dir.name]['roi']}`), the clip planes too. The recipe's refinement is `{RECIPE_REFINE}`, "
+            f"(`{policy}`), the clip planes too. The recipe's refinement is `{RECIPE_REFINE}`, "
             "the most accurate on the cell study's generated validation piles within the speed target "
             "(results/verification/speed.md); the `search` row is for comparison, not the recipe. The frames were "
             "scored three times: twice with `search` (its earlier speed settings: [cell_first_scoring.md]"
@@ -265,9 +270,20 @@ def score_real_frames(run_dir: Path) -> int:
              + " (scene: the depth as points; icp: ICP of every hypothesis; search: the turn search of all of them; "
              "polish: ICP of the searched poses; rank: agreement and duplicates; a stage's time is its slowest "
              "thread's)."] if stages else []  # fmt: skip
-    write_table(REPO_ROOT / "results" / "real_ipd" / "cell.csv", rows, head,
+    stem = "cell_one_command" if one_command else "cell"
+    if one_command:
+        head = ["# The real frames, scored by the one command's model", "",
+                f"`python scripts/experiments/cells/cells.py --stage real --real-arm {CELL_ARM}`: `models/real_ipd_plate.ckpt`, "
+                "made by `python scripts/experiments/cells/cells.py --stage cell`, the one command for the cell (`python train.py "
+                "experiment=cell` with the camera's own file, its pose, the working volume and area, the basket and its "
+                "three perforations as bin models; results/cells/README.md), nothing changed after it ran. The three "
+                "Photoneo frames of IPD object 18, official `visib_fract`, the whole frame given: the ROI, the clip "
+                f"planes and the refinement (`{RECIPE_REFINE}`, which eval.py runs by default) are the checkpoint's. "
+                "The frames' fourth scoring: the first three scored the study's own training of the same recipe "
+                "([cell.md](cell.md)); no setting was chosen on them.", ""]  # fmt: skip
+    write_table(REPO_ROOT / "results" / "real_ipd" / f"{stem}.csv", rows, head,
                 ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
-    with (REPO_ROOT / "results" / "real_ipd" / "cell.md").open("a") as f:
+    with (REPO_ROOT / "results" / "real_ipd" / f"{stem}.md").open("a") as f:
         f.write("\n".join(notes) + ("\n" if notes else ""))
     return 0
 
@@ -373,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="cell: the one command (train.py experiment=cell) -> models/real_ipd_plate.ckpt; "
                          "real: score the real frames once with --real-arm (results/real_ipd/cell.md)")
     ap.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
-    ap.add_argument("--real-arm", default="auto", choices=list(ARMS))
+    ap.add_argument("--real-arm", default="auto", choices=[*ARMS, CELL_ARM])
     ap.add_argument("--cycles", type=int, default=200)
     ap.add_argument("--views", type=int, default=2)
     ap.add_argument("--test-cycles", type=int, default=12)

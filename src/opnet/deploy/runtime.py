@@ -25,13 +25,13 @@ import numpy as np
 
 from opnet._limits import check_threads
 from opnet.data.preprocess import to_network_input
+from opnet.data.roi import crop_image, parse_roi
 from opnet.deploy.metadata import validate_metadata
 from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera, with_clip, working_clip
+from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
-from opnet.data.roi import crop_image, parse_roi
-from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.parameterizations.averaging import PoseAveraging
 from opnet.run_settings import DecodingSettings, InputSettings
 
