@@ -56,3 +56,10 @@ def test_the_seed_table_gives_mean_sd_and_the_gap_for_policies_with_seeds() -> N
     # two input sizes of one policy are no seeds of one arm
     sizes = [{**r, "model": f"frame{n} (input {n}, seed 0)"} for r, n in zip(rows[:4], (128, 256, 128, 256), strict=True)]
     assert cells.seed_table(sizes) == []
+    # an arm that changes the loss is no seed of the recipe's arm; the recipe's seeds are
+    arms = [{**r, "model": m} for r, m in zip(rows[:4], ("auto (input 128, seed 0)", "auto_lz10 (input 128, seed 0)",
+                                                          "auto (input 128, seed 0)", "auto_lz10 (input 128, seed 0)"), strict=True)]
+    assert cells.seed_table(arms) == []
+    seeds = [{**r, "model": m} for r, m in zip(rows[:4], ("auto (input 128, seed 0)", "auto_s1 (input 128, seed 1)",
+                                                           "auto (input 128, seed 0)", "auto_s1 (input 128, seed 1)"), strict=True)]
+    assert cells.seed_table(seeds)[-1] == lines[-1]

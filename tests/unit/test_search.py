@@ -17,6 +17,7 @@ from opnet.geometry.icp import (
     ModelCloud,
     SceneCloud,
     _rotation,
+    model_refinement,
     refine_hypotheses,
     refine_pose,
     settings_from_config,
@@ -228,8 +229,11 @@ def test_every_refine_option_composes_to_settings_and_search_fast_is_search_with
     settings = {}
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         for path in sorted((REPO_ROOT / "conf" / "refine").glob("*.yaml")):
-            settings[path.stem] = settings_from_config(compose(config_name="eval", overrides=[f"refine={path.stem}"]).refine)
-    assert {"none", "icp", "search", "search_fast"} <= set(settings) and settings["none"] is None
+            group = compose(config_name="eval", overrides=[f"refine={path.stem}"]).refine
+            # refine=model: the checkpoint's own (opnet.geometry.icp.model_refinement), none for one recording none
+            settings[path.stem] = settings_from_config(model_refinement(group, None)[0])
+    assert {"none", "icp", "search", "search_fast", "model"} <= set(settings) and settings["none"] is None
+    assert settings["model"] is None
     fast, full = settings["search_fast"], settings["search"]
     changed = {f.name for f in dataclasses.fields(full) if getattr(full, f.name) != getattr(fast, f.name)}
     assert changed == {"association", "polish_association", "iterations", "min_gain"}

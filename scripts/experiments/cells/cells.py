@@ -27,6 +27,7 @@ import argparse
 import csv
 import json
 import math
+import re
 import os
 import sys
 import time
@@ -208,10 +209,11 @@ def seed_table(rows: list[dict[str, Any]]) -> list[str]:
     """Mean ± sample sd over the training seeds of each policy's rows that have more than one seed (AP, and
     moved minus trained: the recipe's acceptance holds where |moved - trained| <= 0.05)."""
     groups: dict[tuple[str, str, str], dict[str, list[float]]] = {}
-    for r in rows:  # the seeds of one policy at one input size (the model's name without its seed)
-        size = r.get("model", "").split(", seed")[0]
-        size = size[size.find("(input"):] if "(input" in size else size
-        groups.setdefault((r["policy"], r["refine"], size), {}).setdefault(r["placement"], []).append(float(r["ap"]))
+    for r in rows:  # the seeds of one arm (its name without a seed suffix) at one input size
+        name, _, size = r.get("model", "").split(", seed")[0].partition(" (")
+        arm = re.sub(r"_s\d+$", "", name)
+        groups.setdefault((r["policy"], r["refine"], f"{arm} {size}"), {}).setdefault(r["placement"], []).append(
+            float(r["ap"]))
     lines = []
     for (policy, refine, _), by in groups.items():
         trained, moved = by.get("trained", []), by.get("moved", [])
@@ -329,6 +331,8 @@ ARMS = {
     "auto_s2": {"roi": f"auto:{roi_side():g}", "input": 128, "seed": 2},
     "frame128": {"roi": None, "input": 128, "seed": 0},
     "frame256": {"roi": None, "input": 256, "seed": 0},
+    # the depth channel weighted 10x in the position loss (the dense recipe's loss.lambda_z), the same budget
+    "auto_lz10": {"roi": f"auto:{roi_side():g}", "input": 128, "seed": 0, "extra": ["loss.lambda_z=10"]},
 }
 OLD_ARM = "fixed_box"
 #: the one command's run (``--stage cell``)
@@ -379,7 +383,8 @@ def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
                        f"data.roi={a['roi'] or 'null'}", f"data.input_size={a['input']}", f"model.in_size={a['input']}",
                        f"parameterization.grid={16 * a['input'] // 128}", f"seed={a['seed']}", "parameterization=eve",
                        "augmentation.p_rotate=0.5", "test=false", f"trainer.max_steps={steps}",
-                       "trainer.max_epochs=100000", "trainer.enable_progress_bar=false"], runs / arm),
+                       "trainer.max_epochs=100000", "trainer.enable_progress_bar=false", *a.get("extra", [])],
+                      runs / arm),
         runs / arm / "console.log")  # fmt: skip
 
 
