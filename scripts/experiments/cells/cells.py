@@ -306,8 +306,11 @@ SETTINGS = [
     "at 128 stays;",
     "- three perforations, 8 foreign pieces, the wire basket 0.6 m above the ground: generated-pile AP of the "
     "earlier recipe's arms (results/real_ipd/ab.md: foreign pieces 0.098 -> 0.242, three perforations "
-    "0.242 -> 0.320); EVE, the small preset, 3000 steps: that recipe's (its arm with loss.lambda_z=10 and 6000 "
-    "steps scored higher on generated piles, 0.388, and is not in this budget: open);",
+    "0.242 -> 0.320); EVE, the small preset, 3000 steps: that recipe's. The depth channel weighted 10x "
+    "(`loss.lambda_z=10`, the dense recipe's) at the same 3000 steps, seed and piles (`auto_lz10`): 0.442 trained / "
+    "0.425 moved with `search_fast` against the recipe's 0.468 / 0.455 (seed 0; 0.481 / 0.445 over three seeds): "
+    "not taken. (The earlier recipe's arm with it and 6000 steps, 0.388 on its generated piles, doubles the budget "
+    "and was not tried here.);",
     "- the sensor model (`sensor=photoneo`): made earlier to match the frames' missing-depth statistics, the one "
     "setting no generated data can choose; its pixel settings halved with the training piles' resolution;",
     "- the refinement (`refine=search_fast +decoding.averaging=false`): the search (ICP, the depth-agreement "
