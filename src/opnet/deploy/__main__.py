@@ -32,7 +32,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import DiskFullError
 from opnet.geometry.camera import describe_clip, parse_clip
-from opnet.geometry.icp import ICPSettings, search_settings
+from opnet.geometry.icp import ICPSettings
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
                          "0 = none refined)")
     args = ap.parse_args(argv)
     try:
-        from opnet.deploy.runtime import OnnxPoseEstimator
+        from opnet.deploy.runtime import OnnxPoseEstimator, recorded_refinement
 
         camera_cfg = {k: getattr(args, k) for k in ("file", "fx", "fy", "cx", "cy", "clip_start", "clip_end", "depth_scale")}
         given = given_camera(camera_cfg)
@@ -76,10 +76,10 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("--icp-budget-ms is a setting of --icp, --search or --search-fast, none is given")
         if args.no_refine and (args.icp or searched):
             raise ValueError("--no-refine and --icp / --search / --search-fast: give one")
+        named = "search_fast" if args.search_fast else "search" if args.search else "icp" if args.icp else None
         icp: ICPSettings | str | None = None if args.no_refine else "model"  # the model's own, by default
-        if args.icp or searched:
-            budget = args.icp_budget_ms if args.icp_budget_ms is not None else (None if searched else 100.0)
-            icp = search_settings(budget, fast=args.search_fast) if searched else ICPSettings(budget_ms=budget)
+        if named is not None:
+            icp = recorded_refinement(named, args.icp_budget_ms)
         roi = None if args.roi in ("null", "none") else args.roi
         clip = "camera" if args.camera_clip else parse_clip(args.clip, "--clip") or "model"
         estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi,

@@ -40,14 +40,15 @@ METADATA_KEY = "opnet"
 _INTERPOLATION = {"area": cv2.INTER_AREA}
 
 
-def recorded_refinement(name: str | None) -> ICPSettings | None:
-    """The settings of a refinement an export records by name, as the runtime's flags give them:
-    ``icp`` (``--icp``), ``search`` (``--search``), ``search_fast`` (``--search-fast``); None: none."""
+def recorded_refinement(name: str | None, budget_ms: float | None = None) -> ICPSettings | None:
+    """The settings of a refinement named as an export records it, the runtime's flags too: ``icp``
+    (``--icp``; 100 ms per image unless ``budget_ms``), ``search`` (``--search``), ``search_fast``
+    (``--search-fast``; both without a budget unless ``budget_ms``); None: none."""
     if name is None:
         return None
     if name == "icp":
-        return ICPSettings(budget_ms=100.0)
-    return search_settings(None, fast=name == "search_fast")
+        return ICPSettings(budget_ms=100.0 if budget_ms is None else budget_ms)
+    return search_settings(budget_ms, fast=name == "search_fast")
 
 
 class OnnxPoseEstimator:

@@ -129,7 +129,7 @@ class CycleGenerator:
             raise ValueError(f"drops must be >= 0, got {drops}")
         self.obj, self.drops = obj, int(drops)
         # a part smaller than the scene's lengths are set for gets them scaled to its size (SceneConfig.for_part)
-        self.scene = (scene or SceneConfig()).for_part(obj.diameter) if obj.mesh is not None else scene or SceneConfig()
+        self.scene = (scene or SceneConfig()).for_part(obj.diameter)
         self.sensor = sensor or SensorModel()
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects

@@ -203,10 +203,9 @@ def generate_dataset(
     if out.exists() and not out.is_dir():  # a file, /dev/null
         raise ValueError(f"out={out}: exists and is not a folder; choose another out=")
     sensor = (sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)).scaled(scene.camera_scale)
-    if obj.mesh is not None:
-        # a part smaller than the scene's lengths are set for: the lengths scaled to it, as recorded in
-        # generation.json (a dataset made before that, with the lengths as given, is then not completed)
-        scene = scene.for_part(obj.diameter)
+    # a part smaller than the scene's lengths are set for: the lengths scaled to it, as recorded in
+    # generation.json (a dataset made before that, with the lengths as given, is then not completed)
+    scene = scene.for_part(obj.diameter)
     rig = make_rig(obj, drops, cycles, scene)
     config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)
     if obj.mesh is not None:
