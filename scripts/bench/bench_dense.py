@@ -5,7 +5,8 @@ seed, all within one budget on this machine.
     python scripts/bench/bench_dense.py --objects bunny ring_screw --gen-cycles 96 --views 8 --minutes 40
 
 Per object: training piles (``--gen-cycles`` cycles = ``--gen-cycles / --views`` simulated piles
-of ``--drops`` parts, seed 0, ``scene=bulk``, ``--camera-file`` at ``--camera-height``) and test
+of ``--drops`` parts, seed 0, ``scene=bulk``, ``--camera-file`` at the recipe's height sized to the part, or
+at ``--camera-height`` as it stands) and test
 piles of another seed (seed 1, one view per pile, ``--test-piles`` piles) are generated (or
 completed) under ``--data-dir``; ``train.py experiment=dense`` trains on the training piles for
 ``--minutes`` (at the throughput calibrated on this machine, or ``--steps``) and is scored on
@@ -48,15 +49,15 @@ ROW_FIELDS = (
 )  # fmt: skip
 
 
-def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int, camera: Path, height: float,
-             workers: int = 2) -> float:
+def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int, camera: Path,
+             height: float | None, workers: int = 2, physics: str | None = None) -> float:
     """Generate (or complete) dense piles; returns the minutes it took to make them (recorded)."""
     from opnet.cli.evaluate import resolve_object
     from opnet.synthesis import generate_dataset
 
     record = out / "bench_generation.json"
     done = json.loads(record.read_text()) if record.is_file() else {"minutes": 0.0}
-    scene = dense_scene(camera, height, views)
+    scene = dense_scene(camera, height, views, physics)
     print(f"[{obj}] data: {out} ({cycles} cycles = {-(-cycles // views)} piles x {views} views, {drops} drops, "
           f"seed {seed})", flush=True)
     start = time.perf_counter()
@@ -71,17 +72,19 @@ def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int
     return float(done["minutes"])
 
 
-def dense_scene(camera: Path, height: float, views: int) -> Any:
+def dense_scene(camera: Path, height: float | None, views: int, physics: str | None = None) -> Any:
     """The generator's scene of ``experiment=dense`` (conf/experiment/dense.yaml: the bulk preset
-    with its jitters) with this camera, height and views."""
+    with its jitters) with this camera and views; at ``height`` as it stands (``scene.rig_d=null``),
+    or None: the recipe's rig, sized to the part; ``physics``: another engine than the recipe's."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from opnet.paths import config_dir
     from opnet.synthesis import SceneConfig
 
-    overrides = ["experiment=dense", f"scene.camera_file={camera.resolve()}", f"scene.camera_height={height}",
-                 f"scene.views={views}"]
+    overrides = ["experiment=dense", f"scene.camera_file={camera.resolve()}", f"scene.views={views}",
+                 *([f"scene.camera_height={height}", "scene.rig_d=null"] if height is not None else []),
+                 *([f"scene.physics={physics}"] if physics else [])]
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         cfg = compose("train", overrides=overrides)
     return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
@@ -180,11 +183,13 @@ def headline(rows: list[dict[str, Any]], config: str = HEADLINE) -> list[str]:
     return lines + ["", "## Every configuration measured", ""]
 
 
-def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
+def write_readme(out: Path, rows: list[dict[str, Any]], title: str = "Dense-pile benchmark") -> None:
     lines = [
-        "# Dense-pile benchmark", "",
+        f"# {title}", "",
         "Siléane-like bulk piles (70-80 parts, most of them more than half hidden) seen from above by the camera of "
-        "the Siléane bunny dataset (`conf/cameras/sileane_bunny.yaml`, 1.5 m above the floor). Per object, on this "
+        "the Siléane bunny dataset (`conf/cameras/sileane_bunny.yaml`, 1.5 m above the floor for the bunny; for another "
+        "part the recipe scales the rig by D / the bunny's D, `scene.rig_d`, except where the row's command gives "
+        "`--camera-height`; the ring screw's rows were made at 1.5 m before the rig was sized). Per object, on this "
         "2-core CPU: training piles generated and a model trained within the budget; held-out AP (Brégier, max "
         "occlusion 0.5) on the scenes with at least 70 parts of piles of another seed. Diagnostics as in "
         "[the learning benchmark](../learning/README.md). *budget min*: the training budget the step count was "
@@ -224,7 +229,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--test-piles", type=int, default=12)
     ap.add_argument("--test-min-objects", type=int, default=70)
     ap.add_argument("--camera-file", type=Path, default=CAMERA)
-    ap.add_argument("--camera-height", type=float, default=1.5)
+    ap.add_argument("--camera-height", type=float, default=None,
+                    help="metres above the bin floor, as it stands (default: the recipe's 1.5 m for the bunny's D, "
+                         "scaled to the part; the benchmark rows made before the rig was sized used 1.5)")
     ap.add_argument("--minutes", type=float, default=40.0)
     ap.add_argument("--steps", type=int, default=None, help="fixed step budget (skips the calibration)")
     ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "dense")
@@ -234,10 +241,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
                     help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
                          "bunny:sileane=outputs/data/sileane_rerender (scripts/experiments/sileane/sileane_rerender.py)")
+    ap.add_argument("--pybullet-piles", type=int, default=0, metavar="N",
+                    help="also generate N one-view piles of seed 2 with the other physics engine (pybullet) and score "
+                         "the model on them as the extra test 'pybullet' (0: none)")
     ap.add_argument("--validations", type=int, default=None,
                     help="validate this many times, evenly spaced, the last at the final step (default: every epoch)")
     ap.add_argument("--tune", action="store_true",
                     help="tune the decoding on validation; a better one goes into checkpoints/tuned.ckpt, scored too")
+    ap.add_argument("--title", default="Dense-pile benchmark", help="the rendered page's heading")
     ap.add_argument("--generate-only", action="store_true", help="make (or complete) the datasets, then stop")
     ap.add_argument("--readme-only", action="store_true", help="re-render README.md from dense.csv, then stop")
     args = ap.parse_args(argv)
@@ -246,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
         for r in rows:
             r["test_curve"] = test_curve(Path(r["run"])) or r.get("test_curve", "")
             r["train_scenes"] = split_sizes(REPO_ROOT / r["run"]).get("train", r["train_scenes"])
-        write_readme(args.out, merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config")))
+        write_readme(args.out, merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config")), args.title)
         print((args.out / "README.md").read_text())
         return 0
     command = "python scripts/bench/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
@@ -257,6 +268,12 @@ def main(argv: list[str] | None = None) -> int:
         gen_minutes = generate(obj, train_root, args.gen_cycles, args.drops, 0, args.views, args.camera_file,
                                args.camera_height)
         generate(obj, test_root, args.test_piles, args.drops, 1, 1, args.camera_file, args.camera_height)
+        tests = tests_of(obj, args.extra_test)
+        if args.pybullet_piles:
+            other = args.data_dir / f"{obj}_pybullet_p{args.pybullet_piles}_d{args.drops}_s2"
+            generate(obj, other, args.pybullet_piles, args.drops, 2, 1, args.camera_file, args.camera_height,
+                     physics="pybullet")
+            tests.append(f"pybullet={other}")
         if args.generate_only:
             continue
         overrides = ["experiment=dense", f"object={obj}", "data=ipa", f"data.root={train_root}", "data.generate=null",
@@ -272,15 +289,15 @@ def main(argv: list[str] | None = None) -> int:
                    piles=-(-args.gen_cycles // args.views),
                    views=args.views, test_scenes=summary["num_scenes"], target=TARGET,
                    budget_minutes="" if args.steps else args.minutes, test_curve=test_curve(run_dir), command=command,
-                   extra_tests=extra_tests(best_checkpoint(run_dir), run_dir, tests_of(obj, args.extra_test)),
-                   tuned=tuned_decoding(run_dir, tests_of(obj, args.extra_test)) if args.tune else "")
+                   extra_tests=extra_tests(best_checkpoint(run_dir), run_dir, tests),
+                   tuned=tuned_decoding(run_dir, tests) if args.tune else "")
         print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
               f"training minutes)", flush=True)
         rows.append(row)
     if args.generate_only:
         return 0
     all_rows = merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config"))
-    write_readme(args.out, all_rows)
+    write_readme(args.out, all_rows, args.title)
     print((args.out / "README.md").read_text())
     return 0
 

@@ -172,7 +172,8 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
                      "model=tiny", *TINY_FIT, f"hydra.run.dir={ws / 'dense_run'}"]).stdout
         assert "run directory : " in dense
         dense_data = next((ws / "outputs" / "data").glob("dense_bracket_c6_v2_d4_s0*"))
-        assert json.loads((dense_data / "generation.json").read_text())["scene"]["views"] == 2
+        dense_scene = json.loads((dense_data / "generation.json").read_text())["scene"]
+        assert dense_scene["views"] == 2 and dense_scene["camera_height"] == 1.0  # your rig as it stands (rig_d=null)
         model = ws / "model.onnx"
         printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
         assert model.is_file() and "ONNX Runtime vs PyTorch" in printed

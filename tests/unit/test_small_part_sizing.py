@@ -63,3 +63,47 @@ def test_make_rig_builds_a_small_parts_bin_with_the_scaled_walls() -> None:
 def test_a_bad_reference_size_is_one_line_naming_the_key(value: float) -> None:
     with pytest.raises(ValueError, match=r"^scene config: small_part_d="):
         SceneConfig(small_part_d=value)
+
+
+def _dense(rig_d: float | None = 0.2) -> SceneConfig:
+    from opnet.paths import REPO_ROOT
+
+    return SceneConfig(camera_file=str(REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"), camera_file_clip=True,
+                       camera_height=1.5, camera_jitter_m=0.03, bin_jitter_m=0.03, rig_d=rig_d)
+
+
+def test_a_rig_set_up_for_one_part_is_scaled_to_another() -> None:
+    half = _dense().for_part(0.1)
+    assert half.sized_for_d == 0.1 and half.rig_d is None
+    assert half.camera_height == pytest.approx(0.75)
+    assert (half.clip_start, half.clip_end) == pytest.approx((0.875990 / 2, 1.706020 / 2))  # the file's, scaled
+    assert half.camera_jitter_m == pytest.approx(0.015) and half.bin_jitter_m == pytest.approx(0.015)
+    assert half.drop_gap == 0.01 and half.camera_jitter_deg == _dense().camera_jitter_deg  # not the rig's lengths
+    assert half.for_part(0.1) is half  # never twice
+    # a part smaller than small_part_d: the rig's lengths by the rig, the others by small_part_d
+    pin = _dense().for_part(0.02)
+    assert pin.camera_jitter_m == pytest.approx(0.003) and pin.drop_gap == pytest.approx(0.004)
+
+
+def test_the_part_the_rig_is_set_up_for_keeps_its_settings_and_record() -> None:
+    cfg = _dense(0.2)
+    same = cfg.for_part(0.2)
+    assert same.rig_d is None and same.sized_for_d is None
+    assert same.to_dict() == _dense(None).to_dict()  # its datasets' generation.json as before the key
+    assert _dense(None).for_part(0.1).camera_height == 1.5  # no rig_d: the rig as given
+
+
+def test_make_rig_frames_every_part_as_the_rig_frames_its_own() -> None:
+    """The image of a part scaled from the rig's: the same pixels per diameter, the bin in view."""
+    sizes = {}
+    for d in (0.03, 0.2, 0.45):
+        rig = make_rig(_pin(d), 20, 1, _dense(0.2))
+        sizes[d] = rig.camera.fx * d / rig.params.location[2]
+        assert rig.camera.clip_start == pytest.approx(0.875990 * d / 0.2)
+    assert sizes[0.03] == pytest.approx(sizes[0.2], rel=1e-6) and sizes[0.45] == pytest.approx(sizes[0.2], rel=1e-6)
+
+
+def test_rig_d_is_checked() -> None:
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="rig_d"):
+            SceneConfig(rig_d=bad)

@@ -6,10 +6,11 @@
 
 Each part is generated with a recipe's own generator settings, as ``train.py experiment=<recipe>``
 would (conf/experiment/quickstart.yaml: scene=train, 10 drops; conf/experiment/dense.yaml: the bulk
-scene, 75 drops, the Siléane bunny camera 1.5 m above the floor with its clip planes, 8 views per
-pile), only fewer cycles and one worker. ``dense_sized`` is the dense recipe with the camera height
-and clip planes derived from the part (``scene.camera_height=null scene.camera_file_clip=false``:
-the same intrinsics). Parts other than the configured ones are built-in meshes written to STL and
+scene, 75 drops, the Siléane bunny camera 1.5 m above the floor with its clip planes and jitters for
+the bunny, scaled to the part by D / the bunny's D, ``scene.rig_d``; 8 views per pile), only fewer
+cycles and one worker. ``dense_fixed`` is the dense recipe as it was before it sized its rig (1.5 m
+for every part); ``dense_sized`` the dense recipe with the camera height and clip planes derived
+from the bin (``scene.camera_height=null scene.camera_file_clip=false``: the same intrinsics). Parts other than the configured ones are built-in meshes written to STL and
 scaled (``object.mesh_scale``) so that D, as opnet measures it (the object's diameter), is the
 size named. Per dataset: D, the bin (inner side, wall height), drops, camera height, clip planes,
 D in pixels on the floor (written image; at the 128-pixel network input), seconds per pile
@@ -27,6 +28,8 @@ import os
 import re
 import sys
 from pathlib import Path
+
+from omegaconf import OmegaConf
 
 from opnet.objects import builtin_object, object_from_config
 from opnet.paths import REPO_ROOT
@@ -51,10 +54,13 @@ PARTS: dict[str, tuple[str | None, float | None, list[str]]] = {
 DENSE = ["scene=bulk", "scene.camera_file=conf/cameras/sileane_bunny.yaml", "scene.camera_file_clip=true",
          "scene.camera_height=1.5", "scene.views=8", "scene.camera_jitter_m=0.03", "scene.camera_jitter_deg=3.0",
          "scene.bin_jitter_m=0.03", "scene.bin_jitter_deg=15.0", "drops=75"]
+#: the part diameter experiment=dense sizes its rig for (the bunny's)
+DENSE_RIG_D = OmegaConf.load(REPO_ROOT / "conf" / "experiment" / "dense.yaml").scene.rig_d
 #: recipe -> (generate.py overrides, cycles)
 RECIPES: dict[str, tuple[list[str], int]] = {
     "quickstart": (["scene=train", "drops=10"], 3),
-    "dense": (DENSE, 8),
+    "dense": ([*DENSE, f"scene.rig_d={DENSE_RIG_D}"], 8),
+    "dense_fixed": (DENSE, 8),
     "dense_sized": ([*DENSE, "scene.camera_height=null", "scene.camera_file_clip=false"], 8),
 }
 #: the scene's absolute lengths (wall thickness 10 mm, jitters 5-30 mm, drop gap 10 mm) cut by hand to a
@@ -140,7 +146,7 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=REPO_ROOT / "outputs" / "sizing")
     ap.add_argument("--generate", action="store_true", help="generate the missing datasets first")
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=list(PARTS))
-    ap.add_argument("--recipes", nargs="+", default=["quickstart", "dense", "dense_sized"], choices=list(RECIPES))
+    ap.add_argument("--recipes", nargs="+", default=["quickstart", "dense", "dense_fixed", "dense_sized"], choices=list(RECIPES))
     ap.add_argument("--out", type=Path, default=None, help="write sizing.csv and sizing.md here")
     args = ap.parse_args()
     work = args.work.resolve()

@@ -42,8 +42,10 @@ _VHACD_VERSION = "pybullet-vhacd-2.2-v1"  # bump to invalidate old cache entries
 _COACD_VERSION = "coacd-1-v1"
 #: vertices per convex part: 32 steps about 25 % faster than V-HACD's 64 in piles, same shape
 VHACD_MAX_VERTICES = 32
-#: default time cap of one decomposition (the meshes here take 5..60 s)
-VHACD_TIMEOUT_S = 300.0
+#: default time cap of one decomposition, made once per mesh and cached: the built-in meshes take 5..60 s,
+#: an industrial part of 24k triangles (two shells) 245 CPU seconds of CoACD, over 300 s of wall time on two
+#: shared cores (the hull fallback then fills every hole of the part)
+VHACD_TIMEOUT_S = 1200.0
 #: convex hull volume / extent^3 below which a mesh counts as flat (a 10 cm plate 0.1 mm thick: 1e-3)
 MIN_RELATIVE_VOLUME = 1e-6
 
@@ -148,7 +150,7 @@ def check_solid(mesh: trimesh.Trimesh) -> None:
 
 
 def vhacd_timeout_s() -> float:
-    """Time cap of one convex decomposition: $OPNET_VHACD_TIMEOUT seconds, default 300."""
+    """Time cap of one convex decomposition: $OPNET_VHACD_TIMEOUT seconds, default 1200."""
     try:
         return float(os.environ.get("OPNET_VHACD_TIMEOUT", VHACD_TIMEOUT_S))
     except ValueError:
@@ -267,7 +269,9 @@ def _decomposition_cached(mesh: trimesh.Trimesh, out: Path, method: str, setting
                            timeout=timeout_s, check=False)
         except subprocess.TimeoutExpired:  # the child is killed
             logging.getLogger(__name__).warning(
-                "%s did not finish within %g s (OPNET_VHACD_TIMEOUT); using the convex hull of the mesh", name, timeout_s)
+                "%s did not finish within %g s (OPNET_VHACD_TIMEOUT); using the convex hull of the mesh: a concave "
+                "part then piles as its hull would (raise OPNET_VHACD_TIMEOUT to decompose it; made once, cached)",
+                name, timeout_s)
             return None
         if not dst.is_file() or dst.stat().st_size == 0:
             tail = log.read_text()[-500:] if log.is_file() else "no log"

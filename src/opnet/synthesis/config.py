@@ -24,7 +24,7 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
                  "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale",
-                 "small_part_d", "sized_for_d")
+                 "small_part_d", "sized_for_d", "rig_d")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -147,6 +147,13 @@ class SceneConfig:
             and to a rest of its own size. 0: never scaled. The built-in parts (51 mm and more) and
             every larger part are unaffected.
         sized_for_d: set by :meth:`for_part` (the D the settings were scaled for), None as configured.
+        rig_d: the part diameter (metres) the camera rig is set up for: ``camera_height``, the clip
+            planes (given, or the camera file's with ``camera_file_clip``) and the jitters
+            (``camera_jitter_m``, ``bin_jitter_m``) are scaled by D / ``rig_d`` for a part of
+            diameter D (:meth:`for_part`), so that every part is framed as the rig frames a part of
+            ``rig_d``: the bin follows D already, and the whole scene scales with it (the image is the
+            same at any size). None: the rig as given. A part of exactly ``rig_d`` keeps the
+            settings as given, byte for byte. ``experiment=dense`` sets the Siléane bunny's D.
 
     Camera from a file (then ``resolution``, ``width``, ``height`` and ``fov_deg`` are not used):
         camera_file: a Siléane ``camera_params.txt``, an IPA ``parameter.json`` or a YAML with
@@ -233,6 +240,7 @@ class SceneConfig:
     camera_scale: float = 1.0
     small_part_d: float = 0.05
     sized_for_d: float | None = None
+    rig_d: float | None = None
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -302,6 +310,8 @@ class SceneConfig:
         need(self.outside_clip in OUTSIDE_CLIP, "outside_clip", f"one of {OUTSIDE_CLIP}")
         need(math.isfinite(self.small_part_d) and 0 <= self.small_part_d <= MAX_SCENE_M, "small_part_d",
              "metres >= 0 (the part size the lengths are set for; 0: never scaled)")
+        need(self.rig_d is None or (math.isfinite(self.rig_d) and 0 < self.rig_d <= MAX_SCENE_M), "rig_d",
+             "null or the positive diameter (metres) of the part the camera rig is set up for")
         need(isinstance(self.camera_azimuth_deg, (int, float)) and math.isfinite(self.camera_azimuth_deg),
              "camera_azimuth_deg", "a finite number of degrees")
         area = _numbers(self.bin_area, 4)
@@ -352,16 +362,42 @@ class SceneConfig:
     #: the settings :meth:`for_part` scales for a part smaller than ``small_part_d``
     PART_LENGTHS: ClassVar[tuple[str, ...]] = ("bin_wall_thickness", "drop_gap", "bin_jitter_m", "camera_jitter_m",
                                                "settle_linear")
+    #: the settings :meth:`for_part` scales by D / ``rig_d`` (besides the camera file's clip planes)
+    RIG_LENGTHS: ClassVar[tuple[str, ...]] = ("camera_height", "clip_start", "clip_end", "camera_jitter_m",
+                                              "bin_jitter_m")
 
     def for_part(self, diameter: float) -> SceneConfig:
-        """The settings used for a part of ``diameter`` metres: :data:`PART_LENGTHS` scaled by
-        ``diameter / small_part_d`` where that is below 1 (``self`` otherwise, and for settings already
-        sized: the same scene whoever sizes it first)."""
-        if self.sized_for_d is not None or not (0 < diameter < self.small_part_d):
+        """The settings used for a part of ``diameter`` metres, once (settings already sized are
+        returned as they are: the same scene whoever sizes it first):
+
+        - with ``rig_d``: :data:`RIG_LENGTHS` (and the camera file's clip planes with
+          ``camera_file_clip``, written as ``clip_start`` / ``clip_end``) scaled by
+          ``diameter / rig_d``; ``rig_d`` is then spent (None in the result);
+        - :data:`PART_LENGTHS` not scaled by the rig, by ``diameter / small_part_d`` where that is
+          below 1.
+
+        ``self`` where nothing changes (a part of exactly ``rig_d`` and at least ``small_part_d``)."""
+        if self.sized_for_d is not None or not diameter > 0:
             return self
-        factor = diameter / self.small_part_d
-        return dataclasses.replace(self, sized_for_d=float(diameter),
-                                   **{k: getattr(self, k) * factor for k in self.PART_LENGTHS})
+        changes: dict[str, Any] = {}
+        rig = diameter / self.rig_d if self.rig_d else 1.0
+        if self.rig_d is not None:
+            changes["rig_d"] = None
+        if rig != 1.0:
+            values = {k: getattr(self, k) for k in self.RIG_LENGTHS}
+            if self.camera_file and self.camera_file_clip and not (self.clip_start and self.clip_end):
+                from opnet.datasets.camera_file import read_camera_file
+
+                given = read_camera_file(self.camera_file)
+                values["clip_start"] = values["clip_start"] or given.clip_start
+                values["clip_end"] = values["clip_end"] or given.clip_end
+            changes.update({k: v * rig for k, v in values.items() if v is not None})
+        if 0 < diameter < self.small_part_d:
+            factor = diameter / self.small_part_d
+            changes.update({k: getattr(self, k) * factor for k in self.PART_LENGTHS if k not in changes})
+        if any(k != "rig_d" for k in changes):
+            changes["sized_for_d"] = float(diameter)
+        return dataclasses.replace(self, **changes) if changes else self
 
     def bin_model_scenes(self) -> list[SceneConfig]:
         """The scene of each bin model (its keys set, ``bin_models`` None); ``[self]`` without models."""

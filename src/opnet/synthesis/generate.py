@@ -12,6 +12,7 @@ the same bytes as an uninterrupted run.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import time
 from collections.abc import Iterator, Mapping
@@ -39,6 +40,8 @@ from opnet.synthesis.writer import (
     write_cycle,
     write_root_files,
 )
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -156,6 +159,10 @@ def _run_pile(pile: tuple[int, tuple[int, ...]]) -> _CycleDone:
     return _WORKER.run(pile)
 
 
+def _metres(value: float | None) -> str:
+    return "derived" if value is None else f"{value:.3f} m"
+
+
 def generate_dataset(
     obj: ObjectModel,
     out: Path,
@@ -205,7 +212,12 @@ def generate_dataset(
     sensor = (sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)).scaled(scene.camera_scale)
     # a part smaller than the scene's lengths are set for: the lengths scaled to it, as recorded in
     # generation.json (a dataset made before that, with the lengths as given, is then not completed)
-    scene = scene.for_part(obj.diameter)
+    given, scene = scene, scene.for_part(obj.diameter)
+    if given.rig_d and scene.sized_for_d is not None:
+        log.info("the camera rig (scene.rig_d: set up for a part of D %.1f mm) scaled to this part's D %.1f mm: camera "
+                 "height %s, clip planes %s-%s, jitters %.1f mm; scene.rig_d=null keeps the rig as given",
+                 1e3 * given.rig_d, 1e3 * obj.diameter, _metres(scene.camera_height), _metres(scene.clip_start),
+                 _metres(scene.clip_end), 1e3 * scene.camera_jitter_m)
     rig = make_rig(obj, drops, cycles, scene)
     config = normalized_object_config(object_config) if object_config is not None else object_config_for(obj, out)
     if obj.mesh is not None:
