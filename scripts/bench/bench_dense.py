@@ -184,6 +184,7 @@ def headline(rows: list[dict[str, Any]], config: str = HEADLINE) -> list[str]:
 
 
 def write_readme(out: Path, rows: list[dict[str, Any]], title: str = "Dense-pile benchmark") -> None:
+    learning = Path(os.path.relpath(REPO_ROOT / "results" / "learning" / "README.md", out.resolve())).as_posix()
     lines = [
         f"# {title}", "",
         "Siléane-like bulk piles (70-80 parts, most of them more than half hidden) seen from above by the camera of "
@@ -192,7 +193,7 @@ def write_readme(out: Path, rows: list[dict[str, Any]], title: str = "Dense-pile
         "`--camera-height`; the ring screw's rows were made at 1.5 m before the rig was sized). Per object, on this "
         "2-core CPU: training piles generated and a model trained within the budget; held-out AP (Brégier, max "
         "occlusion 0.5) on the scenes with at least 70 parts of piles of another seed. Diagnostics as in "
-        "[the learning benchmark](../learning/README.md). *budget min*: the training budget the step count was "
+        f"[the learning benchmark]({learning}). *budget min*: the training budget the step count was "
         "calibrated for (`--minutes`: the throughput of 50 steps measured at the start); *train min*: the wall "
         "minutes the run took, which exceed the budget when other jobs shared the machine or validation took long; "
         "*test AP during training*: the held-out test AP at the test epochs (wall training minutes: AP), so the AP "

@@ -276,6 +276,18 @@ def block_dense(results: Path, prefix: str = "") -> str:
                    "found %", "other generators' piles (AP)"], rows) + "\n"
 
 
+def block_new_parts(results: Path, prefix: str = "") -> str:
+    """The new-parts benchmark: held-out AP per part against its target (results/new_parts/new_parts.csv)."""
+    rows = [[r["object"], r["symmetry"], f"{float(r['d_mm']):.0f}",
+             f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f}",
+             f"**{float(r['ap']):.3f}**" + (f" ({float(r['ap_tuned']):.3f})" if r["ap_tuned"] else ""),
+             f"{float(r['ap_pybullet']):.3f}" if r["ap_pybullet"] else "–", r["reason"]]
+            for r in _csv(results / "new_parts" / "new_parts.csv")]
+    return _table(["part", "symmetry (opnet-object)", "D mm", "generation + training min",
+                   "**held-out AP** (decoding tuned on validation)", "other engine's piles (AP)",
+                   "target AP >= 0.6"], rows) + "\n"
+
+
 def block_framing(results: Path, prefix: str = "") -> str:
     rows = [[f"`{r['fit']}`", f"{100 * float(r['input_share']):.0f} %", f"{100 * float(r['image_share']):.0f} %",
              f"{float(r['image_px_per_input_px']):.2f}", f"**{float(r['ap']):.4f}**"]
@@ -380,6 +392,7 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "inference": block_inference, "sensor": block_sensor, "framing": block_framing,
           "real_frame": block_real_frame, "pictures_data": block_pictures_data,
           "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense,
+          "new_parts": block_new_parts,
           "real_ipd": block_real_ipd, "real_ipd_seeds": block_real_ipd_seeds, "cells": block_cells,
           "verification": block_verification}
 

@@ -64,3 +64,36 @@ def test_the_benchmark_readme_heads_with_the_recipe_rows() -> None:
     table = [line for line in lines if line.startswith("| ")]
     assert len(table) == 2 and table[1].startswith("| bunny | 14.1 | 40.8 | **54.9** | 13200 | **0.830** |")
     assert bench_dense.headline([other]) == []
+
+
+new_parts = _script("experiments/new_parts/new_parts.py")
+
+
+def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    import csv
+
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    base = {"config": "recipe60", "found": 0.5, "position": 0.3, "orientation": 0.15, "no_hypothesis": 0.05,
+            "confident_fp_per_scene": 9.1, "steps": 21700, "gen_minutes": 20, "train_minutes": 41}
+    rows = [{**base, "object": "tless20", "ap": 0.41, "tuned": "{'eps': 1.0}: test AP 0.452; pybullet 0.300 (found",
+             "extra_tests": "pybullet 0.355 (found 40 %, 72 scenes)"},
+            {**base, "object": "pepper", "ap": 0.71, "tuned": "", "extra_tests": ""},
+            {**base, "object": "bunny", "ap": 0.83, "tuned": "", "extra_tests": ""},  # not a new part
+            {**base, "object": "itodd08", "config": "ab3k", "ap": 0.9, "tuned": "", "extra_tests": ""}]  # not the budget
+    with (bench / "dense.csv").open("w") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    monkeypatch.setattr(new_parts, "part_geometry", lambda part: {"d_mm": 100.0, "camera_m": 0.6})
+    assert new_parts.main(["--out", str(tmp_path)]) == 0
+    table = {r["object"]: r for r in csv.DictReader((tmp_path / "new_parts.csv").open())}
+    assert list(table) == ["pepper", "tless20"]  # the parts' order, only the benchmark's rows
+    assert table["pepper"]["met"] == "1" and table["pepper"]["reason"] == "met"
+    t = table["tless20"]
+    assert t["met"] == "0" and float(t["ap_tuned"]) == 0.452 and float(t["ap_pybullet"]) == 0.355
+    assert t["symmetry"] == "cyclic 2"  # as conf/object/tless20.yaml states it
+    assert "missed on position most" in t["reason"] and "found 50.0 %" in t["reason"]
+    page = (tmp_path / "README.md").read_text()
+    assert "Not run yet: itodd08, itodd13, itodd27" in page and "| **0.410** |" in page

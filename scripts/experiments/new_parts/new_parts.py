@@ -1,0 +1,205 @@
+"""The new-parts benchmark: parts nobody here tuned for, from their CAD files through ``opnet-object``
+and the dense recipe, untouched, at the dense benchmark's per-part budget (results/new_parts/README.md).
+
+    python scripts/experiments/new_parts/new_parts.py --run                   # every part not in the table yet
+    python scripts/experiments/new_parts/new_parts.py --run --objects tless20 # one part (again)
+    python scripts/experiments/new_parts/new_parts.py                         # the table of what is there
+
+Per part:
+
+1. ``opnet-object <mesh> --name <part>`` writes the part's object config to a scratch folder; its symmetry
+   must be the one of ``conf/object/<part>.yaml`` (which ``opnet-object`` wrote), else the part stops here:
+   the benchmark runs on what the command finds, nothing set by hand.
+2. ``scripts/bench/bench_dense.py`` at one budget for every part (:data:`BUDGET`): the dense benchmark's
+   192 cycles generated (24 piles x 8 views, 75 drops, seed 0; the recipe's rig sized to the part) and 10,680
+   training steps of batch 16 (:data:`STEPS`: what 41 minutes gave on the first part's machine; half the steps
+   of the dense benchmark's ``recipe60`` rows, which a faster machine gave), 20 validations, the decoding tuned
+   on validation; held out: 12 piles of seed 1 (their scenes of at least 70 parts) and 12 piles of seed 2
+   simulated by the other physics engine (pybullet).
+
+Writes ``bench/dense.csv`` and ``bench/README.md`` (the benchmark's own table) under ``--out``, then
+``new_parts.csv`` (a row per part: ``object``, ``ap``, ...) and ``README.md``: the held-out AP against the target
+(:data:`TARGET`), and for a part below it the measured reason: where its misses went.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from opnet.paths import REPO_ROOT, shared_dir
+from opnet.studies import fmt, merge_csv
+
+#: part -> its mesh under the shared data folder (conf/object/<part>.yaml names the same file)
+PARTS = {
+    "pepper": "SileanePepper.stl",
+    "tless20": "TLess20.stl",
+    "itodd08": "ITODD08.stl",
+    "itodd13": "ITODD13.stl",
+    "itodd27": "ITODD27.stl",
+}
+CONFIG = "recipe60"
+#: one budget for every part, whatever the machine: the dense benchmark's 192 cycles and a fixed step count, the
+#: steps that 41 minutes of training gave on the 2-core machine the first part ran on (its calibration; trained to
+#: 10,680, 20 validations x 534)
+STEPS = 10696
+BUDGET = ["--config", CONFIG, "--gen-cycles", "192", "--views", "8", "--steps", str(STEPS), "--validations", "20",
+          "--tune", "--pybullet-piles", "12"]
+TARGET = 0.6
+FIELDS = ("object", "symmetry", "d_mm", "camera_m", "ap", "ap_tuned", "ap_pybullet", "found", "position",
+          "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
+          "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "target", "met", "reason")
+TITLE = "New parts: the dense recipe on parts nobody tuned for"
+
+
+def symmetry_text(sym: dict[str, Any]) -> str:
+    """The group as the object config states it, e.g. ``cyclic 2``, ``revolution``, ``none``."""
+    kind = sym.get("kind", "none")
+    order = f" {sym['order']}" if sym.get("order") else ""
+    flip = " with a flip" if sym.get("rotoreflection") or sym.get("flip") else ""
+    return f"{kind}{order}{flip}"
+
+
+def check_object(part: str) -> str:
+    """Run ``opnet-object`` on the part's mesh; its symmetry must be the committed config's. Returns it."""
+    committed = yaml.safe_load((REPO_ROOT / "conf" / "object" / f"{part}.yaml").read_text())
+    mesh = shared_dir() / "data" / "meshes" / "new_parts" / PARTS[part]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / f"{part}.yaml"
+        subprocess.run([sys.executable, "-m", "opnet.cli.object", str(mesh), "--name", part, "--out", str(out)],
+                       check=True, cwd=REPO_ROOT, stdout=subprocess.DEVNULL)
+        found = yaml.safe_load(out.read_text())
+    if found["symmetry"] != committed["symmetry"]:
+        raise SystemExit(f"error: opnet-object finds {found['symmetry']} for {mesh}, conf/object/{part}.yaml "
+                         f"says {committed['symmetry']}: write it again with opnet-object")
+    print(f"[{part}] opnet-object: {symmetry_text(found['symmetry'])}, as conf/object/{part}.yaml", flush=True)
+    return symmetry_text(found["symmetry"])
+
+
+def part_geometry(part: str) -> dict[str, float]:
+    """D and the recipe's camera height for the part (its rig sized to it), from the mesh."""
+    sys.path.insert(0, str(REPO_ROOT / "scripts" / "bench"))
+    from bench_dense import CAMERA, dense_scene
+
+    from opnet.cli.evaluate import resolve_object
+    from opnet.synthesis.layout import make_rig
+
+    obj = resolve_object(part)
+    rig = make_rig(obj, 75, 8, dense_scene(CAMERA, None, 8))
+    return {"d_mm": 1e3 * obj.diameter, "camera_m": float(rig.params.location[2])}
+
+
+def _number(pattern: str, text: str) -> float | str:
+    m = re.search(pattern, text or "")
+    return float(m.group(1)) if m else ""
+
+
+def reason(row: dict[str, Any]) -> str:
+    """Met, or where the misses went (shares of the parts to find), measured on the held-out piles."""
+    if float(row["ap"]) >= TARGET:
+        return "met"
+    misses = {"position": row["position"], "orientation": row["orientation"], "no hypothesis": row["no_hypothesis"]}
+    worst = max(misses, key=lambda k: float(misses[k] or 0))
+    shares = ", ".join(f"{k} {fmt(v, 'pct')} %" for k, v in misses.items())
+    return (f"found {fmt(row['found'], 'pct')} % of the parts to find; missed on {worst} most ({shares}); "
+            f"{fmt(row['confident_fp_per_scene'], 'f1')} confident false positives per scene")
+
+
+def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for b in csv.DictReader(bench_csv.open()) if bench_csv.is_file() else []:
+        if b["object"] not in PARTS or b["config"] != CONFIG:
+            continue
+        part = b["object"]
+        row = {k: b.get(k, "") for k in FIELDS}
+        old = previous.get(part, {})
+        try:
+            row |= part_geometry(part)
+        except (FileNotFoundError, ValueError):  # the shared meshes absent: what the table had
+            row |= {k: old.get(k, "") for k in ("d_mm", "camera_m")}
+        conf = yaml.safe_load((REPO_ROOT / "conf" / "object" / f"{part}.yaml").read_text())
+        row |= {"symmetry": symmetry_text(conf.get("symmetry") or {}),
+                "ap_tuned": _number(r"test AP ([\d.]+)", b.get("tuned", "")),
+                "ap_pybullet": _number(r"pybullet ([\d.]+)", b.get("extra_tests", "")), "target": TARGET}
+        row["met"] = int(float(row["ap"]) >= TARGET)
+        row["reason"] = reason(row)
+        rows.append(row)
+    return sorted(rows, key=lambda r: list(PARTS).index(r["object"]))
+
+
+def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
+    done = {r["object"] for r in rows}
+    intro = (
+        "Five parts nobody here chose a setting for (two of the paper's Table I objects, the Siléane pepper and "
+        "T-LESS 20, and three industrial parts of MVTec ITODD), from their CAD files: `opnet-object` writes each "
+        "object config (units, symmetry, main axis), then the dense recipe (`experiment=dense`, its rig sized to "
+        "the part) runs untouched at one budget per part on a 2-core CPU: 192 cycles (24 piles "
+        "x 8 views, 75 drops) generated, 10,680 training steps of batch 16 (41 minutes on the 2-core machine the "
+        "first part ran on; half the steps of the dense benchmark's bunny and ring screw rows), the decoding tuned "
+        "on validation. Held out: "
+        "scenes of at least 70 parts of 12 piles of another seed (**AP**), and of 12 piles simulated by the other "
+        "physics engine (pybullet). AP: Brégier, max occlusion 0.5. "
+        f"**Target: held-out AP >= {TARGET} per part**; below it, the measured reason (where the misses went: "
+        "shares of the parts to find). For scale: the bunny, the part the recipe was chosen on, scores 0.83 at "
+        "twice these steps ([the dense benchmark](../dense/README.md)). *gen + train min*: wall minutes, longer where "
+        "other jobs shared the machine (pepper's generation: 33 minutes, about half of them beside other generation "
+        "and decomposition jobs; the bunny's 192 cycles took 14 alone). Made by")
+    lines = [
+        f"# {TITLE}", "", intro, "",
+        "    python scripts/experiments/new_parts/new_parts.py --run", "",
+        ("([the script](../../scripts/experiments/new_parts/new_parts.py); the benchmark's own table with the "
+         "learning curves and commands: [bench/README.md](bench/README.md); every number in "
+         "[new_parts.csv](new_parts.csv))."), "",
+        ("| part | symmetry (opnet-object) | D mm | camera m | **held-out AP** | tuned decoding | other engine "
+         "(pybullet) | found % | t p50 mm | r p50 ° | steps | gen + train min | target | reason |"),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['object']} | {r['symmetry']} | {fmt(r['d_mm'], 'f0')} | {fmt(r['camera_m'], 'f2')} | "
+            f"**{fmt(r['ap'])}** | {fmt(r['ap_tuned'])} | {fmt(r['ap_pybullet'])} | {fmt(r['found'], 'pct')} | "
+            f"{fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} | {r['steps']} | "
+            f"{fmt(r['gen_minutes'], 'f0')} + {fmt(r['train_minutes'], 'f0')} | {TARGET} | {r['reason']} |")
+    missing = [p for p in PARTS if p not in done]
+    if missing:
+        lines += ["", f"Not run yet: {', '.join(missing)} (`--run --objects {' '.join(missing)}`)."]
+    (out / "README.md").write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--run", action="store_true", help="run the benchmark for the parts first")
+    ap.add_argument("--objects", nargs="+", choices=list(PARTS), default=None,
+                    help="the parts to run (default: those not in the table yet)")
+    ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "new_parts")
+    args = ap.parse_args(argv)
+    bench = args.out / "bench"
+    if args.run:
+        have = {r["object"] for r in csv.DictReader((bench / "dense.csv").open())
+                if r["config"] == CONFIG} if (bench / "dense.csv").is_file() else set()
+        for part in args.objects or [p for p in PARTS if p not in have]:
+            check_object(part)
+            subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "bench" / "bench_dense.py"), "--objects", part,
+                            *BUDGET, "--out", str(bench), "--runs-dir", str(REPO_ROOT / "outputs" / "new_parts"),
+                            "--title", f"{TITLE}: the benchmark's table"], check=True, cwd=REPO_ROOT)
+    csv_path = args.out / "new_parts.csv"
+    previous = {r["object"]: r for r in csv.DictReader(csv_path.open())} if csv_path.is_file() else {}
+    rows = table_rows(bench / "dense.csv", previous)
+    merge_csv(csv_path, FIELDS, rows, ("object",))
+    write_readme(args.out, rows)
+    print((args.out / "README.md").read_text())
+    print(json.dumps({r["object"]: round(float(r["ap"]), 3) for r in rows}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
