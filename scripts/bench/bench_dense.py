@@ -37,6 +37,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 from opnet.paths import REPO_ROOT
 from opnet.studies import best_checkpoint, fmt, merge_csv, read_summary
 from opnet.studies.results import DENSE_HEADLINE as HEADLINE
+from opnet.studies.scenes import dense_scene
 from opnet.studies.training import calibrate_steps, summarize, train
 
 CAMERA = REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"
@@ -70,24 +71,6 @@ def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int
     print(f"[{obj}]   {report.cycles_generated} cycles made, {report.cycles_skipped} present; "
           f"{done['minutes']:.1f} generation minutes in all", flush=True)
     return float(done["minutes"])
-
-
-def dense_scene(camera: Path, height: float | None, views: int, physics: str | None = None) -> Any:
-    """The generator's scene of ``experiment=dense`` (conf/experiment/dense.yaml: the bulk preset
-    with its jitters) with this camera and views; at ``height`` as it stands (``scene.rig_d=null``),
-    or None: the recipe's rig, sized to the part; ``physics``: another engine than the recipe's."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
-    from opnet.paths import config_dir
-    from opnet.synthesis import SceneConfig
-
-    overrides = ["experiment=dense", f"scene.camera_file={camera.resolve()}", f"scene.views={views}",
-                 *([f"scene.camera_height={height}", "scene.rig_d=null"] if height is not None else []),
-                 *([f"scene.physics={physics}"] if physics else [])]
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        cfg = compose("train", overrides=overrides)
-    return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
 
 
 def tests_of(obj: str, specs: list[str]) -> list[str]:

@@ -87,14 +87,12 @@ def check_object(part: str) -> str:
 
 def part_geometry(part: str) -> dict[str, float]:
     """D and the recipe's camera height for the part (its rig sized to it), from the mesh."""
-    sys.path.insert(0, str(REPO_ROOT / "scripts" / "bench"))
-    from bench_dense import CAMERA, dense_scene
-
     from opnet.cli.evaluate import resolve_object
+    from opnet.studies.scenes import dense_scene
     from opnet.synthesis.layout import make_rig
 
     obj = resolve_object(part)
-    rig = make_rig(obj, 75, 8, dense_scene(CAMERA, None, 8))
+    rig = make_rig(obj, 75, 8, dense_scene())
     return {"d_mm": 1e3 * obj.diameter, "camera_m": float(rig.params.location[2])}
 
 

@@ -35,6 +35,26 @@ def scene_overrides(camera_file: str | None, camera_height: float | None, sets: 
     return out
 
 
+def dense_scene(camera: Path | None = None, height: float | None = None, views: int = 8,
+                physics: str | None = None) -> SceneConfig:
+    """The generator's scene of ``experiment=dense`` (conf/experiment/dense.yaml: the bulk preset with
+    its jitters, composed as train.py does) with ``views`` views per pile; ``camera``: another camera
+    file than the recipe's; at ``height`` as it stands (``scene.rig_d=null``), or None: the recipe's
+    rig, sized to the part; ``physics``: another engine than the recipe's."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from opnet.synthesis import SceneConfig
+
+    overrides = ["experiment=dense", f"paths.root_dir={config_dir().parent}", f"scene.views={views}",
+                 *([f"scene.camera_file={Path(camera).resolve()}"] if camera is not None else []),
+                 *([f"scene.camera_height={height}", "scene.rig_d=null"] if height is not None else []),
+                 *([f"scene.physics={physics}"] if physics else [])]
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        cfg = compose("train", overrides=overrides)
+    return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
+
+
 def scene_preset(name: str, **overrides: object) -> SceneConfig:
     """The SceneConfig of conf/scene/<name>.yaml (a preset's ``defaults`` resolved) with overrides."""
     from omegaconf import OmegaConf

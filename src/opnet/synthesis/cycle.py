@@ -128,7 +128,7 @@ class CycleGenerator:
         if drops < 0:
             raise ValueError(f"drops must be >= 0, got {drops}")
         self.obj, self.drops = obj, int(drops)
-        # a part smaller than the scene's lengths are set for gets them scaled to its size (SceneConfig.for_part)
+        # the settings sized to the part: the rig by D / rig_d, a small part's lengths (SceneConfig.for_part)
         self.scene = (scene or SceneConfig()).for_part(obj.diameter)
         self.sensor = sensor or SensorModel()
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)

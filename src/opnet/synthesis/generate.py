@@ -210,8 +210,8 @@ def generate_dataset(
     if out.exists() and not out.is_dir():  # a file, /dev/null
         raise ValueError(f"out={out}: exists and is not a folder; choose another out=")
     sensor = (sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)).scaled(scene.camera_scale)
-    # a part smaller than the scene's lengths are set for: the lengths scaled to it, as recorded in
-    # generation.json (a dataset made before that, with the lengths as given, is then not completed)
+    # the settings sized to the part (SceneConfig.for_part: the rig scaled by D / rig_d, a small part's lengths
+    # by D / small_part_d), as recorded in generation.json (a dataset made before that is then not completed)
     given, scene = scene, scene.for_part(obj.diameter)
     if given.rig_d and scene.sized_for_d is not None:
         log.info("the camera rig (scene.rig_d: set up for a part of D %.1f mm) scaled to this part's D %.1f mm: camera "

@@ -211,7 +211,7 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     if obj.mesh is None:
         raise ValueError(f"object {obj.name!r} has no mesh: the generator needs one to simulate and render")
     D = obj.diameter
-    cfg = cfg.for_part(D)  # a part smaller than the lengths are set for: them scaled to it
+    cfg = cfg.for_part(D)  # the settings sized to the part (the rig by D / rig_d, a small part's lengths)
     bins = tuple(bin_geometry(obj, drops, model) for model in cfg.bin_model_scenes())
     bin_geom, wall = bins[0], max(b.wall_height for b in bins)  # every size below: the largest bin model's
 
