@@ -16,6 +16,8 @@ from opnet.synthesis.collision import (
     choose_mode,
     coacd_cached,
     convex_parts,
+    merge_convex_parts,
+    merged_cached,
     vhacd_cached,
 )
 from opnet.synthesis.config import SceneConfig
@@ -145,6 +147,76 @@ def test_a_missing_engine_is_a_one_line_error(monkeypatch: pytest.MonkeyPatch) -
     obj = builtin_object("pin")
     with pytest.raises(MissingDependencyError, match=r"scene.physics=pybullet needs the package 'pybullet'.*mujoco"):
         make_simulator(make_rig(obj, 2, 1, cfg), build_collision_model(obj.mesh, cfg), cfg)
+
+
+def _box(lo: tuple, hi: tuple) -> np.ndarray:
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], dtype=float)
+
+
+def test_merging_convex_pieces_joins_the_pair_that_adds_the_least_volume_first() -> None:
+    # two unit cubes face to face make a box (nothing added); the third, far away, stays alone
+    a, b, far = _box((0, 0, 0), (1, 1, 1)), _box((1, 0, 0), (2, 1, 1)), _box((5, 5, 5), (6, 6, 6))
+    merged = merge_convex_parts([far, a, b], 2)
+    assert len(merged) == 2
+    np.testing.assert_allclose(np.sort(merged[0][0], axis=0), np.sort(far, axis=0))
+    np.testing.assert_allclose(merged[1][0].min(0), [0, 0, 0])
+    np.testing.assert_allclose(merged[1][0].max(0), [2, 1, 1])
+    assert len(merged[1][0]) == 8  # the hull's corners only
+    # one piece: the hull of all; a far cube then adds what lies between (the bound: the cubes' box)
+    (whole,) = merge_convex_parts([far, a, b], 1)
+    np.testing.assert_allclose(whole[0].min(0), [0, 0, 0])
+    np.testing.assert_allclose(whole[0].max(0), [6, 6, 6])
+    again = merge_convex_parts([far, a, b], 2)
+    assert all(np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1]) for x, y in zip(merged, again, strict=True))
+    assert len(merge_convex_parts([far, a, b], 5)) == 3  # under the cap: every piece, in order
+    # a volume budget stops the merging before the far cube joins (it would add 6^3 - 3 volumes)
+    assert len(merge_convex_parts([far, a, b], 1, budget=0.01)) == 2
+    assert len(merge_convex_parts([far, a, b], 1, budget=1.0)) == 2  # it adds 71 times the pieces' volume
+    assert len(merge_convex_parts([far, a, b], 1, budget=0.0)) == 2  # the face-to-face pair adds nothing
+    with pytest.raises(ValueError, match="max_pieces=0"):
+        merge_convex_parts([a], 0)
+
+
+def test_a_decomposition_over_the_cap_is_merged_into_a_cached_file_beside_it(tmp_path: Path) -> None:
+    from opnet.synthesis.collision import _parts_obj
+
+    cubes = [_box((2 * k, 0, 0), (2 * k + 1, 1, 1)) for k in range(5)]
+    src = tmp_path / "coacd_abc.obj"
+    src.write_text(_parts_obj(cubes, [np.array([[0, 1, 2]]) for _ in cubes]))
+    assert merged_cached(src, 5) == src  # at the cap: the decomposition itself
+    out = merged_cached(src, 3)
+    assert out.name == "coacd_abc_max3.obj" and len(convex_parts(out)) == 3
+    stamp = out.stat().st_mtime_ns
+    assert merged_cached(src, 3) == out and out.stat().st_mtime_ns == stamp  # made once
+    # cubes 1 apart: each merge fills the gap between two (a cube's volume, 20 % of the five's)
+    kept = merged_cached(src, 3, budget=0.3)
+    assert kept.name == "coacd_abc_max3_b0.3.obj" and len(convex_parts(kept)) == 4
+    assert not list(tmp_path.glob(".merge_*"))  # no temporary file left
+
+
+def test_the_dense_recipe_caps_pieces_and_leaves_a_built_in_part_as_it_was(cache_dir: Path) -> None:
+    from opnet.studies.scenes import dense_scene
+
+    scene = dense_scene(views=1)
+    assert (scene.max_convex_pieces, scene.convex_merge_budget) == (20, 0.01)
+    mesh = builtin_object("bracket").mesh
+    capped = build_collision_model(mesh, SceneConfig(cache_dir=str(cache_dir), max_convex_pieces=20, convex_merge_budget=0.01))
+    assert capped.obj_file == build_collision_model(mesh, SceneConfig(cache_dir=str(cache_dir))).obj_file
+    # a cap under its pieces merges them (a budget of 1: whatever it adds)
+    merged = build_collision_model(mesh, SceneConfig(cache_dir=str(cache_dir), max_convex_pieces=1, convex_merge_budget=1.0))
+    assert merged.obj_file.name.endswith("_max1_b1.obj") and len(convex_parts(merged.obj_file)) == 1
+
+
+def test_the_piece_cap_is_an_integer_of_zero_or_more() -> None:
+    assert SceneConfig().max_convex_pieces == 0 and "max_convex_pieces" not in SceneConfig().to_dict()
+    assert "convex_merge_budget" not in SceneConfig().to_dict()  # datasets made before keep their files
+    assert SceneConfig(max_convex_pieces=20).to_dict()["max_convex_pieces"] == 20
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="max_convex_pieces"):
+            SceneConfig(max_convex_pieces=bad)
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="convex_merge_budget"):
+            SceneConfig(convex_merge_budget=bad)
 
 
 def test_a_malformed_decomposition_file_names_the_file(tmp_path: Path) -> None:

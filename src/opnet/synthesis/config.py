@@ -24,7 +24,7 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
                  "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale",
-                 "small_part_d", "sized_for_d", "rig_d")
+                 "small_part_d", "sized_for_d", "rig_d", "max_convex_pieces", "convex_merge_budget")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -124,6 +124,12 @@ class SceneConfig:
         convexity_threshold: see ``collision``.
         vhacd_resolution: voxel budget of pybullet's V-HACD.
         coacd_threshold: concavity threshold of CoACD (MuJoCo): smaller = more, finer hulls.
+        max_convex_pieces: a decomposition of more convex pieces than this is merged toward this
+            many, two pieces at a time into the joint hull that adds the least volume
+            (:func:`~opnet.synthesis.collision.merge_convex_parts`): a physics step costs about the
+            pieces in contact, so a part of 40 pieces piles slowly. 0: every piece.
+        convex_merge_budget: the merging stops before the volume it adds exceeds this fraction
+            of the pieces' volume (a part whose concave detail needs its pieces keeps them).
         cache_dir: folder of the decomposition cache; None = $OPNET_CACHE or ~/.cache/opnet.
         time_step: simulation step, seconds.
         solver_iterations: constraint solver iterations per step.
@@ -227,6 +233,8 @@ class SceneConfig:
     views: int = 1
     physics: str = "mujoco"
     coacd_threshold: float = 0.1
+    max_convex_pieces: int = 0
+    convex_merge_budget: float = 0.01
     bin_inner_y: float | None = None
     bin_hole_size: float = 0.0
     bin_hole_pitch: float = 0.0
@@ -281,6 +289,11 @@ class SceneConfig:
             need(math.isfinite(getattr(self, key)) and getattr(self, key) > 0, key, "a number > 0")
         for key in ("vhacd_resolution", "solver_iterations", "settle_checks", "check_every", "max_redrops"):
             need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
+        need(isinstance(self.max_convex_pieces, int) and not isinstance(self.max_convex_pieces, bool)
+             and self.max_convex_pieces >= 0, "max_convex_pieces", "an integer >= 0 (0: no cap)")
+        need(isinstance(self.convex_merge_budget, (int, float)) and not isinstance(self.convex_merge_budget, bool)
+             and 0 <= self.convex_merge_budget <= 1, "convex_merge_budget",
+             "a fraction in [0, 1] of the part's volume that merging pieces may add")
         need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
         need(isinstance(self.camera_file_clip, bool), "camera_file_clip", "true or false")
         need(0 < self.camera_scale <= 4, "camera_scale", "a number in (0, 4] (x the pixels of scene.camera_file)")

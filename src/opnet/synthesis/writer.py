@@ -71,7 +71,7 @@ def normalized_object_config(config: Mapping[str, Any]) -> dict[str, Any]:
 
 
 #: generation settings that only say how new cycles would be simulated
-_ENGINE_KEYS = ("scene.physics", "scene.coacd_threshold")
+_ENGINE_KEYS = ("scene.physics", "scene.coacd_threshold", "scene.max_convex_pieces", "scene.convex_merge_budget")
 
 
 def _differing(existing: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
@@ -95,8 +95,9 @@ def write_root_files(
     """Write (or check and rewrite) the dataset's root files before any scene.
 
     ``complete``: every cycle exists and none is to be made. Then the settings that only say how
-    new cycles would be simulated (``scene.physics``, ``scene.coacd_threshold``: a dataset made
-    with pybullet before MuJoCo became the default) may differ; the dataset's own
+    new cycles would be simulated (``scene.physics``, ``scene.coacd_threshold``, ``scene.max_convex_pieces``,
+    ``scene.convex_merge_budget``: a dataset made with pybullet before MuJoCo became the default) may
+    differ; the dataset's own
     ``generation.json`` is kept.
 
     Raises:
