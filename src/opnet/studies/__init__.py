@@ -34,6 +34,16 @@ def run_logged(cmd: list[str], log: Path, cwd: Path = REPO_ROOT, env: dict[str, 
         raise SystemExit(f"error: exit {code}; see {log}")
 
 
+def compose_train(overrides: list[str]) -> Any:
+    """train.py's config (``conf/train.yaml``) composed with ``overrides``, as train.py composes it."""
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        return compose("train", overrides=overrides)
+
+
 def train_command(overrides: list[str], run_dir: str | Path) -> list[str]:
     """``python train.py <overrides> hydra.run.dir=<run_dir>`` as an argv, to run in the repository root."""
     return [sys.executable, "train.py", *overrides, f"hydra.run.dir={run_dir}"]

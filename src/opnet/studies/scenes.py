@@ -41,17 +41,16 @@ def dense_scene(camera: Path | None = None, height: float | None = None, views: 
     its jitters, composed as train.py does) with ``views`` views per pile; ``camera``: another camera
     file than the recipe's; at ``height`` as it stands (``scene.rig_d=null``), or None: the recipe's
     rig, sized to the part; ``physics``: another engine than the recipe's."""
-    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    from opnet.studies import compose_train
     from opnet.synthesis import SceneConfig
 
     overrides = ["experiment=dense", f"paths.root_dir={config_dir().parent}", f"scene.views={views}",
                  *([f"scene.camera_file={Path(camera).resolve()}"] if camera is not None else []),
                  *([f"scene.camera_height={height}", "scene.rig_d=null"] if height is not None else []),
                  *([f"scene.physics={physics}"] if physics else [])]
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        cfg = compose("train", overrides=overrides)
+    cfg = compose_train(overrides)
     return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
 
 

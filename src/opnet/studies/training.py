@@ -13,7 +13,7 @@ from typing import Any
 import lightning as L
 
 from opnet.paths import REPO_ROOT, config_dir
-from opnet.studies import diagnostic_shares, read_summary, run_train
+from opnet.studies import compose_train, diagnostic_shares, read_summary, run_train
 
 #: the learning curve's columns of a result table (``learning_curve.csv``'s, behind object and config)
 CURVE_FIELDS = ("object", "config", "epoch", "step", "train_minutes", "val_ap", "test_ap")
@@ -35,14 +35,12 @@ def measure(overrides: list[str], steps: int, warmup: int, accelerator: str = "c
     the network alone's at the same batch size and precision (None unless ``network_alone``), and
     what was measured (network preset, batch size, precision)."""
     import torch
-    from hydra import compose, initialize_config_dir
 
     from opnet.cli.build import build_components, build_datamodule
     from opnet.hardware import resolve_precision
     from opnet.models.stats import train_images_per_s
 
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        cfg = compose("train", overrides=overrides)
+    cfg = compose_train(overrides)
     L.seed_everything(0, workers=True)
     comps = build_components(cfg)
     dm = build_datamodule(cfg, comps.obj, train=True)
@@ -84,11 +82,8 @@ def model_preset(overrides: list[str]) -> str:
 
 def calibrate_steps(overrides: list[str], minutes: float) -> int:
     """Optimizer steps that fill ``minutes`` of training at the measured images/s."""
-    from hydra import compose, initialize_config_dir
-
     ips = measure(overrides, steps=40, warmup=10)[0]
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        batch = int(compose("train", overrides=overrides).data.batch_size)
+    batch = int(compose_train(overrides).data.batch_size)
     steps = int(minutes * 60 * ips / batch)
     print(f"  calibration: {ips:.1f} images/s -> {steps} steps for {minutes:g} min", flush=True)
     return steps
