@@ -71,12 +71,10 @@ def collision_share(sim, steps: int = 60) -> float:
     return contacts / step
 
 
-def time_piles(obj, scene, drops: int, piles: int) -> tuple[float, float, float, float, float]:
+def time_piles(obj, scene, collision, drops: int, piles: int) -> tuple[float, float, float, float, float]:
     """(CPU s per pile, steps per pile, CPU ms per step, re-drops per pile, contacts' share of a step
-    in the last pile) of MuJoCo piles, nothing rendered."""
-    scene = scene.for_part(obj.diameter)
+    in the last pile) of MuJoCo piles of ``collision`` in ``scene`` (sized to the part), nothing rendered."""
     rig = make_rig(obj, drops, piles, scene)
-    collision = build_collision_model(obj.mesh, scene)
     seconds = steps = redrops = 0.0
     with make_simulator(rig, collision, scene) as sim:
         for pile in range(piles):
@@ -91,10 +89,9 @@ def time_piles(obj, scene, drops: int, piles: int) -> tuple[float, float, float,
     return seconds / piles, steps / piles, 1e3 * seconds / max(steps, 1), redrops / piles, share
 
 
-def pieces(obj, base, cap: int) -> list[np.ndarray]:
-    """The convex pieces of ``obj``'s collision shape in scene ``base`` with ``max_convex_pieces=cap``."""
-    col = build_collision_model(obj.mesh, dataclasses.replace(base, max_convex_pieces=cap).for_part(obj.diameter))
-    return convex_parts(col.obj_file) if col.obj_file is not None else [col.vertices]
+def pieces(collision) -> list[np.ndarray]:
+    """The convex pieces of a collision model (its decomposition's, or the hull's vertices)."""
+    return convex_parts(collision.obj_file) if collision.obj_file is not None else [collision.vertices]
 
 
 def main() -> None:
@@ -118,12 +115,13 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for name in args.objects.split(","):
         obj = resolve_object(name)
-        full = pieces(obj, base, 0)
+        scenes = {cap: dataclasses.replace(base, max_convex_pieces=cap).for_part(obj.diameter) for cap in {0, *caps}}
+        models = {cap: build_collision_model(obj.mesh, scene) for cap, scene in scenes.items()}
+        full = pieces(models[0])
         for cap in caps:
-            scene = dataclasses.replace(base, max_convex_pieces=cap)
-            parts = pieces(obj, base, cap)
+            parts = pieces(models[cap])
             added = added_volume(full, parts, args.samples)
-            s, steps, ms, redrops, share = time_piles(obj, scene, args.drops, args.piles)
+            s, steps, ms, redrops, share = time_piles(obj, scenes[cap], models[cap], args.drops, args.piles)
             print(f"| {name} | {cap or 'none'} | {len(parts)} | {100 * added:.1f} % | {s:.1f} | {steps:.0f} | {ms:.2f} | "
                   f"{100 * share:.0f} % | {redrops:.1f} |", flush=True)
 
