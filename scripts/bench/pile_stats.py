@@ -5,14 +5,17 @@ same piles?
 
 Per dataset: scenes, parts per scene, the visibility histogram of every part of every scene, and
 for the full piles (the last scene of every cycle): the pile height (highest part origin above
-the bin floor, and the mean), the share of parts lying flat (the model's thinnest bounding-box
-axis within 20 degrees of the bin's vertical) and the share fully hidden. Poses are taken to the
+the bin floor, and the mean) beside the height of the bin's walls (a generated dataset's rig),
+the share of parts lying flat (the model's thinnest bounding-box axis within 20 degrees of the
+bin's vertical) and the share fully hidden. Poses are taken to the
 bin frame with the ground truth's bin pose, so camera differences between datasets do not enter.
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
 from pathlib import Path
 
 from opnet.studies.scenes import VIS_LABELS, pile_stats
@@ -21,12 +24,13 @@ from opnet.studies.scenes import VIS_LABELS, pile_stats
 def table(rows: list[tuple[str, dict]]) -> str:
     """The datasets' statistics side by side, a row each."""
     head = ("| dataset | scenes | parts / scene | full piles | " + " | ".join(f"vis {v}" for v in VIS_LABELS)
-            + " | pile top mm (sd) | mean part height mm | lying flat | fully hidden (full piles) |")
+            + " | pile top mm (sd) | walls mm | mean part height mm | lying flat | fully hidden (full piles) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for name, s in rows:
         hist = " | ".join(f"{100 * h:.1f} %" for h in s["vis_hist"])
         lines.append(f"| {name} | {s['scenes']} | {s['parts_per_scene']:.1f} | {s['full_piles']} | {hist} | "
-                     f"{s['height_max_mm']:.0f} ({s['height_max_sd_mm']:.0f}) | {s['height_mean_mm']:.0f} | "
+                     f"{s['height_max_mm']:.0f} ({s['height_max_sd_mm']:.0f}) | {s['walls_mm']:.0f} | "
+                     f"{s['height_mean_mm']:.0f} | "
                      f"{100 * s['flat']:.1f} % | {100 * s['hidden']:.1f} % |")
     return "\n".join(lines)
 
@@ -34,13 +38,16 @@ def table(rows: list[tuple[str, dict]]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("datasets", nargs="+", type=Path)
-    ap.add_argument("--out", type=Path, default=None, help="also write the table (markdown) here")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="also write the table (markdown) here, under --title and the command that made it")
+    ap.add_argument("--title", default="Pile statistics", help="the written page's heading")
     args = ap.parse_args()
     text = table([(d.name, pile_stats(d)) for d in args.datasets])
     print(text)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
+        command = " ".join(["python scripts/bench/pile_stats.py", *(shlex.quote(a) for a in sys.argv[1:])])
+        args.out.write_text(f"# {args.title}\n\n    {command}\n\n{text}\n")
 
 
 if __name__ == "__main__":

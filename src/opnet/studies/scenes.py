@@ -147,7 +147,23 @@ def pile_stats(root: Path) -> dict[str, float | list[float]]:
         "height_max_mm": 1e3 * float(np.mean(heights)), "height_max_sd_mm": 1e3 * float(np.std(heights)),
         "height_mean_mm": 1e3 * float(np.mean(mean_heights)),
         "flat": float(np.mean(flat)), "hidden": float(np.mean(hidden)),
+        "walls_mm": 1e3 * walls_height(root, obj),
     }
+
+
+def walls_height(root: Path, obj: object) -> float:
+    """The height of the bin's walls of a dataset made by :mod:`opnet.synthesis` (its rig rebuilt from the
+    scene its ``generation.json`` records), metres; NaN for another dataset."""
+    from opnet.synthesis import SceneConfig
+    from opnet.synthesis.layout import make_rig
+    from opnet.synthesis.writer import read_generation
+
+    try:
+        record = read_generation(root)
+    except FileNotFoundError:
+        return float("nan")
+    rig = make_rig(obj, int(record["drops"]), 1, SceneConfig.from_dict(record["scene"]))
+    return float(rig.bin.wall_height)
 
 
 __all__ = ["FLAT_DEG", "VIS_EDGES", "VIS_LABELS", "depth_image", "noisy_setup", "pile_stats", "scene_overrides",
