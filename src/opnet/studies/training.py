@@ -99,13 +99,32 @@ def validation_schedule(steps: int, validations: int) -> list[str]:
 
 def train(overrides: list[str], run_dir: Path, steps: int, test_every: int = 1, validations: int | None = None) -> None:
     """train.py for ``steps`` optimizer steps (the last rounded down to a validation with ``validations``),
-    its console in ``<run_dir>/bench_stdout.log``."""
+    its console in ``<run_dir>/bench_stdout.log``. A run that :func:`finished` with these overrides is not
+    trained again (a benchmark run again scores it again: another test set, the decoding tuned)."""
     schedule = []
     if validations:
         schedule = validation_schedule(steps, validations)
         steps = steps - steps % max(1, steps // validations)
-    run_train([*overrides, f"trainer.max_steps={steps}", "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
-               *schedule, f"callbacks.learning_curve.test_every={test_every}"], run_dir, run_dir / "bench_stdout.log")
+    full = [*overrides, f"trainer.max_steps={steps}", "trainer.max_epochs=100000", "trainer.enable_progress_bar=false",
+            *schedule, f"callbacks.learning_curve.test_every={test_every}"]
+    if finished(run_dir, full, steps):
+        print(f"{run_dir}: trained and tested with these overrides already, not trained again", flush=True)
+        return
+    run_train(full, run_dir, run_dir / "bench_stdout.log")
+
+
+def finished(run_dir: Path, overrides: list[str], steps: int) -> bool:
+    """Whether ``run_dir`` holds a run of train.py with exactly ``overrides`` (Hydra's record) that reached
+    step ``steps`` (its learning curve) and was tested (``test/summary.json``)."""
+    import yaml
+
+    record = run_dir / ".hydra" / "overrides.yaml"
+    curve = run_dir / "learning_curve.csv"
+    if read_summary(run_dir) is None or not record.is_file() or not curve.is_file():
+        return False
+    recorded = [o for o in yaml.safe_load(record.read_text()) or [] if not o.startswith("hydra.run.dir=")]
+    rows = list(csv.DictReader(curve.open()))
+    return recorded == list(overrides) and bool(rows) and int(rows[-1]["step"]) >= steps
 
 
 def summarize(obj: str, config: str, run_dir: Path, steps: int, target: object = "") -> tuple[dict[str, Any], list[dict[str, Any]]]:
