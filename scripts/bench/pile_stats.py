@@ -7,8 +7,8 @@ Per dataset: scenes, parts per scene, the visibility histogram of every part of 
 for the full piles (the last scene of every cycle): the pile height (highest part origin above
 the bin floor, and the mean) beside the height of the bin's walls and the fill (the parts' convex
 hulls over the volume inside the walls; a generated dataset's rig), the share of parts lying flat
-(the model's thinnest bounding-box axis within 20 degrees of the bin's vertical) and the share
-fully hidden. Poses are taken to the bin frame with the ground truth's bin pose, so camera
+(the model's thinnest bounding-box axis within 20 degrees of the bin's vertical), the share
+fully hidden and the share clipped (crossing the near clip plane: the part's top is cut off). Poses are taken to the bin frame with the ground truth's bin pose, so camera
 differences between datasets do not enter.
 """
 
@@ -25,14 +25,14 @@ from opnet.studies.scenes import VIS_LABELS, pile_stats
 def table(rows: list[tuple[str, dict]]) -> str:
     """The datasets' statistics side by side, a row each."""
     head = ("| dataset | scenes | parts / scene | full piles | " + " | ".join(f"vis {v}" for v in VIS_LABELS)
-            + " | pile top mm (sd) | walls mm | fill | mean part height mm | lying flat | fully hidden (full piles) |")
+            + " | pile top mm (sd) | walls mm | fill | mean part height mm | lying flat | fully hidden (full piles) | clipped |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for name, s in rows:
         hist = " | ".join(f"{100 * h:.1f} %" for h in s["vis_hist"])
         lines.append(f"| {name} | {s['scenes']} | {s['parts_per_scene']:.1f} | {s['full_piles']} | {hist} | "
                      f"{s['height_max_mm']:.0f} ({s['height_max_sd_mm']:.0f}) | {s['walls_mm']:.0f} | {s['fill']:.2f} | "
                      f"{s['height_mean_mm']:.0f} | "
-                     f"{100 * s['flat']:.1f} % | {100 * s['hidden']:.1f} % |")
+                     f"{100 * s['flat']:.1f} % | {100 * s['hidden']:.1f} % | {100 * s['clipped']:.1f} % |")
     return "\n".join(lines)
 
 

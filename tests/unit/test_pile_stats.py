@@ -1,8 +1,10 @@
 """Pile statistics of a generated dataset (scripts/bench/pile_stats.py): the bin's walls and how full the
-drops make it, from the rig the dataset's generation.json records, computed here from the part's mesh."""
+drops make it, from the rig the dataset's generation.json records, computed here from the part's mesh, and
+the parts the near clip plane cuts."""
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from pathlib import Path
@@ -24,7 +26,13 @@ def test_pile_stats_gives_the_walls_and_the_fill_of_the_recorded_bin(tiny_datase
     assert stats["fill"] == pytest.approx(4 * mesh.convex_hull.volume / (side * side * wall))
     assert stats["height_max_mm"] > 0 and stats["full_piles"] == 4
 
+    assert stats["clipped"] == 0.0  # the near clip plane above every pile
+
     other = tmp_path / "copy"  # a dataset opnet did not generate: no bin to report
     shutil.copytree(tiny_dataset, other)
     (other / "generation.json").unlink()
-    assert math.isnan(pile_stats(other)["fill"]) and math.isnan(pile_stats(other)["walls_mm"])
+    params = json.loads((other / "parameter.json").read_text())
+    params["clip_start"] = 0.999 * params["clip_end"]  # the near plane by the far one, below the floor: all cut
+    (other / "parameter.json").write_text(json.dumps(params))
+    stats = pile_stats(other)
+    assert math.isnan(stats["fill"]) and math.isnan(stats["walls_mm"]) and stats["clipped"] == 1.0

@@ -114,17 +114,20 @@ def pile_stats(root: Path) -> dict[str, float | list[float]]:
     part of every scene (bins :data:`VIS_LABELS`), and over the full piles (the last scene of every
     cycle), in the bin's frame: the pile height (highest part origin above the floor, and the mean),
     the share of parts lying flat (the thinnest bounding-box axis within :data:`FLAT_DEG` of the
-    vertical) and the share fully hidden."""
+    vertical), the share fully hidden and the share crossing the near clip plane (``clipped``: some
+    of the part nearer the camera than ``clip_start`` of ``parameter.json``, its top cut off)."""
     from opnet.datasets.ipa import IPADataset, read_ipa_csv, scene_paths
     from opnet.objects import object_from_config
     from opnet.synthesis.layout import homogeneous, inverse_pose
 
     ds = IPADataset(root)
     obj = object_from_config(json.loads((root / "object.json").read_text()))
+    clip_start = float(json.loads((root / "parameter.json").read_text())["clip_start"])
+    vertices = np.asarray(obj.mesh.convex_hull.vertices)
     thin_axis = np.eye(3)[int(np.argmin(obj.mesh.extents))]
     scenes = ds.scenes()
     last = max(n for _, n in scenes)
-    vis_all, counts, heights, mean_heights, flat, hidden = [], [], [], [], [], []
+    vis_all, counts, heights, mean_heights, flat, hidden, clipped = [], [], [], [], [], [], []
     for cycle, n in scenes:
         gt = read_ipa_csv(scene_paths(root, cycle, n)["csv"])
         vis_all.append(gt.visibility_o)
@@ -139,6 +142,8 @@ def pile_stats(root: Path) -> dict[str, float | list[float]]:
         up = np.abs((R_bin_obj @ thin_axis)[:, 2])
         flat.append(np.mean(up >= np.cos(np.radians(FLAT_DEG))))
         hidden.append(np.mean(gt.visibility_o == 0))
+        nearest = np.einsum("nij,vj->nvi", gt.R_cam_obj, vertices)[..., 2].min(axis=1) + gt.t_cam_obj[:, 2]
+        clipped.append(np.mean(nearest < clip_start))
     vis = np.concatenate(vis_all)
     hist, _ = np.histogram(vis, bins=VIS_EDGES)
     return {
@@ -146,7 +151,7 @@ def pile_stats(root: Path) -> dict[str, float | list[float]]:
         "vis_hist": (hist / max(len(vis), 1)).tolist(),
         "height_max_mm": 1e3 * float(np.mean(heights)), "height_max_sd_mm": 1e3 * float(np.std(heights)),
         "height_mean_mm": 1e3 * float(np.mean(mean_heights)),
-        "flat": float(np.mean(flat)), "hidden": float(np.mean(hidden)),
+        "flat": float(np.mean(flat)), "hidden": float(np.mean(hidden)), "clipped": float(np.mean(clipped)),
         **bin_fill(root, obj),
     }
 
