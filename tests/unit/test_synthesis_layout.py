@@ -13,6 +13,7 @@ from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.cycle import cycle_rngs
 from opnet.synthesis.layout import (
     BinGeometry,
+    bin_fill,
     inverse_pose,
     make_rig,
     random_rotation,
@@ -55,6 +56,24 @@ def test_automatic_bin_grows_with_the_number_of_parts() -> None:
     assert small.inner == pytest.approx(2 * obj.diameter)  # room for one part to turn
     assert large.inner > small.inner and large.inner ** 2 >= 60 * 0.04 * 0.02 / 1.5
     assert make_rig(obj, 2, 1, SceneConfig(bin_inner=0.5, bin_wall_height=0.1)).bin == BinGeometry(0.5, 0.1, 0.01)
+
+
+def test_bin_max_fill_raises_the_walls_of_a_bin_the_drops_would_overfill() -> None:
+    """75 compact parts in 4 layers overfill walls of 1.5 D (their piles stand above the walls); with
+    ``bin_max_fill`` the walls rise until the parts' convex hulls fill that share, and no further."""
+    obj = builtin_object("zbracket")
+    bulk = {"bin_layers": 4.0, "bin_wall_factor": 1.5}
+    plain = make_rig(obj, 75, 1, SceneConfig(**bulk)).bin
+    hull = obj.mesh.convex_hull.volume
+    assert bin_fill(obj, 75, plain) == pytest.approx(75 * hull / (plain.inner ** 2 * plain.wall_height))
+    assert bin_fill(obj, 75, plain) > 0.3
+    raised = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.3)).bin
+    assert raised.inner == plain.inner and raised.wall_height > plain.wall_height
+    assert bin_fill(obj, 75, raised) == pytest.approx(0.3)
+    # already below the share: the walls as they were; a wall height given: that height
+    assert make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.99)).bin == plain
+    given = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.3, bin_wall_height=0.05)).bin
+    assert given.wall_height == 0.05
 
 
 def test_bin_boxes_bound_the_inner_volume() -> None:
@@ -127,6 +146,8 @@ def test_random_rotations_are_uniform_enough() -> None:
     [({"resolution": 4}, "resolution"), ({"collision": "mesh"}, "collision"), ({"fov_deg": 0}, "fov_deg"),
      ({"clip_start": 2.0, "clip_end": 1.0}, "clip_end"), ({"settle_checks": 0}, "settle_checks"),
      ({"bin_inner": -1.0}, "bin_inner"), ({"height": 511}, "height"),
+     ({"bin_max_fill": 0.0}, "^scene config: bin_max_fill=0.0, expected null or a fraction"),
+     ({"bin_max_fill": 1.5}, "bin_max_fill"),
      # bounds before anything is made: a micrometre perforation hung the generator, a 1000 km clearance passed,
      # a 100 m bin side was refused naming the written parameter.json instead of the key
      ({"bin_hole_size": 5e-7, "bin_hole_pitch": 1e-6}, "^scene config: bin_hole_size=5e-07, expected 0 .solid. or at least"),

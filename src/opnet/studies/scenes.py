@@ -152,17 +152,17 @@ def pile_stats(root: Path) -> dict[str, float | list[float]]:
         "height_max_mm": 1e3 * float(np.mean(heights)), "height_max_sd_mm": 1e3 * float(np.std(heights)),
         "height_mean_mm": 1e3 * float(np.mean(mean_heights)),
         "flat": float(np.mean(flat)), "hidden": float(np.mean(hidden)), "clipped": float(np.mean(clipped)),
-        **bin_fill(root, obj),
+        **recorded_bin(root, obj),
     }
 
 
-def bin_fill(root: Path, obj: object) -> dict[str, float]:
+def recorded_bin(root: Path, obj: object) -> dict[str, float]:
     """The bin of a dataset made by :mod:`opnet.synthesis` (its rig rebuilt from the scene its
     ``generation.json`` records): ``walls_mm``, the height of its walls, and ``fill``, the convex hulls of
     its drops over the volume inside the walls (floor area x wall height; above about 0.5 the piles stand
     above the walls). NaN for another dataset."""
     from opnet.synthesis import SceneConfig
-    from opnet.synthesis.layout import make_rig
+    from opnet.synthesis.layout import bin_fill, make_rig
     from opnet.synthesis.writer import read_generation
 
     try:
@@ -171,8 +171,7 @@ def bin_fill(root: Path, obj: object) -> dict[str, float]:
         return {"walls_mm": float("nan"), "fill": float("nan")}
     drops = int(record["drops"])
     rig = make_rig(obj, drops, 1, SceneConfig.from_dict(record["scene"]))
-    inside = float(np.prod(rig.bin.sides)) * rig.bin.wall_height
-    return {"walls_mm": 1e3 * rig.bin.wall_height, "fill": drops * float(obj.mesh.convex_hull.volume) / inside}
+    return {"walls_mm": 1e3 * rig.bin.wall_height, "fill": bin_fill(obj, drops, rig.bin)}
 
 
 __all__ = ["FLAT_DEG", "VIS_EDGES", "VIS_LABELS", "depth_image", "noisy_setup", "pile_stats", "scene_overrides",

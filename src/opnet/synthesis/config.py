@@ -24,7 +24,8 @@ PHYSICS_ENGINES = ("mujoco", "pybullet")
 _LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
                  "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
                  "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale",
-                 "small_part_d", "sized_for_d", "rig_d", "max_convex_pieces", "convex_merge_budget")
+                 "small_part_d", "sized_for_d", "rig_d", "max_convex_pieces", "convex_merge_budget",
+                 "bin_max_fill")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
@@ -87,8 +88,12 @@ class SceneConfig:
             ``drops``.
         bin_inner_y: inner side along the bin's y, metres; None = ``bin_inner`` (a square floor).
         bin_layers: the automatic floor holds ``drops`` parts lying flat in about this many layers.
-        bin_wall_height: inner wall height, metres; None = ``bin_wall_factor`` x object diameter.
+        bin_wall_height: inner wall height, metres; None = ``bin_wall_factor`` x object diameter,
+            raised by ``bin_max_fill``.
         bin_wall_factor: see ``bin_wall_height``.
+        bin_max_fill: None, or automatic walls raised until the ``drops`` parts' convex hulls fill at
+            most this share of the volume inside them (a compact part piles higher than a flat one;
+            piles top out at about twice the fill in wall heights); None = ``bin_wall_factor`` only.
         bin_wall_thickness: metres, walls and floor.
         bin_hole_size, bin_hole_pitch: a perforated sheet or wire basket: square holes of
             ``bin_hole_size`` metres every ``bin_hole_pitch`` metres through the floor and the
@@ -206,6 +211,7 @@ class SceneConfig:
     bin_layers: float = 1.5
     bin_wall_height: float | None = None
     bin_wall_factor: float = 0.6
+    bin_max_fill: float | None = None
     bin_wall_thickness: float = 0.01
     collision: str = "auto"
     convexity_threshold: float = 0.85
@@ -294,6 +300,9 @@ class SceneConfig:
         need(isinstance(self.convex_merge_budget, (int, float)) and not isinstance(self.convex_merge_budget, bool)
              and 0 <= self.convex_merge_budget <= 1, "convex_merge_budget",
              "a fraction in [0, 1] of the part's volume that merging pieces may add")
+        need(self.bin_max_fill is None or (isinstance(self.bin_max_fill, (int, float))
+                                            and not isinstance(self.bin_max_fill, bool) and 0 < self.bin_max_fill <= 1),
+             "bin_max_fill", "null or a fraction in (0, 1] of the volume inside the walls")
         need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
         need(isinstance(self.camera_file_clip, bool), "camera_file_clip", "true or false")
         need(0 < self.camera_scale <= 4, "camera_scale", "a number in (0, 4] (x the pixels of scene.camera_file)")

@@ -10,7 +10,8 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
 - bin floor side ``L = max(2 D, sqrt(drops * a / layers))``, ``D`` the object diameter and ``a``
   the product of its two largest extents (the area of the part lying flat): ``drops`` parts lie in
   about ``bin_layers`` layers, and the longest part fits with room to turn;
-- wall height ``bin_wall_factor * D``;
+- wall height ``bin_wall_factor * D``, or with ``bin_max_fill`` at least the height at which the
+  drops' convex hulls fill that share of the volume inside the walls (:func:`bin_fill`);
 - camera height: the smallest at which the outer rim of the walls, grown by ``view_margin``, fits
   into the smaller image side (with a working area, ``bin_area``: the bin in any yaw anywhere in it);
 - a camera from a file (``camera_file``: its intrinsics and image size, any principal point; at
@@ -305,7 +306,21 @@ def bin_geometry(obj: ObjectModel, drops: int, cfg: SceneConfig) -> BinGeometry:
     D = obj.diameter
     inner = cfg.bin_inner or max(2.0 * D, math.sqrt(drops * extent[1] * extent[2] / cfg.bin_layers))
     wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
+    if cfg.bin_wall_height is None and cfg.bin_max_fill is not None:
+        floor = inner * (cfg.bin_inner_y or inner)
+        wall = max(wall, drops * hull_volume(obj) / (floor * cfg.bin_max_fill))
     return BinGeometry(inner, wall, cfg.bin_wall_thickness, cfg.bin_inner_y, cfg.bin_hole_size, cfg.bin_hole_pitch)
+
+
+def hull_volume(obj: ObjectModel) -> float:
+    """Volume of the part's convex hull, cubic metres (defined for a mesh that is not watertight)."""
+    return float(obj.mesh.convex_hull.volume)
+
+
+def bin_fill(obj: ObjectModel, drops: int, bin_geom: BinGeometry) -> float:
+    """How full ``drops`` parts make the bin: their convex hulls over the volume inside the walls
+    (floor area x wall height). Piles top out at about twice this in wall heights."""
+    return drops * hull_volume(obj) / (float(np.prod(bin_geom.sides)) * bin_geom.wall_height)
 
 
 def check_camera_range(rig: Rig, cfg: SceneConfig) -> None:
