@@ -26,6 +26,7 @@ import csv
 import json
 import os
 import re
+import shlex
 import subprocess
 import sys
 import time
@@ -203,6 +204,14 @@ def write_readme(out: Path, rows: list[dict[str, Any]], title: str = "Dense-pile
     (out / "README.md").write_text("\n".join(lines) + "\n")
 
 
+def repo_relative(arg: str) -> str:
+    """A command-line argument as the table records it: a path inside the repository relative to its root."""
+    path = Path(arg)
+    if path.is_absolute() and path.resolve().is_relative_to(REPO_ROOT.resolve()):
+        return str(path.resolve().relative_to(REPO_ROOT.resolve()))
+    return arg
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--objects", nargs="+", default=["bunny", "ring_screw"])
@@ -244,7 +253,8 @@ def main(argv: list[str] | None = None) -> int:
         write_readme(args.out, merge_csv(args.out / "dense.csv", ROW_FIELDS, rows, ("object", "config")), args.title)
         print((args.out / "README.md").read_text())
         return 0
-    command = "python scripts/bench/bench_dense.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = shlex.join(["python", "scripts/bench/bench_dense.py",
+                          *map(repo_relative, argv if argv is not None else sys.argv[1:])])
     rows = []
     for obj in args.objects:
         train_root = args.data_dir / f"{obj}_train_c{args.gen_cycles}_v{args.views}_d{args.drops}_s0"

@@ -281,7 +281,9 @@ def block_new_parts(results: Path, prefix: str = "") -> str:
     rows = [[r["object"], r["symmetry"], f"{float(r['d_mm']):.0f}",
              f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f}",
              f"**{float(r['ap']):.3f}**" + (f" ({float(r['ap_tuned']):.3f})" if r["ap_tuned"] else ""),
-             f"{float(r['ap_pybullet']):.3f}" if r["ap_pybullet"] else "–", r["reason"]]
+             f"{float(r['ap_pybullet']):.3f}" if r["ap_pybullet"]
+             else (r.get("pybullet_note") or "–").split(":")[0],  # why none: not made, not run
+             r["reason"]]
             for r in _csv(results / "new_parts" / "new_parts.csv")]
     return _table(["part", "symmetry (opnet-object)", "D mm", "generation + training min",
                    "**held-out AP** (decoding tuned on validation)", "other engine's piles (AP)",

@@ -140,3 +140,10 @@ def test_bench_dense_goes_on_without_the_other_engines_piles_it_could_not_make(t
     assert made == ["pin_train_c96_v8_d75_s0", "pin_test_p12_d75_s1"] and scored == []
     (row,) = csv.DictReader((out / "dense.csv").open())
     assert row["ap"] == "0.5" and row["extra_tests"].startswith("pybullet not made: parts kept leaving the bin")
+
+
+def test_bench_dense_records_its_command_with_repository_paths_relative() -> None:
+    bench_dense = _script("bench/bench_dense.py")
+    assert bench_dense.repo_relative(str(REPO_ROOT / "results" / "new_parts" / "bench")) == "results/new_parts/bench"
+    assert bench_dense.repo_relative("/elsewhere/data") == "/elsewhere/data"
+    assert bench_dense.repo_relative("--steps") == "--steps" and bench_dense.repo_relative("10696") == "10696"
