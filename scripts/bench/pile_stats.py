@@ -8,8 +8,9 @@ for the full piles (the last scene of every cycle): the pile height (highest par
 the bin floor, and the mean) beside the height of the bin's walls and the fill (the parts' convex
 hulls over the volume inside the walls; a generated dataset's rig), the share of parts lying flat
 (the model's thinnest bounding-box axis within 20 degrees of the bin's vertical), the share
-fully hidden and the share clipped (crossing the near clip plane: the part's top is cut off). Poses are taken to the bin frame with the ground truth's bin pose, so camera
-differences between datasets do not enter.
+fully hidden and the share clipped (crossing the near clip plane: the part's top is cut off).
+Poses are taken to the bin frame with the ground truth's bin pose, so camera differences between
+datasets do not enter.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def main() -> None:
     print(text)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        command = " ".join(["python scripts/bench/pile_stats.py", *(shlex.quote(a) for a in sys.argv[1:])])
+        command = shlex.join(["python", "scripts/bench/pile_stats.py", *sys.argv[1:]])
         args.out.write_text(f"# {args.title}\n\n    {command}\n\n{text}\n")
 
 

@@ -95,10 +95,9 @@ def write_root_files(
     """Write (or check and rewrite) the dataset's root files before any scene.
 
     ``complete``: every cycle exists and none is to be made. Then the settings that only say how
-    new cycles would be simulated (``scene.physics``, ``scene.coacd_threshold``, ``scene.max_convex_pieces``,
-    ``scene.convex_merge_budget``: a dataset made with pybullet before MuJoCo became the default) may
-    differ; the dataset's own
-    ``generation.json`` is kept.
+    new cycles would be simulated (:data:`_ENGINE_KEYS`: the engine, e.g. a dataset made with
+    pybullet before MuJoCo became the default, and its convex decomposition) may differ; the
+    dataset's own ``generation.json`` is kept.
 
     Raises:
         ValueError: ``root`` already holds a dataset made with another object, seed, number of
