@@ -18,6 +18,7 @@ from opnet.cli.generate import run
 from opnet.objects import builtin_object
 from opnet.paths import config_dir
 from opnet.synthesis import SceneConfig, generate_dataset
+from opnet.synthesis.layout import bin_fill, make_rig
 
 # 512 px: writing a cycle takes long enough (~0.1 s of PNG encoding) to be cut in the middle
 ARGS = {"cycles": 4, "drops": 4, "seed": 11, "previews": 2, "progress": False}
@@ -27,6 +28,7 @@ _CHILD = """
 import sys
 from opnet.objects import builtin_object
 from opnet.synthesis import SceneConfig, generate_dataset
+from opnet.synthesis.layout import bin_fill, make_rig
 generate_dataset(builtin_object("zbracket"), sys.argv[1], workers=2, scene=SceneConfig(**{scene}), **{args})
 """
 
@@ -109,23 +111,44 @@ def test_a_mesh_without_faces_is_refused_naming_the_file(tmp_path: Path) -> None
     assert not (tmp_path / "ds").exists()
 
 
+def _tiny(root: Path, cycles: int, **scene: object):
+    """Generate (or complete) a dataset of ``cycles`` one-pin cycles at 32 pixels with ``scene`` keys."""
+    return generate_dataset(builtin_object("pin"), root, cycles=cycles, drops=1, workers=1, progress=False, previews=0,
+                            scene=SceneConfig(resolution=32, collision="convex_hull", **scene))
+
+
 def test_a_complete_pybullet_dataset_is_used_by_the_mujoco_default_but_not_completed_by_it(tmp_path: Path) -> None:
     # a dataset made before MuJoCo became the default: generation.json without scene.physics
-    obj = builtin_object("pin")
-    scene = SceneConfig(resolution=32, collision="convex_hull")
     root = tmp_path / "ds"
-    generate_dataset(obj, root, cycles=2, drops=1, workers=1, progress=False, previews=0, scene=scene)
+    _tiny(root, 2)
     gen_file = root / "generation.json"
     made = json.loads(gen_file.read_text())
     made["scene"].pop("physics")  # as pybullet-era datasets wrote it
     gen_file.write_text(json.dumps(made))
     # complete: used as it is, with the default engine's settings, and its generation.json kept
-    report = generate_dataset(obj, root, cycles=2, drops=1, workers=1, progress=False, previews=0, scene=scene)
+    report = _tiny(root, 2)
     assert report.cycles_skipped == 2 and json.loads(gen_file.read_text()) == made
     # a cycle to make: refused, naming the key and the engine it was made with
     with pytest.raises(ValueError, match=r"\['scene.physics'\] differ; to complete it, generate with scene.physics=pybullet"):
-        generate_dataset(obj, root, cycles=3, drops=1, workers=1, progress=False, previews=0, scene=scene)
+        _tiny(root, 3)
     # other settings still count on a complete dataset
     with pytest.raises(ValueError, match=r"\['scene.friction', 'scene.physics'\] differ"):
-        generate_dataset(obj, root, cycles=2, drops=1, workers=1, progress=False, previews=0,
-                         scene=SceneConfig(resolution=32, collision="convex_hull", friction=0.3))
+        _tiny(root, 2, friction=0.3)
+
+
+def test_a_fill_cap_that_leaves_the_bin_keeps_the_dataset_and_one_that_widens_it_is_refused(tmp_path: Path) -> None:
+    # a dataset made before a recipe set scene.bin_max_fill: where the cap leaves this part's bin as
+    # it was, the piles are the same and the dataset is used and completed as it was made
+    root = tmp_path / "ds"
+    _tiny(root, 1)
+    gen_file = root / "generation.json"
+    made = json.loads(gen_file.read_text())
+    assert "bin_max_fill" not in made["scene"]
+    obj = builtin_object("pin")
+    fill = bin_fill(obj, 1, make_rig(obj, 1, 1, SceneConfig(resolution=32, collision="convex_hull")).bin)
+    report = _tiny(root, 2, bin_max_fill=min(1.0, 2 * fill))
+    assert report.cycles_skipped == 1 and report.cycles_generated == 1
+    assert json.loads(gen_file.read_text()) == made
+    # a cap below the part's fill widens the floor: other piles, refused naming the key
+    with pytest.raises(ValueError, match=r"generation.json: .*\['scene.bin_max_fill'\] differ"):
+        _tiny(root, 2, bin_max_fill=fill / 2)

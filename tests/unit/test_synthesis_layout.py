@@ -58,22 +58,30 @@ def test_automatic_bin_grows_with_the_number_of_parts() -> None:
     assert make_rig(obj, 2, 1, SceneConfig(bin_inner=0.5, bin_wall_height=0.1)).bin == BinGeometry(0.5, 0.1, 0.01)
 
 
-def test_bin_max_fill_raises_the_walls_of_a_bin_the_drops_would_overfill() -> None:
+def test_bin_max_fill_widens_the_floor_of_a_bin_the_drops_would_overfill() -> None:
     """75 compact parts in 4 layers overfill walls of 1.5 D (their piles stand above the walls); with
-    ``bin_max_fill`` the walls rise until the parts' convex hulls fill that share, and no further."""
+    ``bin_max_fill`` the automatic floor widens until the parts' convex hulls fill that share, the
+    walls (and so the pile's height) as they were; with a floor given, the walls rise instead."""
     obj = builtin_object("zbracket")
     bulk = {"bin_layers": 4.0, "bin_wall_factor": 1.5}
     plain = make_rig(obj, 75, 1, SceneConfig(**bulk)).bin
     hull = obj.mesh.convex_hull.volume
     assert bin_fill(obj, 75, plain) == pytest.approx(75 * hull / (plain.inner ** 2 * plain.wall_height))
     assert bin_fill(obj, 75, plain) > 0.3
-    raised = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.3)).bin
+    wider = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.3)).bin
+    assert wider.wall_height == plain.wall_height and wider.inner > plain.inner and wider.inner_y is None
+    assert bin_fill(obj, 75, wider) == pytest.approx(0.3)
+    # a rectangular floor keeps its given side and widens the other
+    oblong = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_inner_y=0.2, bin_max_fill=0.3)).bin
+    assert oblong.sides[1] == 0.2 and bin_fill(obj, 75, oblong) == pytest.approx(0.3)
+    # a floor given: the walls rise until the share holds
+    raised = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_inner=plain.inner, bin_max_fill=0.3)).bin
     assert raised.inner == plain.inner and raised.wall_height > plain.wall_height
     assert bin_fill(obj, 75, raised) == pytest.approx(0.3)
-    # already below the share: the walls as they were; a wall height given: that height
+    # already below the share: the bin as it was; floor and walls given: those
     assert make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.99)).bin == plain
-    given = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.3, bin_wall_height=0.05)).bin
-    assert given.wall_height == 0.05
+    given = make_rig(obj, 75, 1, SceneConfig(**bulk, bin_max_fill=0.3, bin_inner=0.2, bin_wall_height=0.05)).bin
+    assert (given.inner, given.wall_height) == (0.2, 0.05)
 
 
 def test_bin_boxes_bound_the_inner_volume() -> None:

@@ -88,12 +88,13 @@ class SceneConfig:
             ``drops``.
         bin_inner_y: inner side along the bin's y, metres; None = ``bin_inner`` (a square floor).
         bin_layers: the automatic floor holds ``drops`` parts lying flat in about this many layers.
-        bin_wall_height: inner wall height, metres; None = ``bin_wall_factor`` x object diameter,
-            raised by ``bin_max_fill``.
+        bin_wall_height: inner wall height, metres; None = ``bin_wall_factor`` x object diameter
+            (raised by ``bin_max_fill`` where ``bin_inner`` is given).
         bin_wall_factor: see ``bin_wall_height``.
-        bin_max_fill: None, or automatic walls raised until the ``drops`` parts' convex hulls fill at
-            most this share of the volume inside them (a compact part piles higher than a flat one;
-            piles top out at about twice the fill in wall heights); None = ``bin_wall_factor`` only.
+        bin_max_fill: None, or the largest share of the volume inside the walls that the ``drops``
+            parts' convex hulls may fill (a compact part piles higher than a flat one; piles top
+            out at about twice the fill in wall heights): the automatic floor widens until they
+            do, or with ``bin_inner`` given, the automatic walls rise; None = no cap.
         bin_wall_thickness: metres, walls and floor.
         bin_hole_size, bin_hole_pitch: a perforated sheet or wire basket: square holes of
             ``bin_hole_size`` metres every ``bin_hole_pitch`` metres through the floor and the

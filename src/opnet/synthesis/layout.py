@@ -10,8 +10,10 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
 - bin floor side ``L = max(2 D, sqrt(drops * a / layers))``, ``D`` the object diameter and ``a``
   the product of its two largest extents (the area of the part lying flat): ``drops`` parts lie in
   about ``bin_layers`` layers, and the longest part fits with room to turn;
-- wall height ``bin_wall_factor * D``, or with ``bin_max_fill`` at least the height at which the
-  drops' convex hulls fill that share of the volume inside the walls (:func:`bin_fill`);
+- wall height ``bin_wall_factor * D``;
+- with ``bin_max_fill``, the drops' convex hulls fill at most that share of the volume inside the
+  walls (:func:`bin_fill`): the automatic floor widens (its height, and so the pile's, stays sized
+  to the part), or where a floor is given, the automatic walls rise;
 - camera height: the smallest at which the outer rim of the walls, grown by ``view_margin``, fits
   into the smaller image side (with a working area, ``bin_area``: the bin in any yaw anywhere in it);
 - a camera from a file (``camera_file``: its intrinsics and image size, any principal point; at
@@ -213,7 +215,7 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
         raise ValueError(f"object {obj.name!r} has no mesh: the generator needs one to simulate and render")
     D = obj.diameter
     cfg = cfg.for_part(D)  # the settings sized to the part (the rig by D / rig_d, a small part's lengths)
-    bins = tuple(bin_geometry(obj, drops, model) for model in cfg.bin_model_scenes())
+    bins = totes(obj, drops, cfg)
     bin_geom, wall = bins[0], max(b.wall_height for b in bins)  # every size below: the largest bin model's
 
     given = scaled_camera_file(cfg) if cfg.camera_file else None
@@ -300,15 +302,24 @@ def scaled_camera_file(cfg: SceneConfig) -> Camera:
         raise ValueError(str(e) if str(e).startswith(source) else f"{source}: {e}") from None
 
 
+def totes(obj: ObjectModel, drops: int, cfg: SceneConfig) -> tuple[BinGeometry, ...]:
+    """The tote of each bin model of ``cfg`` sized to ``obj`` (one without ``bin_models``)."""
+    cfg = cfg.for_part(obj.diameter)
+    return tuple(bin_geometry(obj, drops, model) for model in cfg.bin_model_scenes())
+
+
 def bin_geometry(obj: ObjectModel, drops: int, cfg: SceneConfig) -> BinGeometry:
     """The tote of ``cfg``'s bin keys for ``drops`` parts of ``obj`` (sizes: see the module docstring)."""
     extent = np.sort(obj.extent)
     D = obj.diameter
     inner = cfg.bin_inner or max(2.0 * D, math.sqrt(drops * extent[1] * extent[2] / cfg.bin_layers))
     wall = cfg.bin_wall_height or cfg.bin_wall_factor * D
-    if cfg.bin_wall_height is None and cfg.bin_max_fill is not None:
-        floor = inner * (cfg.bin_inner_y or inner)
-        wall = max(wall, drops * hull_volume(obj) / (floor * cfg.bin_max_fill))
+    if cfg.bin_max_fill is not None:  # the hulls' volume over the fill: what the walls must hold
+        held = drops * hull_volume(obj) / cfg.bin_max_fill
+        if cfg.bin_inner is None:  # the automatic floor widens: the pile stays as high as the walls allow
+            inner = max(inner, held / wall / cfg.bin_inner_y if cfg.bin_inner_y else math.sqrt(held / wall))
+        elif cfg.bin_wall_height is None:  # a floor given: the automatic walls rise
+            wall = max(wall, held / (inner * (cfg.bin_inner_y or inner)))
     return BinGeometry(inner, wall, cfg.bin_wall_thickness, cfg.bin_inner_y, cfg.bin_hole_size, cfg.bin_hole_pitch)
 
 

@@ -15,6 +15,7 @@ last, and the scenes are written in order). An incomplete cycle is deleted and m
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from collections.abc import Mapping
@@ -29,6 +30,7 @@ from opnet.fileio.atomic import disk_full_named, write_text_atomic, write_text_i
 from opnet.objects.library import BUILTINS, builtin_object
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.layout import totes
 from opnet.synthesis.preview import write_preview
 from opnet.synthesis.sensor import SensorModel
 
@@ -74,6 +76,21 @@ def normalized_object_config(config: Mapping[str, Any]) -> dict[str, Any]:
 _ENGINE_KEYS = ("scene.physics", "scene.coacd_threshold", "scene.max_convex_pieces", "scene.convex_merge_budget")
 
 
+#: a setting that changes the piles only where it raises the walls (:func:`opnet.synthesis.layout.bin_geometry`)
+_FILL_CAP = "scene.bin_max_fill"
+
+
+def _fill_cap_inert(existing: Mapping[str, Any], scene: SceneConfig, obj: ObjectModel, drops: int) -> bool:
+    """Whether ``scene`` with the dataset's own ``bin_max_fill`` (none when its file lacks the key)
+    gives this part the same totes: a cap its walls already meet made the same piles."""
+    made = existing.get("scene", {}).get("bin_max_fill") if isinstance(existing.get("scene"), dict) else None
+    try:
+        before = totes(obj, drops, dataclasses.replace(scene, bin_max_fill=made))
+    except (TypeError, ValueError, ZeroDivisionError):  # a cap no scene accepts: the datasets differ
+        return False
+    return before == totes(obj, drops, scene)
+
+
 def _differing(existing: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
     """Keys whose values differ, ``scene`` down to its fields (``scene.physics``); a dataset
     without ``scene.physics`` was made with pybullet."""
@@ -115,6 +132,10 @@ def write_root_files(
             raise ValueError(f"{existing_file}: unreadable ({e}); delete the folder or choose another 'out'") from e
         expected = json.loads(_json_text(generation))
         differing = _differing(existing, expected)
+        if _FILL_CAP in differing and _fill_cap_inert(existing, scene, obj, drops):
+            differing.remove(_FILL_CAP)
+            if not differing:
+                generation = existing  # the same piles: the dataset keeps the file it was made with
         if complete and differing and all(key in _ENGINE_KEYS for key in differing):
             generation = existing  # a finished dataset is used as it was made
         elif differing:
