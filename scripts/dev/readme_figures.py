@@ -276,16 +276,25 @@ def block_dense(results: Path, prefix: str = "") -> str:
                    "found %", "other generators' piles (AP)"], rows) + "\n"
 
 
+def _fill(row: dict[str, str]) -> str:
+    """The recipe's bin fill for a part, and in brackets its training piles' where they were made with another bin."""
+    try:
+        now, made = float(row["fill"]), float(row.get("fill_made") or "nan")
+    except (KeyError, ValueError):
+        return "–"
+    return f"{now:.2f}" + (f" ({made:.2f} as made)" if abs(made - now) > 0.005 else "")
+
+
 def block_new_parts(results: Path, prefix: str = "") -> str:
     """The new-parts benchmark: held-out AP per part against its target (results/new_parts/new_parts.csv)."""
-    rows = [[r["object"], r["symmetry"], f"{float(r['d_mm']):.0f}",
+    rows = [[r["object"], r["symmetry"], f"{float(r['d_mm']):.0f}", _fill(r),
              f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f}",
              f"**{float(r['ap']):.3f}**" + (f" ({float(r['ap_tuned']):.3f})" if r["ap_tuned"] else ""),
              f"{float(r['ap_pybullet']):.3f}" if r["ap_pybullet"]
              else (r.get("pybullet_note") or "–").split(":")[0],  # why none: not made, not run
              r["reason"]]
             for r in _csv(results / "new_parts" / "new_parts.csv")]
-    return _table(["part", "symmetry (opnet-object)", "D mm", "generation + training min",
+    return _table(["part", "symmetry (opnet-object)", "D mm", "bin fill", "generation + training min",
                    "**held-out AP** (decoding tuned on validation)", "other engine's piles (AP)",
                    "target AP >= 0.6"], rows) + "\n"
 
