@@ -76,13 +76,13 @@ def normalized_object_config(config: Mapping[str, Any]) -> dict[str, Any]:
 _ENGINE_KEYS = ("scene.physics", "scene.coacd_threshold", "scene.max_convex_pieces", "scene.convex_merge_budget")
 
 
-#: a setting that changes the piles only where it raises the walls (:func:`opnet.synthesis.layout.bin_geometry`)
+#: a setting that changes the piles only where it changes the part's bin (:func:`opnet.synthesis.layout.bin_geometry`)
 _FILL_CAP = "scene.bin_max_fill"
 
 
 def _fill_cap_inert(existing: Mapping[str, Any], scene: SceneConfig, obj: ObjectModel, drops: int) -> bool:
     """Whether ``scene`` with the dataset's own ``bin_max_fill`` (none when its file lacks the key)
-    gives this part the same totes: a cap its walls already meet made the same piles."""
+    gives this part the same totes: a cap its bin already meets made the same piles."""
     made = existing.get("scene", {}).get("bin_max_fill") if isinstance(existing.get("scene"), dict) else None
     try:
         before = totes(obj, drops, dataclasses.replace(scene, bin_max_fill=made))
