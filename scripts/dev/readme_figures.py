@@ -277,12 +277,11 @@ def block_dense(results: Path, prefix: str = "") -> str:
 
 
 def _fill(row: dict[str, str]) -> str:
-    """The recipe's bin fill for a part, and in brackets its training piles' where they were made with another bin."""
-    try:
-        now, made = float(row["fill"]), float(row.get("fill_made") or "nan")
-    except (KeyError, ValueError):
+    """The recipe's bin fill for a part, and in brackets its training piles' where the CSV gives them (made
+    with another bin)."""
+    if not row.get("fill"):
         return "–"
-    return f"{now:.2f}" + (f" ({made:.2f} as made)" if abs(made - now) > 0.005 else "")
+    return f"{float(row['fill']):.2f}" + (f" ({float(row['fill_made']):.2f} as made)" if row.get("fill_made") else "")
 
 
 def block_new_parts(results: Path, prefix: str = "") -> str:

@@ -53,12 +53,12 @@ CONFIG = "recipe60"
 #: steps that 41 minutes of training gave on the 2-core machine the first part ran on (its calibration; trained to
 #: 10,680, 20 validations x 534)
 STEPS = 10696
-CYCLES, VIEWS, DROPS = 192, 8, 75
-BUDGET = ["--config", CONFIG, "--gen-cycles", str(CYCLES), "--views", str(VIEWS), "--steps", str(STEPS),
-          "--validations", "20", "--tune", "--pybullet-piles", "12"]
+BUDGET = ["--config", CONFIG, "--gen-cycles", "192", "--views", "8", "--steps", str(STEPS), "--validations", "20",
+          "--tune", "--pybullet-piles", "12"]
+DROPS = 75  # bench_dense.py's parts per pile
 TARGET = 0.6
-FIELDS = ("object", "symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_pybullet", "pybullet_note", "found", "position",
-          "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
+FIELDS = ("object", "symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_pybullet",
+          "pybullet_note", "found", "position", "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
           "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "target", "met", "reason")
 TITLE = "New parts: the dense recipe on parts nobody tuned for"
 
@@ -87,31 +87,27 @@ def check_object(part: str) -> str:
     return symmetry_text(found["symmetry"])
 
 
-def part_geometry(part: str) -> dict[str, float]:
+def part_geometry(part: str, run: str) -> dict[str, float]:
     """D, the recipe's camera height and its bin's fill for the part (its rig sized to it), from the mesh,
-    and ``fill_made``: the fill of the part's training piles as they were made (NaN where they are absent)."""
+    and ``fill_made``: the fill of the piles the benchmark's ``run`` trained on (NaN where they are absent)."""
     from opnet.cli.evaluate import resolve_object
     from opnet.studies.scenes import dense_scene, recorded_bin
     from opnet.synthesis.layout import bin_fill, make_rig
 
     obj = resolve_object(part)
     rig = make_rig(obj, DROPS, 8, dense_scene())
+    root = train_root(run)
     return {"d_mm": 1e3 * obj.diameter, "camera_m": float(rig.params.location[2]),
-            "fill": bin_fill(obj, DROPS, rig.bin), "fill_made": recorded_bin(train_root(part), obj)["fill"]}
+            "fill": bin_fill(obj, DROPS, rig.bin), "fill_made": recorded_bin(root, obj)["fill"] if root else math.nan}
 
 
-def train_root(part: str) -> Path:
-    """Where ``bench_dense.py`` generates the part's training piles at :data:`BUDGET`."""
-    return REPO_ROOT / "outputs" / "data" / "dense" / f"{part}_train_c{CYCLES}_v{VIEWS}_d{DROPS}_s0"
-
-
-def made_before_cap(row: dict[str, Any]) -> bool:
-    """Whether the part's training piles were made with another bin than the recipe now gives it (made
-    before the recipe capped the fill)."""
-    try:
-        return abs(float(row["fill_made"]) - float(row["fill"])) > 0.005
-    except (KeyError, TypeError, ValueError):
-        return False
+def train_root(run: str) -> Path | None:
+    """The training piles of a benchmark run, as its recorded Hydra overrides name them (``data.root``)."""
+    overrides = REPO_ROOT / run / ".hydra" / "overrides.yaml"
+    if not run or not overrides.is_file():
+        return None
+    roots = [o.split("=", 1)[1] for o in yaml.safe_load(overrides.read_text()) or [] if o.startswith("data.root=")]
+    return Path(roots[0]) if roots else None
 
 
 def _number(pattern: str, text: str) -> float | str:
@@ -149,11 +145,13 @@ def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dic
         row = {k: b.get(k, "") for k in FIELDS}
         old = previous.get(part, {})
         try:
-            row |= part_geometry(part)
+            row |= part_geometry(part, b.get("run", ""))
         except (FileNotFoundError, ValueError):  # the shared meshes absent: what the table had
             row |= {k: old.get(k, "") for k in ("d_mm", "camera_m", "fill", "fill_made")}
         if row["fill_made"] in ("", None) or math.isnan(float(row["fill_made"])):  # the piles not here: the table's
             row["fill_made"] = old.get("fill_made", "")
+        elif abs(float(row["fill_made"]) - float(row["fill"])) <= 0.005:  # the bin the recipe gives it now: no note
+            row["fill_made"] = ""
         conf = yaml.safe_load((REPO_ROOT / "conf" / "object" / f"{part}.yaml").read_text())
         row |= {"symmetry": symmetry_text(conf.get("symmetry") or {}),
                 "ap_tuned": _number(r"test AP ([\d.]+)", b.get("tuned", "")),
@@ -174,7 +172,7 @@ def pybullet_cell(row: dict[str, Any]) -> str:
 
 def fill_cell(row: dict[str, Any]) -> str:
     """The recipe's fill for the part, and in brackets its training piles' where those were made with another."""
-    made = f" ({fmt(row['fill_made'], 'f2')} as made)" if made_before_cap(row) else ""
+    made = f" ({fmt(row['fill_made'], 'f2')} as made)" if row.get("fill_made") not in ("", None) else ""
     return f"{fmt(row.get('fill', ''), 'f2')}{made}"
 
 

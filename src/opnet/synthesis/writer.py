@@ -86,7 +86,7 @@ def _fill_cap_inert(existing: Mapping[str, Any], scene: SceneConfig, obj: Object
     made = existing.get("scene", {}).get("bin_max_fill") if isinstance(existing.get("scene"), dict) else None
     try:
         before = totes(obj, drops, dataclasses.replace(scene, bin_max_fill=made))
-    except (TypeError, ValueError, ZeroDivisionError):  # a cap no scene accepts: the datasets differ
+    except (TypeError, ValueError):  # a cap no scene accepts: the datasets differ
         return False
     return before == totes(obj, drops, scene)
 
