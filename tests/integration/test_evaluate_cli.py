@@ -116,6 +116,26 @@ def test_bad_poseutils_and_missing_folder(tiny: Path, capsys: pytest.CaptureFixt
     assert code == 2 and "nowhere" in err and "not found" in err
 
 
+def test_diagnose_counts_the_hypotheses_the_ap_counts_and_turns_the_orientation_misses(
+        tiny: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--diagnose: where the misses went and the turns of the orientation misses, printed and in --out;
+    with --max-nb-results 1 only the best-scored hypothesis is there (here the one turned over)."""
+    over = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]  # a half turn about x
+    (tiny / "res" / "s1.json").write_text(json.dumps([{"R": over, "t": [0.0, 0.0, 0.0], "score": 0.9},
+                                                      {"R": ROT, "t": [0.0, 0.0, 0.0], "score": 0.5}]))
+    args = ["--gt", tiny / "gt", "--results", tiny / "res", "--object", "bracket", "--quiet", "--diagnose"]
+    code, out, _ = run_main(capsys, *args, "--out", tiny / "all.json")
+    summary = json.loads((tiny / "all.json").read_text())
+    assert code == 0 and summary["diagnostics"]["matched"] == 1 and summary["orientation_misses"]["count"] == 0
+    assert "Orientation misses: none" in out
+    code, out, _ = run_main(capsys, *args, "--max-nb-results", "1", "--out", tiny / "best.json")
+    summary = json.loads((tiny / "best.json").read_text())
+    assert code == 0 and summary["diagnostics"]["matched"] == 0 and summary["diagnostics"]["orientation"] == 1
+    turns = summary["orientation_misses"]
+    assert turns["histogram"] == [0, 0, 0, 0, 0, 1] and turns["modes"][0]["axis"] == pytest.approx([1, 0, 0])
+    assert "100% a 180° turn about (+1.00, +0.00, +0.00)" in out
+
+
 @pytest.mark.shared
 def test_object_from_config_with_shared_mesh(bunny_sample: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`--object bunny` builds Λ and δ from conf/object/bunny.yaml (the mesh in ../shared): close

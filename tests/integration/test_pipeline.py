@@ -205,7 +205,7 @@ def test_sweep_and_compare_runs(tiny_dataset: Path, tmp_path: Path) -> None:
 
 def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path, tmp_path: Path) -> None:
     """data.test_root scores another dataset; the learning curve records minutes, val and test AP;
-    the test summary carries the error diagnostics."""
+    the test summary carries the error diagnostics and the turns of the orientation misses."""
     other = tmp_path / "other_seed"
     small_builtin_dataset(other, "zbracket", 1, 3, 5)
     out = tmp_path / "run"
@@ -218,7 +218,10 @@ def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path
     assert rows[0] == "epoch,step,train_minutes,images,val_ap,test_ap" and len(rows) == 3
     minutes = [float(r.split(",")[2]) for r in rows[1:]]
     assert 0 < minutes[0] < minutes[1] and all(r.split(",")[5] != "" for r in rows[1:])
-    assert "Error diagnostics" in (out / "test" / "ap_table.md").read_text()
+    assert result["orientation_misses"]["count"] == result["diagnostics"]["orientation"]
+    assert sum(result["orientation_misses"]["histogram"]) == result["diagnostics"]["orientation"]
+    assert {"Error diagnostics", "Orientation misses"} <= set(re.findall(r"Error diagnostics|Orientation misses",
+                                                                         (out / "test" / "ap_table.md").read_text()))
     # eval.py on other data, as the README writes it (data.root / data.test_root without a '+')
     ckpt = out / "checkpoints" / "last.ckpt"
     ev = eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"data.test_root={other}", f"out={tmp_path / 'ev'}", "examples=0"]))

@@ -80,12 +80,18 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     rows = [{**base, "object": "tless20", "ap": 0.41, "tuned": "{'eps': 1.0}: test AP 0.452; pybullet 0.300 (found",
              "extra_tests": "pybullet 0.355 (found 40 %, 72 scenes)"},
             {**base, "object": "pepper", "ap": 0.71, "tuned": "", "extra_tests": ""},
-            {**base, "object": "itodd27", "ap": 0.31, "tuned": "",
+            {**base, "object": "itodd27", "ap": 0.31, "tuned": "", "orientation": 0.4, "run": str(tmp_path / "run27"),
              "extra_tests": "pybullet not made: parts kept leaving the bin after 10 re-drops"},
             {**base, "object": "bunny", "ap": 0.83, "tuned": "", "extra_tests": ""},  # not a new part
             {**base, "object": "itodd08", "config": "ab3k", "ap": 0.9, "tuned": "", "extra_tests": ""}]  # not the budget
+    # itodd27's run: its orientation misses mostly a half turn about the part's x (its test summary)
+    from opnet.metrics.diagnostics import OrientationMisses, TurnMode
+
+    turns = OrientationMisses(10, (1, 0, 0, 0, 1, 8), 0.8, (TurnMode(178.0, (1.0, 0.0, 0.0), 90.0, 0.7),), 20.0)
+    (tmp_path / "run27" / "test").mkdir(parents=True)
+    (tmp_path / "run27" / "test" / "summary.json").write_text(json.dumps({"orientation_misses": turns.to_dict()}))
     with (bench / "dense.csv").open("w") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=list(rows[2]))
         w.writeheader()
         w.writerows(rows)
     # the recipe's fill now and that of the training piles as made: tless20's were made before a fill cap
@@ -108,6 +114,11 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     assert "| **0.310** |  | not made |" in page and "*Other engine* for itodd27: not made: parts kept" in page
     assert "| 0.70 (0.82 as made) | **0.410** |" in page and "| 0.30 | **0.710** |" in page
     assert "| 0.68 | **0.310** |" in page  # its piles not here: no bracket
+    # below target on orientation: how the misses turn, from the run's test summary
+    assert "missed on orientation most" in table["itodd27"]["reason"]
+    assert ("of the orientation misses 80.0 % turned over (> 150°), the largest cluster: 70% a 178° turn about "
+            "(+1.00, +0.00, +0.00), 90° from the part's z") in table["itodd27"]["reason"]
+    assert float(table["itodd27"]["turned_over"]) == 0.8 and t["turned_over"] == ""  # tless20: no run here
     # the CSV keeps the training piles' fill only where their bin differs from the recipe's
     assert float(t["fill_made"]) == 0.82 and table["pepper"]["fill_made"] == table["itodd27"]["fill_made"] == ""
 

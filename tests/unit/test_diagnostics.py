@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from opnet.geometry import axis_angle_rotation, quaternion_to_matrix
-from opnet.metrics.diagnostics import diagnose, rotation_errors_deg
+from opnet.metrics.diagnostics import diagnose, orientation_misses, rotation_errors_deg
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.objects import builtin_object
 
@@ -74,3 +74,42 @@ def test_empty_scenes():
                     obj.pose_space, obj.diameter)  # fmt: skip
     assert diag.no_hypothesis == 5 and diag.false_positives == 2 and diag.confident_false_positives == 1
     assert np.isnan(diag.t_err_mm_p50)
+
+
+def _turned(obj_name: str, turns: list[tuple[int, str, float]], n: int = 40, seed: int = 3):
+    """A scene of ``n`` far-apart instances and one hypothesis each at its origin, the first ones
+    turned in the part's frame: ``(count, axis, radians)`` in order."""
+    obj = builtin_object(obj_name)
+    R = quaternion_to_matrix(torch.randn(n, 4, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)).numpy()
+    t = np.stack([np.arange(n) * 2 * obj.diameter, np.zeros(n), np.ones(n)], 1)
+    R_hat, i = R.copy(), 0
+    for count, axis, angle in turns:
+        R_hat[i:i + count] = R[i:i + count] @ axis_angle_rotation(axis, torch.tensor(angle, dtype=torch.float64)).numpy()
+        i += count
+    pair = (GroundTruthSet(R, t, np.zeros(n)), HypothesisSet(R_hat, t.copy(), np.linspace(1, 0.5, n)))
+    return obj, orientation_misses({"s": pair}, obj.pose_space, obj.diameter)
+
+
+def test_orientation_misses_find_a_face_confusion_and_tell_it_from_imprecision():
+    _, m = _turned("bracket", [(24, "X", np.pi), (8, "Y", 0.6), (1, "Z", 0.01)])  # the last one is matched
+    assert m.count == 32
+    assert m.histogram == (0, 8, 0, 0, 0, 24) and m.turned_over == pytest.approx(0.75)
+    half, tilt = m.modes[:2]
+    assert (half.share, tilt.share) == (pytest.approx(0.75), pytest.approx(0.25))
+    np.testing.assert_allclose(half.axis, [1, 0, 0], atol=1e-6)
+    assert half.angle_deg == pytest.approx(180, abs=1e-6) and half.tilt_deg == pytest.approx(90)
+    np.testing.assert_allclose(tilt.axis, [0, 1, 0], atol=1e-6)
+    assert tilt.angle_deg == pytest.approx(np.degrees(0.6))
+    assert "75% a 180° turn about (+1.00, +0.00, +0.00), 90° from the part's z" in m.table()
+
+
+def test_orientation_misses_are_turns_beyond_the_parts_symmetry():
+    # zbracket: a half turn about z is a symmetry, so it is no miss; the same plus 40° about x is one of 40°
+    _, m = _turned("zbracket", [(10, "Z", np.pi), (10, "X", np.radians(40))])
+    assert m.count == 10 and m.histogram[1] == 10 and m.modes[0].share == 1.0
+    # a revolution part: any spin is free; an axis turned end over end is a 180° turn about an axis across it
+    _, m = _turned("shaft", [(12, "Z", 2.0), (6, "X", np.pi), (3, "Y", np.radians(45))])
+    assert m.count == 9 and m.histogram == (0, 3, 0, 0, 0, 6)
+    assert m.modes[0].angle_deg == pytest.approx(180) and m.modes[0].tilt_deg == pytest.approx(90)
+    empty = orientation_misses({}, builtin_object("shaft").pose_space, 0.1)
+    assert (empty.count, empty.modes, empty.table()) == (0, (), "Orientation misses: none")

@@ -59,7 +59,8 @@ DROPS = 75  # bench_dense.py's parts per pile
 TARGET = 0.6
 FIELDS = ("object", "symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_pybullet",
           "pybullet_note", "found", "position", "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
-          "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "target", "met", "reason")
+          "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "turned_over", "turn_mode", "target", "met",
+          "reason")
 TITLE = "New parts: the dense recipe on parts nobody tuned for"
 
 
@@ -132,8 +133,27 @@ def reason(row: dict[str, Any]) -> str:
     misses = {"position": row["position"], "orientation": row["orientation"], "no hypothesis": row["no_hypothesis"]}
     worst = max(misses, key=lambda k: float(misses[k] or 0))
     shares = ", ".join(f"{k} {fmt(v, 'pct')} %" for k, v in misses.items())
-    return (f"found {fmt(row['found'], 'pct')} % of the parts to find; missed on {worst} most ({shares}); "
+    turns = ""
+    if worst == "orientation" and row.get("turned_over") not in ("", None):
+        turns = (f"; of the orientation misses {fmt(row['turned_over'], 'pct')} % turned over (> 150°), the largest "
+                 f"cluster: {row['turn_mode'] or 'none'}")
+    return (f"found {fmt(row['found'], 'pct')} % of the parts to find; missed on {worst} most ({shares}){turns}; "
             f"{fmt(row['confident_fp_per_scene'], 'f1')} confident false positives per scene")
+
+
+def orientation_turns(run: str) -> dict[str, Any]:
+    """``turned_over`` and ``turn_mode`` (the largest cluster of turns, as text) of the orientation misses on
+    the run's held-out piles (its test ``summary.json``); empty where the run or the figures are absent."""
+    from opnet.metrics.diagnostics import OrientationMisses, TurnMode
+    from opnet.studies import read_summary
+
+    summary = read_summary(REPO_ROOT / run) if run else None
+    if not summary or "orientation_misses" not in summary:
+        return {}
+    d = dict(summary["orientation_misses"])
+    misses = OrientationMisses(**(d | {"histogram": tuple(d["histogram"]),
+                                       "modes": tuple(TurnMode(**m) for m in d["modes"])}))
+    return {"turned_over": misses.turned_over, "turn_mode": misses.modes[0].text() if misses.modes else ""}
 
 
 def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
@@ -148,6 +168,7 @@ def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dic
             row |= part_geometry(part, b.get("run", ""))
         except (FileNotFoundError, ValueError):  # the shared meshes absent: what the table had
             row |= {k: old.get(k, "") for k in ("d_mm", "camera_m", "fill", "fill_made")}
+        row |= orientation_turns(b.get("run", "")) or {k: old.get(k, "") for k in ("turned_over", "turn_mode")}
         if row["fill_made"] in ("", None) or math.isnan(float(row["fill_made"])):  # the piles not here: the table's
             row["fill_made"] = old.get("fill_made", "")
         elif abs(float(row["fill_made"]) - float(row["fill"])) <= 0.005:  # the bin the recipe gives it now: no note

@@ -29,6 +29,7 @@ from opnet.geometry.icp import (
     model_refinement,
     settings_from_config,
 )
+from opnet.metrics.diagnostics import orientation_misses
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.run_settings import InputSettings
 from opnet.settings_schema import SettingError
@@ -42,7 +43,7 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
                    icp: ICPSettings | None = None) -> dict[str, Any]:  # fmt: skip
     """Predict a split, write ``gt/`` and ``results/`` (Siléane JSON), ``summary.json``, ``ap_table.md``
     (eval.py and train.py's test; one :func:`opnet.evaluation.evaluate` with the refinement, the
-    result writers, the AP and the diagnostics as its evaluators).
+    result writers, the AP, the diagnostics and the turns of the orientation misses as its evaluators).
 
     Args:
         icp: refine every hypothesis against its scene's depth image (:mod:`opnet.geometry.icp`);
@@ -58,15 +59,20 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
     if examples:
         writers.append(OnScenes(lambda scenes: write_examples(system, samples, scenes, out_dir / "predictions",
                                                               examples)))
-    *done, count, summary, diagnostics = evaluate(system, loader, [*refine, *writers, OnScenes(len), *scoring(system)])
+    turns = OnScenes(lambda scenes: orientation_misses(scenes, obj.pose_space, obj.diameter,
+                                                       max_occlusion=system.hparams.max_occlusion))
+    *done, count, summary, diagnostics, misses = evaluate(
+        system, loader, [*refine, *writers, OnScenes(len), *scoring(system), turns])
     result = summary.to_dict()
     result["diagnostics"] = diagnostics.to_dict()
+    result["orientation_misses"] = misses.to_dict()
     result.update(split=split, scenes=count, object=obj.name,
                   parameterization=type(system.parameterization).__name__)
     if icp:
         result["icp"] = done[0]
     write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
-    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n")
+    write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n"
+                      + misses.table() + "\n")
     return result
 
 

@@ -1,18 +1,20 @@
 """``opnet-evaluate``: the Brégier evaluation of pose hypotheses against Siléane-format ground truth.
 
     opnet-evaluate --gt <dir> --results <dir> (--poseutils <json> | --object <name>)
-                   [--max-occlusion 0.5] [--out summary.json] [--plot pr.png] [--skip-missing]
+                   [--max-occlusion 0.5] [--out summary.json] [--plot pr.png] [--skip-missing] [--diagnose]
 
 Reads ``<gt>/*.json`` (or ``.JSON``) and the results file of the same name in ``<results>``
 (docs/formats.md#siléane-layout). A scene without a results file counts as a scene with no
 hypotheses (with a warning); ``--skip-missing`` drops it as the official tool does. Prints the
-metrics table, optionally writes the summary JSON (atomically) and a PR plot. Bad input exits with
+metrics table (with ``--diagnose`` also where the misses went and the turns of the orientation misses,
+:mod:`opnet.metrics.diagnostics`, as eval.py prints them), optionally writes the summary JSON (atomically) and a PR plot. Bad input exits with
 status 2 and a one-line message naming the file.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 import warnings
@@ -21,8 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from opnet.datasets.sileane_json import SceneFileWarning, read_scene_pairs, write_json_atomic
-from opnet.geometry.distance import PoseSpace
 from opnet.metrics.bregier import evaluate_scenes
+from opnet.metrics.diagnostics import diagnose, orientation_misses
 from opnet.metrics.report import NonMonotoneRecallWarning
 from opnet.objects import ObjectModel, builtin_names, builtin_object, object_from_config
 from opnet.paths import config_dir, shared_dir
@@ -46,6 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skip-missing", action="store_true",
                    help="drop scenes without a results file, as the official tool does")
     p.add_argument("--quiet", action="store_true", help="headline metrics only, no per-scene lines")
+    p.add_argument("--diagnose", action="store_true",
+                   help="also where the misses went and the turns of the orientation misses (in --out too)")
     return p
 
 
@@ -85,17 +89,19 @@ def resolve_object(name: str) -> ObjectModel:
     raise ValueError(f"unknown object {name!r}; available: {available} (or give --poseutils)")
 
 
-def pose_space_from_args(args: argparse.Namespace) -> PoseSpace:
+def object_from_args(args: argparse.Namespace) -> ObjectModel:
+    """The object of ``--poseutils`` (its metric side: Λ, δ, D = 10 δ) or ``--object``."""
     if args.poseutils is not None:
-        return ObjectModel.from_poseutils(args.poseutils).pose_space
-    return resolve_object(args.object).pose_space
+        return ObjectModel.from_poseutils(args.poseutils)
+    return resolve_object(args.object)
 
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate as ``args`` say; raises ValueError / OSError on bad input."""
     if not 0.0 <= args.max_occlusion <= 1.0:
         raise ValueError(f"--max-occlusion must be in [0, 1], got {args.max_occlusion}")
-    space = pose_space_from_args(args)
+    obj = object_from_args(args)
+    space = obj.pose_space
     scenes = read_scene_pairs(args.gt, args.results, skip_missing=args.skip_missing)
     if not scenes:
         raise ValueError(f"{args.gt}: no scenes to evaluate (no ground-truth .json files, or all skipped)")
@@ -103,8 +109,17 @@ def run(args: argparse.Namespace) -> int:
         scenes, space, max_occlusion=args.max_occlusion, max_nb_results=args.max_nb_results
     )
     print(summary.table(per_scene=not args.quiet))
+    result = summary.to_dict(curve=True)
+    if args.diagnose:  # of the hypotheses the AP counts
+        kept = {name: (gt, h.best(args.max_nb_results)) for name, (gt, h) in scenes.items()}
+        diagnostics = diagnose(kept, space, obj.diameter, max_occlusion=args.max_occlusion)
+        misses = orientation_misses(kept, space, obj.diameter, max_occlusion=args.max_occlusion)
+        print(f"\n{diagnostics.table()}\n{misses.table()}")
+        no_nan = {k: None if isinstance(v, float) and not math.isfinite(v) else v  # JSON has no NaN: null
+                  for k, v in diagnostics.to_dict().items()}
+        result |= {"diagnostics": no_nan, "orientation_misses": misses.to_dict()}
     if args.out is not None:
-        write_json_atomic(args.out, summary.to_dict(curve=True))
+        write_json_atomic(args.out, result)
         print(f"summary written to {args.out}")
     if args.plot is not None:
         from opnet.metrics.plot import plot_pr_curve  # matplotlib only when asked

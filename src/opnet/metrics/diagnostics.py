@@ -19,12 +19,18 @@ and ``false_positives`` (farther than δ from every instance); ``confident`` cou
 score of at least ``confident_score``. For matched pairs the translation error (mm) and the
 symmetry-aware rotation error (degrees; the axis angle for revolution objects) are summarised by
 percentiles.
+
+:func:`orientation_misses` looks closer at the ``orientation`` misses: the turn that takes each truth
+(its closest symmetric equivalent) to its pose-nearest hypothesis, in the part's own frame. A pile of
+them near 180° about one axis says the network confuses two faces of the part (a near-symmetry the
+part's declared group does not have); errors spread below 60° say it is merely imprecise.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -87,16 +93,30 @@ class ErrorDiagnostics:
 
 def rotation_errors_deg(R_hat: np.ndarray, R: np.ndarray, space: PoseSpace) -> np.ndarray:
     """Symmetry-aware rotation error in degrees of pairs (N, 3, 3): the angle between ``R_hat``
-    and the closest symmetric equivalent of ``R`` (the axis angle for revolution objects)."""
+    and the closest symmetric equivalent of ``R`` (the axis angle for revolution objects): the angle
+    of :func:`part_frame_turns`."""
+    return np.degrees(np.linalg.norm(part_frame_turns(R_hat, R, space), axis=-1))
+
+
+def part_frame_turns(R_hat: np.ndarray, R: np.ndarray, space: PoseSpace) -> np.ndarray:
+    """Rotation vectors (N, 3), part frame, of the turns ``Q = R_eq^T R_hat`` that take the closest
+    symmetric equivalent ``R_eq`` of each truth ``R`` to its hypothesis ``R_hat``; the angle (the
+    vector's norm) is in [0, pi]. For revolution objects the spin about the axis is left out."""
+    from scipy.spatial.transform import Rotation
+
     if len(R) == 0:
-        return np.zeros(0)
-    R_hat_t, R_t = torch.from_numpy(np.asarray(R_hat, np.float64)), torch.from_numpy(np.asarray(R, np.float64))
-    R_eq = space.closest_equivalent(R_hat_t, R_t).numpy()
-    if space.revolution:
-        chord = np.linalg.norm(R_eq[:, :, 2] - R_hat[:, :, 2], axis=-1)
-    else:
-        chord = np.linalg.norm(R_eq - R_hat, axis=(1, 2)) / np.sqrt(2)
-    return np.degrees(2 * np.arcsin(np.clip(chord / 2, 0, 1)))
+        return np.zeros((0, 3))
+    R_hat64 = np.asarray(R_hat, np.float64)
+    R_eq = space.closest_equivalent(torch.from_numpy(R_hat64), torch.from_numpy(np.asarray(R, np.float64))).numpy()
+    Q = np.swapaxes(R_eq, -1, -2) @ R_hat64
+    if space.revolution:  # the shortest turn that takes the axis z to the hypothesis' axis
+        z = np.einsum("nij,j->ni", Q, [0.0, 0.0, 1.0])
+        axis = np.cross([0.0, 0.0, 1.0], z)
+        sin, cos = np.linalg.norm(axis, axis=-1), np.clip(z[:, 2], -1, 1)
+        angle = np.arctan2(sin, cos)
+        unit = np.where(sin[:, None] > 1e-9, axis / np.maximum(sin, 1e-12)[:, None], [[1.0, 0.0, 0.0]])
+        return unit * angle[:, None]
+    return Rotation.from_matrix(Q).as_rotvec()
 
 
 @dataclass(frozen=True)
@@ -110,6 +130,7 @@ class SceneOutcome:
             instance, also those that need not be found).
         duplicate, false_positive: (M,) bool per hypothesis.
         t_err_mm, r_err_deg: errors of the matched instances (in instance order).
+        nearest: (N,) int per instance, its pose-nearest hypothesis (-1 in a scene without any).
     """
 
     hypotheses: HypothesisSet
@@ -119,6 +140,7 @@ class SceneOutcome:
     false_positive: np.ndarray
     t_err_mm: np.ndarray
     r_err_deg: np.ndarray
+    nearest: np.ndarray
 
 
 def scene_outcomes(
@@ -139,7 +161,8 @@ def scene_outcomes(
         false_positive = np.ones(len(h), bool)  # every hypothesis of a scene without instances
         none = np.zeros(0)
         if len(h) == 0 or len(gt) == 0:
-            out.append(SceneOutcome(h, find, outcome, duplicate, false_positive, none, none))
+            out.append(SceneOutcome(h, find, outcome, duplicate, false_positive, none, none,
+                                    np.full(len(gt), -1)))
             continue
         nearest_gt = D.argmin(1)  # (M,)
         nearest_hyp = D.argmin(0)  # (N,)
@@ -162,7 +185,7 @@ def scene_outcomes(
         out.append(SceneOutcome(
             h, find, outcome, close & ~is_tp, ~close,
             1000 * np.linalg.norm(h.t[pairs_i] - gt.t[pairs_j], axis=-1),
-            rotation_errors_deg(h.R[pairs_i], gt.R[pairs_j], space),
+            rotation_errors_deg(h.R[pairs_i], gt.R[pairs_j], space), nearest_hyp,
         ))  # fmt: skip
     return out
 
@@ -216,4 +239,114 @@ def diagnose(
     )  # fmt: skip
 
 
-__all__ = ["MISS_REASONS", "ErrorDiagnostics", "SceneOutcome", "diagnose", "rotation_errors_deg", "scene_outcomes"]
+#: the most turns clustered into modes (beyond, an even subsample of them)
+MAX_CLUSTERED = 3000
+#: edges (degrees) of the histogram of :class:`OrientationMisses`
+TURN_BINS = (0, 30, 60, 90, 120, 150, 180)
+
+
+@dataclass(frozen=True)
+class TurnMode:
+    """A cluster of orientation misses whose turns (truth -> hypothesis, part frame) lie within the
+    clustering radius of one another: its centre's angle (degrees) and unit axis (part frame), the
+    axis' angle to the part's z axis (its main or symmetry axis, degrees in [0, 90]) and the share
+    of the orientation misses in it."""
+
+    angle_deg: float
+    axis: tuple[float, float, float]
+    tilt_deg: float
+    share: float
+
+    def text(self) -> str:
+        ax = ", ".join(f"{a:+.2f}" for a in self.axis)
+        return f"{self.share:.0%} a {self.angle_deg:.0f}° turn about ({ax}), {self.tilt_deg:.0f}° from the part's z"
+
+
+@dataclass(frozen=True)
+class OrientationMisses:
+    """The orientation misses of a set of scenes, looked at closer (module docstring).
+
+    Attributes:
+        count: orientation misses (instances that must be found).
+        histogram: their counts per turn angle, bins :data:`TURN_BINS` (degrees).
+        turned_over: share with a turn of more than 150°.
+        modes: the largest clusters of turns (:class:`TurnMode`), largest first.
+        radius_deg: the clustering radius.
+    """
+
+    count: int
+    histogram: tuple[int, ...]
+    turned_over: float
+    modes: tuple[TurnMode, ...]
+    radius_deg: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def table(self) -> str:
+        """A few readable lines."""
+        if not self.count:
+            return "Orientation misses: none"
+        n = self.count
+        bins = ", ".join(f"{a}-{b}° {c / n:.0%}" for a, b, c in zip(TURN_BINS, TURN_BINS[1:], self.histogram))
+        modes = "; ".join(m.text() for m in self.modes) or "none"
+        return "\n".join([
+            f"Orientation misses ({n}), turn from the truth to the nearest hypothesis in the part's frame: {bins}",
+            f"  turned over (> 150°): {self.turned_over:.0%}; largest clusters (within {self.radius_deg:g}°): {modes}",
+        ])  # fmt: skip
+
+
+def _turn_distances(v: np.ndarray) -> np.ndarray:
+    """Pairwise angles (radians) between the rotations of rotation vectors ``v`` (N, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_rotvec(v).as_quat()
+    return 2 * np.arccos(np.clip(np.abs(q @ q.T), 0, 1))
+
+
+def orientation_misses(
+    scenes: Mapping[str, tuple[GroundTruthSet, HypothesisSet]],
+    space: PoseSpace,
+    diameter: float,
+    max_occlusion: float = 0.5,
+    min_occlusion: float = -0.1,
+    radius_deg: float = 20.0,
+    top: int = 3,
+    min_share: float = 0.05,
+) -> OrientationMisses:
+    """The turns of the orientation misses (module docstring): their histogram, the share turned over
+    and the ``top`` largest clusters of at least ``min_share`` of them (greedy: the turn with the most
+    others within ``radius_deg`` is a centre, it and its neighbours are taken out, and again)."""
+    R_hat, R = [], []
+    outcomes = scene_outcomes(scenes, space, diameter, max_occlusion, min_occlusion)
+    for (gt, _), scene in zip(scenes.values(), outcomes, strict=True):
+        miss = scene.find & (scene.outcome == "orientation")
+        R_hat.append(scene.hypotheses.R[scene.nearest[miss]])
+        R.append(gt.R[miss])
+    v = part_frame_turns(np.concatenate(R_hat), np.concatenate(R), space) if R else np.zeros((0, 3))
+    angle = np.degrees(np.linalg.norm(v, axis=-1))
+    histogram = tuple(int(c) for c in np.histogram(angle, bins=TURN_BINS)[0])
+    modes: list[TurnMode] = []
+    if len(v):
+        # the clusters of at most MAX_CLUSTERED turns (an even subsample beyond: the pairwise table is N x N)
+        w = v[np.linspace(0, len(v) - 1, MAX_CLUSTERED).astype(int)] if len(v) > MAX_CLUSTERED else v
+        near = _turn_distances(w) <= np.radians(radius_deg)
+        left = np.ones(len(v), bool)
+        while len(modes) < top and left.any():
+            counts = (near & left[None] & left[:, None]).sum(1)
+            centre = int(counts.argmax())
+            if counts[centre] < max(min_share * len(w), 1):
+                break
+            members = near[centre] & left
+            left &= ~members
+            turn = float(np.degrees(np.linalg.norm(w[centre])))
+            a = w[centre] / max(np.linalg.norm(w[centre]), 1e-12)
+            a = -a if turn > 179.5 and a[np.abs(a).argmax()] < 0 else a  # a half turn: one sign of its axis
+            modes.append(TurnMode(turn, (float(a[0]), float(a[1]), float(a[2])),
+                                  float(np.degrees(np.arccos(min(abs(a[2]), 1.0)))), float(members.sum() / len(w))))
+    return OrientationMisses(len(v), histogram, float((angle > 150).mean()) if len(v) else 0.0, tuple(modes),
+                             float(radius_deg))
+
+
+__all__ = ["MISS_REASONS", "TURN_BINS", "ErrorDiagnostics", "OrientationMisses", "SceneOutcome", "TurnMode",
+           "diagnose", "orientation_misses", "part_frame_turns", "rotation_errors_deg", "scene_outcomes"]

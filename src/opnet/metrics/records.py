@@ -71,7 +71,17 @@ class HypothesisSet:
 
     def above(self, min_score: float) -> HypothesisSet:
         """The hypotheses whose score is at least ``min_score``."""
-        keep = self.score >= min_score
+        return self.take(self.score >= min_score)
+
+    def best(self, k: int) -> HypothesisSet:
+        """The ``k`` best-scored hypotheses (ties in input order), as the evaluation's ``max_nb_results``
+        keeps them; all of them for k < 0."""
+        if k < 0 or k >= len(self):
+            return self
+        return self.take(np.sort(np.argsort(-self.score, kind="stable")[:k]))
+
+    def take(self, keep: np.ndarray) -> HypothesisSet:
+        """The hypotheses a boolean mask or index array selects, in their order."""
         vis = None if self.visibility is None else self.visibility[keep]
         return HypothesisSet(self.R[keep], self.t[keep], self.score[keep], vis)
 
