@@ -97,6 +97,35 @@ def test_the_written_config_loads_with_the_symmetry_about_model_z(tmp_path: Path
     assert opnet_object([str(src), "--out", str(out)]) == 2  # no overwriting without --force
 
 
+def test_a_near_symmetry_is_named_with_its_deviation_and_not_declared(tmp_path: Path, capsys) -> None:
+    """A 50 x 40 x 20 mm block with a 12 x 12 x 4 mm boss off its centre: no symmetry, but turned half about z
+    about its thin axis it moves 98 % of its surface by about 3 mm, under delta (7 mm): said, with its axis, in
+    the output and the YAML; the block without the boss has that half turn as a symmetry, so nothing near is said of it."""
+    import yaml
+
+    boss = trimesh.creation.box((0.012, 0.012, 0.004))
+    boss.apply_translation([0.015, 0.01, 0.012])
+    src = tmp_path / "block.stl"
+    _moved(trimesh.util.concatenate([trimesh.creation.box((0.05, 0.04, 0.02)), boss]), 5).export(src)
+    out = tmp_path / "block.yaml"
+    assert opnet_object([str(src), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    near = [line for line in printed.splitlines() if "near-symmetry:" in line]
+    assert len(near) == 1 and "180.0 deg about [" in near[0]
+    axis = np.array([float(v) for v in near[0].split("about [")[1].split("]")[0].split(",")])
+    deviation = float(near[0].split("(model frame), ")[1].split(" mm")[0])
+    from scipy.spatial.transform import Rotation
+
+    thin = Rotation.random(random_state=5).as_matrix()[:, 2]  # the block's thin axis, turned as _moved turns it
+    assert abs(axis @ thin) > 0.99 and 1.5 < deviation < 5.0  # (no symmetry: the model frame is the file's)
+    text = out.read_text()
+    assert yaml.safe_load(text)["symmetry"] == {"kind": "none"} and "# near-symmetry (under delta" in text
+    plain = tmp_path / "plain.stl"
+    _moved(trimesh.creation.box((0.05, 0.04, 0.02)), 5).export(plain)
+    assert opnet_object([str(plain), "--out", str(tmp_path / "plain.yaml")]) == 0
+    assert "near-symmetry" not in capsys.readouterr().out
+
+
 def _bad(tmp_path: Path, name: str, mesh: trimesh.Trimesh | None = None, text: str | None = None) -> Path:
     path = tmp_path / name
     if mesh is not None:

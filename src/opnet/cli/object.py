@@ -103,7 +103,29 @@ def describe(mesh: Any, report: Any, path: Path, assumed: str) -> list[str]:
     for c in sorted(report.rejected, key=lambda c: c.deviation)[:4]:
         lines.append(f"    fails:  {c.angle_deg:6.1f} deg about [{', '.join(f'{v:+.3f}' for v in c.axis)}]: "
                      f"deviation {c.deviation * 1000:.2f} mm")
+    near = near_symmetries(report)
+    if near:
+        lines += [f"  near-symmetry: {near}.",
+                  "    A depth image may hardly tell the part from itself turned so, and the metric counts such a pose as",
+                  "    wrong (expect orientation misses there); where both poses serve the same grasp, a --tolerance-mm",
+                  "    above the deviation declares the turn a symmetry."]
     return lines
+
+
+def near_symmetries(report: Any) -> str:
+    """The rejected turn nearest to a symmetry where it moves 98 % of the surface by less than δ (0.1 D), its
+    axis in the model frame (``x_model = R x_file``; a half turn's axis with its largest component positive),
+    e.g. ``180.0 deg about [+0.00, +0.00, +1.00] (model frame), 2.99 mm``, and how many more are under δ;
+    empty if none."""
+    near = sorted((c for c in report.rejected if c.deviation < 0.1 * report.diameter), key=lambda c: c.deviation)
+    if not near:
+        return ""
+    c = near[0]
+    axis = report.model_rotation @ c.axis
+    axis = -axis if c.angle_deg > 179.5 and axis[np.abs(axis).argmax()] < 0 else axis
+    more = f" ({len(near) - 1} more turn{'s' * (len(near) > 2)} under delta)" if len(near) > 1 else ""
+    return (f"{c.angle_deg:.1f} deg about [{', '.join(f'{v:+.2f}'.replace('-0.00', '+0.00') for v in axis)}] (model frame), "
+            f"{c.deviation * 1000:.2f} mm{more}")
 
 
 def _spec_text(spec: dict) -> str:
@@ -119,6 +141,8 @@ def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: An
     lines = [f"# {name}: written by opnet-object from {mesh_path} ({assumed}; symmetry {report.name}, tolerance "
              f"{report.tolerance * 1000:.2f} mm).", "# model_origin: the symmetry centre (the surface centroid) in the "
              "file's frame, metres; model_rotation: x_model = R (x_file - origin), the main axis onto z."]  # fmt: skip
+    if near_symmetries(report):
+        lines.append(f"# near-symmetry (under delta, not declared): {near_symmetries(report)}.")
     body = {"name": name, "mesh": str(mesh_path), "mesh_scale": scale,
             "model_origin": [round(float(v), 9) for v in report.origin],
             "model_rotation": [[round(float(v), 9) for v in row] for row in report.model_rotation], "symmetry": spec}
@@ -171,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.tolerance_mm is not None and not (math.isfinite(args.tolerance_mm) and args.tolerance_mm > 0):
         return _fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
     from opnet.cli.tools import require_writable
-    from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
+    from opnet.fileio.atomic import write_text_atomic
     from opnet.objects.symmetry_finder import find_symmetry
     from opnet.paths import config_dir
 
