@@ -276,22 +276,14 @@ def block_dense(results: Path, prefix: str = "") -> str:
                    "found %", "other generators' piles (AP)"], rows) + "\n"
 
 
-def _fill(row: dict[str, str]) -> str:
-    """The recipe's bin fill for a part, and in brackets its training piles' where the CSV gives them (made
-    with another bin)."""
-    if not row.get("fill"):
-        return "–"
-    return f"{float(row['fill']):.2f}" + (f" ({float(row['fill_made']):.2f} as made)" if row.get("fill_made") else "")
-
-
 def block_new_parts(results: Path, prefix: str = "") -> str:
     """The new-parts benchmark: held-out AP per part against its target (results/new_parts/new_parts.csv)."""
-    rows = [[r["object"], r["symmetry"], f"{float(r['d_mm']):.0f}", _fill(r),
+    from opnet.studies.results import fill_cell, other_engine_cell, symmetry_cell
+
+    rows = [[r["object"], symmetry_cell(r), f"{float(r['d_mm']):.0f}", fill_cell(r),
              f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f}",
              f"**{float(r['ap']):.3f}**" + (f" ({float(r['ap_tuned']):.3f})" if r["ap_tuned"] else ""),
-             f"{float(r['ap_pybullet']):.3f}" if r["ap_pybullet"]
-             else (r.get("pybullet_note") or "–").split(":")[0],  # why none: not made, not run
-             r["reason"]]
+             other_engine_cell(r), r["reason"]]
             for r in _csv(results / "new_parts" / "new_parts.csv")]
     return _table(["part", "symmetry (opnet-object)", "D mm", "bin fill", "generation + training min",
                    "**held-out AP** (decoding tuned on validation)", "other engine's piles (AP)",

@@ -96,8 +96,10 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
         w.writerows(rows)
     # the recipe's fill now and that of the training piles as made: tless20's were made before a fill cap
     fills = {"tless20": (0.7, 0.82), "pepper": (0.3, 0.3), "itodd27": (0.68, float("nan"))}
-    monkeypatch.setattr(new_parts, "part_geometry", lambda part, run: {"d_mm": 100.0, "camera_m": 0.6,
-                                                                       "fill": fills[part][0], "fill_made": fills[part][1]})
+    near = {"itodd27": "180.0 deg about [+0.00, +0.00, +1.00] (model frame), 2.92 mm (3 more turns under delta)"}
+    monkeypatch.setattr(new_parts, "part_geometry", lambda part, run: {
+        "d_mm": 100.0, "camera_m": 0.6, "fill": fills[part][0], "fill_made": fills[part][1],
+        "near_symmetry": near.get(part, "")})
     assert new_parts.main(["--out", str(tmp_path)]) == 0
     table = {r["object"]: r for r in csv.DictReader((tmp_path / "new_parts.csv").open())}
     assert list(table) == ["pepper", "tless20", "itodd27"]  # the parts' order, only the benchmark's rows
@@ -114,6 +116,8 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     assert "| **0.310** |  | not made |" in page and "*Other engine* for itodd27: not made: parts kept" in page
     assert "| 0.70 (0.82 as made) | **0.410** |" in page and "| 0.30 | **0.710** |" in page
     assert "| 0.68 | **0.310** |" in page  # its piles not here: no bracket
+    assert "| itodd27 | none (near: 180° about [+0.00, +0.00, +1.00], 2.92 mm) |" in page  # opnet-object's near-symmetry
+    assert "| tless20 | cyclic 2 |" in page
     # below target on orientation: how the misses turn, from the run's test summary
     assert "missed on orientation most" in table["itodd27"]["reason"]
     assert ("of the orientation misses 80.0 % turned over (> 150°), the largest cluster: 70% a 178° turn about "

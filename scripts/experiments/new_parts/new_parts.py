@@ -39,6 +39,7 @@ import yaml
 
 from opnet.paths import REPO_ROOT, shared_dir
 from opnet.studies import fmt, merge_csv
+from opnet.studies.results import fill_cell, other_engine_cell, symmetry_cell
 
 #: part -> its mesh under the shared data folder (conf/object/<part>.yaml names the same file)
 PARTS = {
@@ -57,7 +58,7 @@ BUDGET = ["--config", CONFIG, "--gen-cycles", "192", "--views", "8", "--steps", 
           "--tune", "--pybullet-piles", "12"]
 DROPS = 75  # bench_dense.py's parts per pile
 TARGET = 0.6
-FIELDS = ("object", "symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_pybullet",
+FIELDS = ("object", "symmetry", "near_symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_pybullet",
           "pybullet_note", "found", "position", "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
           "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "turned_over", "turn_mode", "target", "met",
           "reason")
@@ -88,18 +89,22 @@ def check_object(part: str) -> str:
     return symmetry_text(found["symmetry"])
 
 
-def part_geometry(part: str, run: str) -> dict[str, float]:
-    """D, the recipe's camera height and its bin's fill for the part (its rig sized to it), from the mesh,
-    and ``fill_made``: the fill of the piles the benchmark's ``run`` trained on (NaN where they are absent)."""
+def part_geometry(part: str, run: str) -> dict[str, Any]:
+    """D, the recipe's camera height and its bin's fill for the part (its rig sized to it), from the mesh;
+    ``fill_made``: the fill of the piles the benchmark's ``run`` trained on (NaN where they are absent);
+    ``near_symmetry``: the one ``opnet-object`` names (empty if none)."""
     from opnet.cli.evaluate import resolve_object
+    from opnet.cli.object import inspect_part, near_symmetries
     from opnet.studies.scenes import dense_scene, recorded_bin
     from opnet.synthesis.layout import bin_fill, make_rig
 
     obj = resolve_object(part)
     rig = make_rig(obj, DROPS, 8, dense_scene())
     root = train_root(run)
+    report = inspect_part(shared_dir() / "data" / "meshes" / "new_parts" / PARTS[part])[3]
     return {"d_mm": 1e3 * obj.diameter, "camera_m": float(rig.params.location[2]),
-            "fill": bin_fill(obj, DROPS, rig.bin), "fill_made": recorded_bin(root, obj)["fill"] if root else math.nan}
+            "fill": bin_fill(obj, DROPS, rig.bin), "fill_made": recorded_bin(root, obj)["fill"] if root else math.nan,
+            "near_symmetry": near_symmetries(report)}
 
 
 def train_root(run: str) -> Path | None:
@@ -137,6 +142,8 @@ def reason(row: dict[str, Any]) -> str:
     if worst == "orientation" and row.get("turned_over") not in ("", None):
         turns = (f"; of the orientation misses {fmt(row['turned_over'], 'pct')} % turned over (> 150°), the largest "
                  f"cluster: {row['turn_mode'] or 'none'}")
+    elif worst == "orientation" and row.get("near_symmetry"):
+        turns = f"; a near-symmetry (opnet-object): {row['near_symmetry']}"
     return (f"found {fmt(row['found'], 'pct')} % of the parts to find; missed on {worst} most ({shares}){turns}; "
             f"{fmt(row['confident_fp_per_scene'], 'f1')} confident false positives per scene")
 
@@ -167,7 +174,7 @@ def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dic
         try:
             row |= part_geometry(part, b.get("run", ""))
         except (FileNotFoundError, ValueError):  # the shared meshes absent: what the table had
-            row |= {k: old.get(k, "") for k in ("d_mm", "camera_m", "fill", "fill_made")}
+            row |= {k: old.get(k, "") for k in ("d_mm", "camera_m", "fill", "fill_made", "near_symmetry")}
         row |= orientation_turns(b.get("run", "")) or {k: old.get(k, "") for k in ("turned_over", "turn_mode")}
         if row["fill_made"] in ("", None) or math.isnan(float(row["fill_made"])):  # the piles not here: the table's
             row["fill_made"] = old.get("fill_made", "")
@@ -182,19 +189,6 @@ def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dic
         row["reason"] = reason(row)
         rows.append(row)
     return sorted(rows, key=lambda r: list(PARTS).index(r["object"]))
-
-
-def pybullet_cell(row: dict[str, Any]) -> str:
-    """The other engine's AP, or why there is none (``not made`` in full below the table)."""
-    if row.get("ap_pybullet") not in ("", None):
-        return fmt(row["ap_pybullet"])
-    return (row.get("pybullet_note") or "not run").split(":")[0]
-
-
-def fill_cell(row: dict[str, Any]) -> str:
-    """The recipe's fill for the part, and in brackets its training piles' where those were made with another."""
-    made = f" ({fmt(row['fill_made'], 'f2')} as made)" if row.get("fill_made") not in ("", None) else ""
-    return f"{fmt(row.get('fill', ''), 'f2')}{made}"
 
 
 def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
@@ -223,6 +217,9 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "the hulls fill at most that share, the walls and so the pile's height stay sized to the part; parts that "
         "fill less (pepper, ITODD 13, ITODD 27, every built-in part) keep their piles. *fill*: the recipe's now, "
         "and in brackets that of the part's training piles where they were made before the cap. "
+        "*near*: the near-symmetry `opnet-object` names, a turn it rejects that still moves 98 % of the surface by "
+        "less than δ (its deviation; [what to do with one](../../docs/data.md#your-own-part)): a depth image may "
+        "hardly tell the part from itself turned so, and the metric counts such a pose as wrong. "
         "AP: Brégier, max occlusion 0.5. "
         f"**Target: held-out AP >= {TARGET} per part**; below it, the measured reason (where the misses went: "
         "shares of the parts to find). For scale: the bunny, the part the recipe was chosen on, scores 0.83 at "
@@ -242,8 +239,8 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
     ]
     for r in rows:
         lines.append(
-            f"| {r['object']} | {r['symmetry']} | {fmt(r['d_mm'], 'f0')} | {fmt(r['camera_m'], 'f2')} | "
-            f"{fill_cell(r)} | **{fmt(r['ap'])}** | {fmt(r['ap_tuned'])} | {pybullet_cell(r)} | {fmt(r['found'], 'pct')} | "
+            f"| {r['object']} | {symmetry_cell(r)} | {fmt(r['d_mm'], 'f0')} | {fmt(r['camera_m'], 'f2')} | "
+            f"{fill_cell(r)} | **{fmt(r['ap'])}** | {fmt(r['ap_tuned'])} | {other_engine_cell(r)} | {fmt(r['found'], 'pct')} | "
             f"{fmt(r['t_err_mm_p50'], 'f1')} | {fmt(r['r_err_deg_p50'], 'f1')} | {r['steps']} | "
             f"{fmt(r['gen_minutes'], 'f0')} + {fmt(r['train_minutes'], 'f0')} | {TARGET} | {r['reason']} |")
     lines += [f"\n*Other engine* for {r['object']}: {r['pybullet_note']}." for r in rows

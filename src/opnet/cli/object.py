@@ -83,6 +83,17 @@ def _check_shape(mesh: Any, path: Path) -> None:
                          "a part needs a thickness a depth camera can see")
 
 
+def inspect_part(path: Path, units: str = "auto", tolerance_mm: float | None = None) -> tuple[Any, float, str, Any]:
+    """The part's mesh in metres, its scale, what was assumed of its units, and its symmetry report at
+    ``tolerance_mm`` (default 1 % of the diameter about the centroid). Raises ValueError on bad input."""
+    from opnet.objects.symmetry_finder import find_symmetry
+
+    mesh, scale, assumed = read_part(path, units)
+    centroid_d = 2.0 * float(np.linalg.norm(mesh.vertices - mesh.centroid, axis=1).max())
+    tol = tolerance_mm / 1000 if tolerance_mm is not None else 0.01 * centroid_d
+    return mesh, scale, assumed, find_symmetry(mesh, tol)
+
+
 def describe(mesh: Any, report: Any, path: Path, assumed: str) -> list[str]:
     from opnet.objects.surface import sqrtm_psd, surface_moments
 
@@ -196,7 +207,6 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
     from opnet.cli.tools import require_writable
     from opnet.fileio.atomic import write_text_atomic
-    from opnet.objects.symmetry_finder import find_symmetry
     from opnet.paths import config_dir
 
     out = args.out or config_dir() / "object" / f"{name}.yaml"
@@ -208,10 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         return _fail(str(e))
     try:
-        mesh, scale, assumed = read_part(args.mesh, args.units)
-        centroid_d = 2.0 * float(np.linalg.norm(mesh.vertices - mesh.centroid, axis=1).max())
-        tol = args.tolerance_mm / 1000 if args.tolerance_mm is not None else 0.01 * centroid_d
-        report = find_symmetry(mesh, tol)
+        mesh, scale, assumed, report = inspect_part(args.mesh, args.units, args.tolerance_mm)
     except ValueError as e:
         msg = str(e)
         return _fail(msg if msg.startswith(str(args.mesh)) else f"{args.mesh}: {msg}")

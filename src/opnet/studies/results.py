@@ -1,15 +1,16 @@
 """What a script that makes a committed table and the one that renders it into the docs
 (``scripts/dev/readme_figures.py``) must agree on: the machine a row was measured on, the spread of
-the quickstart over seeds, the dense benchmark's headline configuration."""
+the quickstart over seeds, the dense benchmark's headline configuration, the new-parts table's cells."""
 
 from __future__ import annotations
 
 import platform
+import re
 import statistics
 from pathlib import Path
 from typing import Any
 
-from opnet.studies import mean_sd
+from opnet.studies import fmt, mean_sd
 
 #: the configuration of the dense benchmark's headline table (the 60-minute recipe of ``experiment=dense``)
 DENSE_HEADLINE = "recipe60"
@@ -45,3 +46,26 @@ def seed_spread(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 __all__ = ["DENSE_HEADLINE", "cpu_model", "seed_spread"]
+
+
+def symmetry_cell(row: dict[str, Any]) -> str:
+    """A new part's group as ``opnet-object`` finds it and, where it names one, its near-symmetry's turn and
+    deviation (``near_symmetry``), e.g. ``none (near: 180° about [+0.00, +0.00, +1.00], 2.92 mm)``."""
+    m = re.match(r"([\d.]+) deg about (\[[^\]]*\]) \(model frame\), ([\d.]+) mm", row.get("near_symmetry") or "")
+    return f"{row['symmetry']} (near: {float(m.group(1)):.0f}° about {m.group(2)}, {m.group(3)} mm)" if m else row["symmetry"]
+
+
+def fill_cell(row: dict[str, Any]) -> str:
+    """The recipe's bin fill for a new part, and in brackets its training piles' where those were made with another
+    bin (``fill_made``)."""
+    if row.get("fill") in ("", None):
+        return "–"
+    made = f" ({fmt(row['fill_made'], 'f2')} as made)" if row.get("fill_made") not in ("", None) else ""
+    return f"{fmt(row['fill'], 'f2')}{made}"
+
+
+def other_engine_cell(row: dict[str, Any]) -> str:
+    """A new part's AP on the other engine's piles, or why there is none: ``not made``, ``not run``."""
+    if row.get("ap_pybullet") not in ("", None):
+        return fmt(row["ap_pybullet"])
+    return (row.get("pybullet_note") or "not run").split(":")[0]
