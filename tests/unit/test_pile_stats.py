@@ -36,3 +36,34 @@ def test_pile_stats_gives_the_walls_and_the_fill_of_the_recorded_bin(tiny_datase
     (other / "parameter.json").write_text(json.dumps(params))
     stats = pile_stats(other)
     assert math.isnan(stats["fill"]) and math.isnan(stats["walls_mm"]) and stats["clipped"] == 1.0
+
+
+def test_keep_leaves_the_rows_of_datasets_not_given_on_the_page(tiny_dataset: Path, tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+    import shlex
+    import sys
+
+    from opnet.paths import REPO_ROOT
+
+    spec = importlib.util.spec_from_file_location("pile_stats_script", REPO_ROOT / "scripts" / "bench" / "pile_stats.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    a, b, page = tmp_path / "set_a", tmp_path / "set_b", tmp_path / "piles.md"
+    shutil.copytree(tiny_dataset, a)
+    shutil.copytree(tiny_dataset, b)
+
+    def run(*args: str) -> list[str]:
+        monkeypatch.setattr(sys, "argv", ["pile_stats.py", *args])
+        script.main()
+        lines = page.read_text().splitlines()
+        return [line.split("|")[1].strip() for line in lines if line.startswith("| ") and "---" not in line][1:]
+
+    assert run(str(a), "--out", str(page), "--title", "T") == ["set_a"]
+    row_a = next(line for line in page.read_text().splitlines() if line.startswith("| set_a"))
+    shutil.rmtree(a)  # gone from disk: its measured row stays
+    assert run(str(b), "--out", str(page), "--title", "T", "--keep") == ["set_a", "set_b"]
+    assert row_a in page.read_text().splitlines()
+    command = shlex.split(page.read_text().splitlines()[2])
+    assert command[:4] == ["python", "scripts/bench/pile_stats.py", str(a), str(b)] and command.count("--out") == 1
+    assert run(str(b), "--out", str(page), "--title", "T") == ["set_b"]  # without --keep: what is given

@@ -225,7 +225,8 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "shares of the parts to find). For scale: the bunny, the part the recipe was chosen on, scores 0.83 at "
         "twice these steps ([the dense benchmark](../dense/README.md)). *gen + train min*: wall minutes, longer where "
         "other jobs shared the machine (pepper's generation: 33 minutes, about half of them beside other generation "
-        "and decomposition jobs; ITODD 08's: 53 minutes, about 20 of them beside the test suite; the bunny's 192 "
+        "and decomposition jobs; ITODD 08's: 53 minutes, about 20 of them beside the test suite; ITODD 13's: 53 minutes, "
+        "about 14 of them beside the test suite; the bunny's 192 "
         "cycles took 14 alone). Made by")
     lines = [
         f"# {TITLE}", "", intro, "",
