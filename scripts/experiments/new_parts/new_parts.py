@@ -142,8 +142,6 @@ def reason(row: dict[str, Any]) -> str:
     if worst == "orientation" and row.get("turned_over") not in ("", None):
         turns = (f"; of the orientation misses {fmt(row['turned_over'], 'pct')} % turned over (> 150°), the largest "
                  f"cluster: {row['turn_mode'] or 'none'}")
-    elif worst == "orientation" and row.get("near_symmetry"):
-        turns = f"; a near-symmetry (opnet-object): {row['near_symmetry']}"
     return (f"found {fmt(row['found'], 'pct')} % of the parts to find; missed on {worst} most ({shares}){turns}; "
             f"{fmt(row['confident_fp_per_scene'], 'f1')} confident false positives per scene")
 
@@ -219,7 +217,9 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "and in brackets that of the part's training piles where they were made before the cap. "
         "*near*: the near-symmetry `opnet-object` names, a turn it rejects that still moves 98 % of the surface by "
         "less than δ (its deviation; [what to do with one](../../docs/data.md#your-own-part)): a depth image may "
-        "hardly tell the part from itself turned so, and the metric counts such a pose as wrong. "
+        "hardly tell the part from itself turned so, and the metric counts such a pose as wrong; ITODD 27's is not "
+        "where its misses went at a quarter of this budget: 1 % of its orientation misses turned over, most of them "
+        "turns of 16-54° in its plane ([turns_probe/turns.md](turns_probe/turns.md)). "
         "AP: Brégier, max occlusion 0.5. "
         f"**Target: held-out AP >= {TARGET} per part**; below it, the measured reason (where the misses went: "
         "shares of the parts to find). For scale: the bunny, the part the recipe was chosen on, scores 0.83 at "
