@@ -103,6 +103,15 @@ def test_orientation_misses_find_a_face_confusion_and_tell_it_from_imprecision()
     assert "75% a 180° turn about (+1.00, +0.00, +0.00), 90° from the part's z" in m.table()
 
 
+def test_many_orientation_misses_are_clustered_from_an_even_subsample(monkeypatch: pytest.MonkeyPatch) -> None:
+    import opnet.metrics.diagnostics as diagnostics
+
+    monkeypatch.setattr(diagnostics, "MAX_CLUSTERED", 12)  # 32 misses: the clusters of 12 of them
+    _, m = _turned("bracket", [(24, "X", np.pi), (8, "Y", 0.6)])
+    assert m.count == 32 and m.histogram == (0, 8, 0, 0, 0, 24)  # every miss in the histogram
+    assert [round(mode.angle_deg) for mode in m.modes] == [180, 34] and m.modes[0].share == pytest.approx(0.75)
+
+
 def test_orientation_misses_are_turns_beyond_the_parts_symmetry():
     # zbracket: a half turn about z is a symmetry, so it is no miss; the same plus 40° about x is one of 40°
     _, m = _turned("zbracket", [(10, "Z", np.pi), (10, "X", np.radians(40))])

@@ -331,7 +331,7 @@ def orientation_misses(
         # the clusters of at most MAX_CLUSTERED turns (an even subsample beyond: the pairwise table is N x N)
         w = v[np.linspace(0, len(v) - 1, MAX_CLUSTERED).astype(int)] if len(v) > MAX_CLUSTERED else v
         near = _turn_distances(w) <= np.radians(radius_deg)
-        left = np.ones(len(v), bool)
+        left = np.ones(len(w), bool)
         while len(modes) < top and left.any():
             counts = (near & left[None] & left[:, None]).sum(1)
             centre = int(counts.argmax())
