@@ -149,16 +149,14 @@ def reason(row: dict[str, Any]) -> str:
 def orientation_turns(run: str) -> dict[str, Any]:
     """``turned_over`` and ``turn_mode`` (the largest cluster of turns, as text) of the orientation misses on
     the run's held-out piles (its test ``summary.json``); empty where the run or the figures are absent."""
-    from opnet.metrics.diagnostics import OrientationMisses, TurnMode
+    from opnet.metrics.diagnostics import TurnMode
     from opnet.studies import read_summary
 
     summary = read_summary(REPO_ROOT / run) if run else None
     if not summary or "orientation_misses" not in summary:
         return {}
-    d = dict(summary["orientation_misses"])
-    misses = OrientationMisses(**(d | {"histogram": tuple(d["histogram"]),
-                                       "modes": tuple(TurnMode(**m) for m in d["modes"])}))
-    return {"turned_over": misses.turned_over, "turn_mode": misses.modes[0].text() if misses.modes else ""}
+    misses = summary["orientation_misses"]
+    return {"turned_over": misses["turned_over"], "turn_mode": TurnMode(**misses["modes"][0]).text() if misses["modes"] else ""}
 
 
 def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
