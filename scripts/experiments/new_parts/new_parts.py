@@ -204,15 +204,14 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "physics engine (pybullet; *not made*: a pile pybullet could not make, the message below the table; "
         "*not run*: the part ran without them). The recipe's walls are 1.5 D high whatever the part's bulk, and "
         "[compact parts pile above them](piles.md): the *fill* (the 75 parts' convex hulls over the volume inside "
-        "the walls) is 0.30 for the pepper, whose piles stay under its walls, 0.68 for ITODD 27 and 0.82 for "
-        "T-LESS 20 as first made, whose piles stand 1.4 and 1.5 wall heights high in MuJoCo. pybullet's piles "
-        "stand higher still and leave parts resting on the rim, and a pile whose drops keep leaving the bin is "
-        "refused: so T-LESS 20's set was not made; ITODD 27's was refused at its 12th pile in a first attempt made "
-        "before the recipe's cap on convex pieces, and made whole with the cap; ITODD 08 (fill 1.06) could not be "
-        "piled at all. The recipe now caps the fill at 0.7 (`scene.bin_max_fill`): the floor widens until "
-        "the hulls fill at most that share, the walls and so the pile's height stay sized to the part; parts that "
-        "fill less (pepper, ITODD 13, ITODD 27, every built-in part) keep their piles. *fill*: the recipe's now, "
-        "and in brackets that of the part's training piles where they were made before the cap. "
+        "the walls) is 0.30 for the pepper, whose piles stay under its walls, and 0.68 for ITODD 27, whose piles "
+        "stand 1.4 wall heights high in MuJoCo. pybullet's piles stand higher still and leave parts resting on the "
+        "rim, and a pile whose drops keep leaving the bin is refused: T-LESS 20 (fill 0.82) and ITODD 08 (1.06) "
+        "could not be piled by pybullet in their bins as first sized. So the recipe caps the fill at 0.7 "
+        "(`scene.bin_max_fill`, a fill at which pybullet made every pile): the floor widens until the hulls fill at "
+        "most that share, the walls and so the pile's height stay sized to the part; parts that fill less (pepper, "
+        "ITODD 13, ITODD 27, every built-in part) keep their piles, and every row here was made with the cap "
+        "(*fill*: the recipe's; in brackets, that of a part's training piles where they were made otherwise). "
         "*near*: the near-symmetry `opnet-object` names, a turn it rejects that still moves 98 % of the surface by "
         "less than δ (its deviation; [what to do with one](../../docs/data.md#your-own-part)): a depth image may "
         "hardly tell the part from itself turned so, and the metric counts such a pose as wrong. At a quarter of this "
@@ -225,9 +224,10 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "twice these steps ([the dense benchmark](../dense/README.md)). *gen + train min*: wall minutes, longer where "
         "other jobs shared the machine (pepper's generation: 33 minutes, about half of them beside other generation "
         "and decomposition jobs; ITODD 08's: 53 minutes, about 20 of them beside the test suite; ITODD 13's: 53 minutes, "
-        "about 14 of them beside the test suite; the bunny's 192 "
-        "cycles took 14 alone). The steps are the budget, not the minutes: ITODD 13 ran on a 2-core AMD EPYC, which "
-        "trained the same 10,696 steps in 19 minutes; the other parts on a 2-core Intel Xeon (40-44). Made by")
+        "about 14 of them beside the test suite; T-LESS 20's training: 23 minutes, beside short evaluations of "
+        "other models; the bunny's 192 cycles took 14 alone). The steps are the budget, not the minutes: ITODD 13 and "
+        "T-LESS 20 ran on a 2-core AMD EPYC, which trains the same 10,696 steps in 19-23 minutes; the other parts "
+        "on a 2-core Intel Xeon (40-44). Made by")
     lines = [
         f"# {TITLE}", "", intro, "",
         "    python scripts/experiments/new_parts/new_parts.py --run", "",
