@@ -90,6 +90,9 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     turns = OrientationMisses(10, (1, 0, 0, 0, 1, 8), 0.8, (TurnMode(178.0, (1.0, 0.0, 0.0), 90.0, 0.7),), 20.0)
     (tmp_path / "run27" / "test").mkdir(parents=True)
     (tmp_path / "run27" / "test" / "summary.json").write_text(json.dumps({"orientation_misses": turns.to_dict()}))
+    # and scored with the refinement on its held-out piles (not on the other engine's: they were not made)
+    (tmp_path / "run27" / "test_refined").mkdir()
+    (tmp_path / "run27" / "test_refined" / "summary.json").write_text(json.dumps({"ap": 0.45}))
     with (bench / "dense.csv").open("w") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[2]))
         w.writeheader()
@@ -116,6 +119,8 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     assert "| **0.310** |  | not made |" in page and "*Other engine* for itodd27: not made: parts kept" in page
     assert "| 0.70 (0.82 as made) | **0.410** |" in page and "| 0.30 | **0.710** |" in page
     assert "| 0.68 | **0.310** |" in page  # its piles not here: no bracket
+    assert "| **0.310** |  | not made | 0.450 |" in page and "| 0.355 | – |" in page  # refined; tless20 not
+    assert float(table["itodd27"]["ap_refined"]) == 0.45 and table["itodd27"]["ap_pybullet_refined"] == ""
     assert "| itodd27 | none (near: 180° about [+0.00, +0.00, +1.00], 2.92 mm) |" in page  # opnet-object's near-symmetry
     assert "| tless20 | cyclic 2 |" in page
     # below target on orientation: how the misses turn, from the run's test summary
@@ -125,6 +130,39 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     assert float(table["itodd27"]["turned_over"]) == 0.8 and t["turned_over"] == ""  # tless20: no run here
     # the CSV keeps the training piles' fill only where their bin differs from the recipe's
     assert float(t["fill_made"]) == 0.82 and table["pepper"]["fill_made"] == table["itodd27"]["fill_made"] == ""
+
+
+def test_new_parts_refines_on_the_held_out_piles_and_the_other_engines_only_where_made(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    run = tmp_path / "outputs" / "new_parts" / "itodd08_recipe60"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "epoch011-ap0.2000.ckpt").write_bytes(b"")
+    (run / ".hydra").mkdir()
+    train = tmp_path / "data" / "itodd08_train_c192_v8_d75_s0"
+    (run / ".hydra" / "overrides.yaml").write_text(f"- experiment=dense\n- data.root={train}\n")
+    calls = []
+
+    def fake_eval(cmd: list[str], **_: object) -> None:  # eval.py: its summary where out= says
+        calls.append(cmd)
+        out = Path(next(c for c in cmd if c.startswith("out="))[4:])
+        out.mkdir(parents=True)
+        (out / "summary.json").write_text(json.dumps({"ap": 0.5 if "eval_pybullet" in out.name else 0.6}))
+
+    monkeypatch.setattr(new_parts.subprocess, "run", fake_eval)
+    new_parts.refine_run("itodd08", run)  # no eval_pybullet/: the other engine's piles were not made
+    assert len(calls) == 1 and f"refine={new_parts.REFINE}" in calls[0]
+    assert f"ckpt={run / 'checkpoints' / 'epoch011-ap0.2000.ckpt'}" in calls[0]
+    assert not any(c.startswith("data.test_root=") for c in calls[0])  # the checkpoint's own test split
+    assert new_parts.refined(str(run)) == {"ap_refined": 0.6}
+    (run / "eval_pybullet").mkdir()
+    (run / "eval_pybullet" / "summary.json").write_text("{}")
+    calls.clear()
+    import shutil
+
+    shutil.rmtree(run / "test_refined")
+    new_parts.refine_run("itodd08", run)
+    assert calls[1][-1] == f"data.test_root={train.parent / 'itodd08_pybullet_p12_d75_s2'}"
+    assert new_parts.refined(str(run)) == {"ap_refined": 0.6, "ap_pybullet_refined": 0.5}
 
 
 def test_bench_dense_goes_on_without_the_other_engines_piles_it_could_not_make(tmp_path: Path,

@@ -64,6 +64,15 @@ def fill_cell(row: dict[str, Any]) -> str:
     return f"{fmt(row['fill'], 'f2')}{made}"
 
 
+def refined_cell(row: dict[str, Any]) -> str:
+    """A new part's held-out AP with its hypotheses refined, and in brackets on the other engine's piles
+    (``0.412 (0.388)``); ``–`` where the model was not scored so."""
+    if row.get("ap_refined") in ("", None):
+        return "–"
+    other = row.get("ap_pybullet_refined")
+    return fmt(row["ap_refined"]) + ("" if other in ("", None) else f" ({fmt(other)})")
+
+
 def other_engine_cell(row: dict[str, Any]) -> str:
     """A new part's AP on the other engine's piles, or why there is none: ``not made``, ``not run``."""
     if row.get("ap_pybullet") not in ("", None):
