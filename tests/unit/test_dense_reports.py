@@ -207,3 +207,16 @@ def test_bench_dense_records_its_command_with_repository_paths_relative() -> Non
     assert bench_dense.repo_relative(str(REPO_ROOT / "results" / "new_parts" / "bench")) == "results/new_parts/bench"
     assert bench_dense.repo_relative("/elsewhere/data") == "/elsewhere/data"
     assert bench_dense.repo_relative("--steps") == "--steps" and bench_dense.repo_relative("10696") == "10696"
+
+
+refine_probe = _script("experiments/new_parts/refine_probe.py")
+
+
+def test_refine_probe_reads_the_seconds_per_scene_from_the_evaluation_log(tmp_path: Path) -> None:
+    log = tmp_path / "val.log"
+    log.write_text("[info] ...\ntest 450 scenes, found 1036 of 2799 (37.0%)\n  AP 0.1687\n  run time 1 min 12 s\n")
+    assert refine_probe.seconds_per_scene(log) == pytest.approx(72 / 450)
+    log.write_text("test 10 scenes, found 1 of 2\n  run time 2.5 s\n")
+    assert refine_probe.seconds_per_scene(log) == pytest.approx(0.25)
+    log.write_text("crashed before the summary\n")
+    assert refine_probe.seconds_per_scene(log) == "" and refine_probe.seconds_per_scene(tmp_path / "none.log") == ""

@@ -43,9 +43,10 @@ def validation_piles(part: str, piles: int, data_dir: Path) -> Path:
 
 
 def score(ckpt: Path, root: Path, refine: str, dest: Path) -> dict[str, Any]:
-    """eval.py on every scene of ``root`` with ``refine``; its summary."""
+    """eval.py on every scene of ``root`` with ``refine``; its summary (kept from an earlier call while it is newer
+    than the checkpoint)."""
     summary = dest / "summary.json"
-    if not summary.is_file():
+    if not summary.is_file() or summary.stat().st_mtime < ckpt.stat().st_mtime:
         run_logged([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.test_root={root}", "+data.test_min_objects=0",
                     f"refine={refine}", *(["refine.icp.budget_ms=null"] if refine != "none" else []),
                     f"out={dest}", "examples=0"], dest.with_suffix(".log"))
