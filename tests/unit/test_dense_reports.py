@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -142,11 +143,12 @@ def test_new_parts_refines_on_the_held_out_piles_and_the_other_engines_only_wher
     (run / ".hydra" / "overrides.yaml").write_text(f"- experiment=dense\n- data.root={train}\n")
     calls = []
 
-    def fake_eval(cmd: list[str], **_: object) -> None:  # eval.py: its summary where out= says
+    def fake_eval(cmd: list[str], **_: object) -> subprocess.CompletedProcess:  # eval.py: its summary at out=
         calls.append(cmd)
         out = Path(next(c for c in cmd if c.startswith("out="))[4:])
         out.mkdir(parents=True)
         (out / "summary.json").write_text(json.dumps({"ap": 0.5 if "eval_pybullet" in out.name else 0.6}))
+        return subprocess.CompletedProcess(cmd, 0)
 
     monkeypatch.setattr(new_parts.subprocess, "run", fake_eval)
     new_parts.refine_run("itodd08", run)  # no eval_pybullet/: the other engine's piles were not made

@@ -55,12 +55,15 @@ CONFIG = "recipe60"
 #: steps that 41 minutes of training gave on the 2-core machine the first part ran on (its calibration; trained to
 #: 10,680, 20 validations x 534)
 STEPS = 10696
+PYBULLET_PILES = 12  # the other engine's held-out piles
 BUDGET = ["--config", CONFIG, "--gen-cycles", "192", "--views", "8", "--steps", str(STEPS), "--validations", "20",
-          "--tune", "--pybullet-piles", "12"]
+          "--tune", "--pybullet-piles", str(PYBULLET_PILES)]
 DROPS = 75  # bench_dense.py's parts per pile
 #: the refinement the model is also scored with (conf/refine/): ICP and the depth-agreement search, chosen on
 #: generated validation piles of another seed (refinement_probe.md), scored on the held-out piles once
 REFINE = "search_fast"
+#: the CSV field of each refined score -> the run's folder it is read from
+REFINED = {"ap_refined": "test_refined", "ap_pybullet_refined": "eval_pybullet_refined"}
 TARGET = 0.6
 FIELDS = ("object", "symmetry", "near_symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_pybullet",
           "ap_refined", "ap_pybullet_refined", "pybullet_note", "found", "position", "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
@@ -167,18 +170,18 @@ def refine_run(part: str, run_dir: Path) -> None:
     """Score the run's model (the checkpoint its test scored) with :data:`REFINE` on its held-out piles and,
     where they were made, the other engine's: ``test_refined/`` and ``eval_pybullet_refined/`` in the run."""
     from opnet.paths import best_checkpoint
+    from opnet.studies import run_logged
 
     ckpt, root = best_checkpoint(run_dir), train_root(str(run_dir))
     if ckpt is None or root is None:
         raise SystemExit(f"error: {run_dir}: no trained benchmark run of {part} to refine")
-    other = root.parent / f"{part}_pybullet_p12_d{DROPS}_s2"  # bench_dense.py's name for them
-    for dest, test_root in (("test_refined", None), ("eval_pybullet_refined", other)):
+    other = root.parent / f"{part}_pybullet_p{PYBULLET_PILES}_d{DROPS}_s2"  # bench_dense.py's name for them
+    for dest, test_root in zip(REFINED.values(), (None, other), strict=True):
         if test_root is not None and not (run_dir / "eval_pybullet" / "summary.json").is_file():
             continue  # the other engine's piles were not made
-        cmd = [sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={ckpt}", f"out={run_dir / dest}", f"refine={REFINE}",
-               "examples=0", *([f"data.test_root={test_root}"] if test_root else [])]
-        with open(run_dir / f"{dest}.log", "w") as log:
-            subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT)
+        run_logged([sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={ckpt}", f"out={run_dir / dest}",
+                    f"refine={REFINE}", "examples=0", *([f"data.test_root={test_root}"] if test_root else [])],
+                   run_dir / f"{dest}.log")
         print(f"[{part}] {dest} ({REFINE}): AP {json.loads((run_dir / dest / 'summary.json').read_text())['ap']:.4f}",
               flush=True)
 
@@ -186,7 +189,7 @@ def refine_run(part: str, run_dir: Path) -> None:
 def refined(run: str) -> dict[str, Any]:
     """``ap_refined`` and ``ap_pybullet_refined`` of a run scored by :func:`refine_run` (empty where not)."""
     out = {}
-    for key, dest in (("ap_refined", "test_refined"), ("ap_pybullet_refined", "eval_pybullet_refined")):
+    for key, dest in REFINED.items():
         summary = REPO_ROOT / run / dest / "summary.json" if run else None
         if summary is not None and summary.is_file():
             out[key] = json.loads(summary.read_text())["ap"]
@@ -206,7 +209,7 @@ def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dic
         except (FileNotFoundError, ValueError):  # the shared meshes absent: what the table had
             row |= {k: old.get(k, "") for k in ("d_mm", "camera_m", "fill", "fill_made", "near_symmetry")}
         row |= orientation_turns(b.get("run", "")) or {k: old.get(k, "") for k in ("turned_over", "turn_mode")}
-        row |= {k: old.get(k, "") for k in ("ap_refined", "ap_pybullet_refined")} | refined(b.get("run", ""))
+        row |= {k: old.get(k, "") for k in REFINED} | refined(b.get("run", ""))
         if row["fill_made"] in ("", None) or math.isnan(float(row["fill_made"])):  # the piles not here: the table's
             row["fill_made"] = old.get("fill_made", "")
         elif abs(float(row["fill_made"]) - float(row["fill"])) <= 0.005:  # the bin the recipe gives it now: no note
