@@ -29,6 +29,7 @@ from opnet.geometry.icp import (
     model_refinement,
     settings_from_config,
 )
+from opnet.metrics.breakdown import error_breakdown
 from opnet.metrics.diagnostics import orientation_misses
 from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.run_settings import InputSettings
@@ -61,18 +62,21 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
                                                               examples)))
     turns = OnScenes(lambda scenes: orientation_misses(scenes, obj.pose_space, obj.diameter,
                                                        max_occlusion=system.hparams.max_occlusion))
-    *done, count, summary, diagnostics, misses = evaluate(
-        system, loader, [*refine, *writers, OnScenes(len), *scoring(system), turns])
+    split_errors = OnScenes(lambda scenes: error_breakdown(scenes, obj.pose_space, obj.diameter,
+                                                           max_occlusion=system.hparams.max_occlusion))
+    *done, count, summary, diagnostics, misses, breakdown = evaluate(
+        system, loader, [*refine, *writers, OnScenes(len), *scoring(system), turns, split_errors])
     result = summary.to_dict()
     result["diagnostics"] = diagnostics.to_dict()
     result["orientation_misses"] = misses.to_dict()
+    result["breakdown"] = breakdown.to_dict()
     result.update(split=split, scenes=count, object=obj.name,
                   parameterization=type(system.parameterization).__name__)
     if icp:
         result["icp"] = done[0]
     write_text_atomic(out_dir / "summary.json", json.dumps(result, indent=2))
     write_text_atomic(out_dir / "ap_table.md", summary.table() + "\n\n" + diagnostics.table() + "\n"
-                      + misses.table() + "\n")
+                      + misses.table() + "\n" + breakdown.table() + "\n")
     return result
 
 
