@@ -63,6 +63,11 @@ class MultiTaskLoss(nn.Module):
             the Siléane camera) while x and y span a cell (about 3.5 cm there), so at weight 1 a depth
             error costs about 500 times less than the same error across the image, and dense piles
             are missed on depth (results/dense/ab.md).
+        lambda_xy: with ``position=channels``, the weight of the two image-plane channels (1 in the
+            paper). The cell-offset channels span the part's projected diameter on either side of the
+            cell (at least two cells), so an origin error of δ costs about (1/20)² whatever the part,
+            little beside the orientation channels of a flat part, whose turns the metric prices
+            high (results/flat_parts/README.md).
         robust: "none" (squared errors, the paper) or "charbonnier": each pose term ``e`` (a
             squared error) becomes ``2 (sqrt(1 + e) - 1)``: the same near zero, but growing only
             linearly with the error, so that the large errors of early training do not swamp the
@@ -81,6 +86,7 @@ class MultiTaskLoss(nn.Module):
         robust: str = "none",
         lambda_pos: float = 1.0,
         lambda_z: float = 1.0,
+        lambda_xy: float = 1.0,
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
@@ -93,7 +99,7 @@ class MultiTaskLoss(nn.Module):
             raise ValueError(f"loss.position must be one of {POSITION_LOSSES}, got {position!r}")
         for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
                            ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose),
-                           ("lambda_pos", lambda_pos), ("lambda_z", lambda_z)):  # fmt: skip
+                           ("lambda_pos", lambda_pos), ("lambda_z", lambda_z), ("lambda_xy", lambda_xy)):  # fmt: skip
             if not float(value) >= 0:
                 raise ValueError(f"loss.{key} must be >= 0, got {value}")
         self.lambda_p, self.lambda_v, self.lambda_ori = (
@@ -104,6 +110,7 @@ class MultiTaskLoss(nn.Module):
         self.lambda_pose = float(lambda_pose)
         self.lambda_pos = float(lambda_pos)
         self.lambda_z = float(lambda_z)
+        self.lambda_xy = float(lambda_xy)
         self.orientation = orientation
         self.position = position
         self.robust = robust
@@ -117,6 +124,7 @@ class MultiTaskLoss(nn.Module):
             and self.lambda_pose == 1.0
             and self.lambda_pos == 1.0
             and self.lambda_z == 1.0
+            and self.lambda_xy == 1.0
             and self.robust == "none"
         )
 
@@ -185,7 +193,7 @@ class MultiTaskLoss(nn.Module):
             t_gt = parameterization.decode_translations(t[:, 2:5], cells, cams)
             position = (((t_hat - t_gt) / delta) ** 2).sum(-1).to(o.dtype)
         else:
-            axes = o.new_tensor([1.0, 1.0, self.lambda_z])
+            axes = o.new_tensor([self.lambda_xy, self.lambda_xy, self.lambda_z])
             position = (((o[:, 2:5] - t[:, 2:5]) ** 2) * axes).sum(-1)
         rotation = parameterization.rotation
         if self.orientation == "sym_rotation":

@@ -105,6 +105,11 @@ def test_lambda_z_weighs_the_depth_channel_against_the_image_plane():
     assert not MultiTaskLoss(lambda_z=2.0).is_paper and MultiTaskLoss().is_paper
     with pytest.raises(ValueError, match="lambda_z"):
         MultiTaskLoss(lambda_z=-1.0)
+    lateral = MultiTaskLoss(**base, lambda_xy=10.0)(output, target, param)["position"].item()
+    assert lateral == pytest.approx(8 * vis**3 * (10 * 0.04 + 0.0025), rel=1e-4)
+    assert not MultiTaskLoss(lambda_xy=2.0).is_paper
+    with pytest.raises(ValueError, match="lambda_xy"):
+        MultiTaskLoss(lambda_xy=-1.0)
 
 
 def test_si_uses_linear_pose_weight():
