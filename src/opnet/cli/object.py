@@ -1,14 +1,18 @@
 """``opnet-object``: inspect a part's CAD mesh and write its object config.
 
     opnet-object <mesh> [--name N] [--out conf/object/N.yaml] [--units auto|m|cm|mm|in] [--tolerance-mm T]
+                 [--declare-near]
 
 Reads the mesh (any shells, watertight or not), states its units (``auto``: a largest extent up to 3 in file
 units is metres, above it millimetres; say so otherwise), measures it (extent, diameter D as the metric
 defines it, δ = 0.1 D, Λ), finds its proper symmetry group (:mod:`opnet.objects.symmetry_finder`; tolerance
 1 % of D unless ``--tolerance-mm``, printed with every candidate's deviation), turns the main symmetry axis
 onto z (``model_rotation``) about the symmetry centre (``model_origin``), and writes the YAML and a preview
-PNG beside it (the part from three sides with its axes). Bad input is one line naming the file, exit 2,
-nothing written.
+PNG beside it (the part from three sides with its axes). It names the part's near-symmetries: a turn it
+rejects that still moves 98 % of the surface by less than δ, and about the main axis a near-revolution (every
+turn under δ) or a near-cyclic order (every 360/k turn under δ; :mod:`opnet.objects.near_symmetry`), which a
+depth image hardly tells apart and the metric counts as wrong poses; ``--declare-near`` declares the latter.
+Bad input is one line naming the file, exit 2, nothing written.
 """
 
 from __future__ import annotations
@@ -94,7 +98,7 @@ def inspect_part(path: Path, units: str = "auto", tolerance_mm: float | None = N
     return mesh, scale, assumed, find_symmetry(mesh, tol)
 
 
-def describe(mesh: Any, report: Any, path: Path, assumed: str) -> list[str]:
+def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = None, declared: bool = False) -> list[str]:
     from opnet.objects.surface import sqrtm_psd, surface_moments
 
     m = surface_moments(mesh.vertices, mesh.faces)
@@ -120,6 +124,13 @@ def describe(mesh: Any, report: Any, path: Path, assumed: str) -> list[str]:
                   "    A depth image may hardly tell the part from itself turned so, and the metric counts such a pose as",
                   "    wrong (expect orientation misses there); where both poses serve the same grasp, a --tolerance-mm",
                   "    above the deviation declares the turn a symmetry."]
+    if near_spin is not None:
+        what = "revolution" if near_spin.order is None else f"cyclic {near_spin.order}"
+        lines += [f"  {near_spin.text(report.model_rotation)}.",
+                  "    A depth image hardly tells the part's spins about this axis apart, and the metric counts each as a",
+                  "    wrong pose: a network is asked to learn what it cannot see (expect orientation misses, spins about",
+                  f"    the axis). {'Declared' if declared else 'To declare it'}: symmetry {what} about the main axis"
+                  f"{'' if declared else ' (--declare-near)'}, where the part's spin does not matter to the grasp."]
     return lines
 
 
@@ -145,7 +156,10 @@ def _spec_text(spec: dict) -> str:
     return ", ".join(f"{k} {v}" for k, v in spec.items())
 
 
-def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: Any, assumed: str) -> str:
+def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: Any, assumed: str,
+                 near_spin: Any = None, exact: Any = None) -> str:  # fmt: skip
+    """The object config's text. ``near_spin``: the near-symmetry about the main axis, named (``exact`` None)
+    or declared (``exact``: the report of the exact symmetry it replaced)."""
     import yaml
 
     spec = dict(report.spec)
@@ -154,6 +168,11 @@ def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: An
              "file's frame, metres; model_rotation: x_model = R (x_file - origin), the main axis onto z."]  # fmt: skip
     if near_symmetries(report):
         lines.append(f"# near-symmetry (under delta, not declared): {near_symmetries(report)}.")
+    if near_spin is not None and exact is None:
+        lines.append(f"# {near_spin.text(report.model_rotation)} (not declared; --declare-near declares it).")
+    elif near_spin is not None:
+        lines.append(f"# declared with --declare-near: {near_spin.text(report.model_rotation)}; the exact symmetry "
+                     f"is {exact.name} ({_spec_text(exact.spec)}).")
     body = {"name": name, "mesh": str(mesh_path), "mesh_scale": scale,
             "model_origin": [round(float(v), 9) for v in report.origin],
             "model_rotation": [[round(float(v), 9) for v in row] for row in report.model_rotation], "symmetry": spec}
@@ -201,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--units", choices=("auto", *UNITS), default="auto")
     ap.add_argument("--tolerance-mm", type=float, default=None, help="default: 1 %% of the part's diameter")
     ap.add_argument("--force", action="store_true", help="overwrite an existing --out")
+    ap.add_argument("--declare-near", action="store_true",
+                    help="declare the near-revolution or near-cyclic order about the main axis it names (every turn, "
+                         "or every 360/k turn, moves 98 %% of the surface by less than delta) as the part's symmetry")
     args = ap.parse_args(argv)
     name = args.name or args.mesh.stem.lower()
     if args.tolerance_mm is not None and not (math.isfinite(args.tolerance_mm) and args.tolerance_mm > 0):
@@ -222,8 +244,16 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         msg = str(e)
         return _fail(msg if msg.startswith(str(args.mesh)) else f"{args.mesh}: {msg}")
-    print("\n".join(describe(mesh, report, args.mesh, assumed)))
-    text = write_config(out, name, args.mesh.resolve(), scale, report, assumed)
+    from opnet.objects.near_symmetry import declared, near_axis
+
+    near_spin, exact = near_axis(mesh, report), None
+    if args.declare_near and near_spin is not None:
+        exact, report = report, declared(report, near_spin, mesh)
+    elif args.declare_near:
+        print(f"{args.mesh}: --declare-near: no near-revolution or near-cyclic order about the main axis to declare; "
+              "the exact symmetry is written")  # fmt: skip
+    print("\n".join(describe(mesh, report, args.mesh, assumed, near_spin, declared=exact is not None)))
+    text = write_config(out, name, args.mesh.resolve(), scale, report, assumed, near_spin, exact)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, text)
     png = out.with_suffix(".png")

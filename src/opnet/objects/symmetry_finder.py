@@ -12,8 +12,9 @@ Candidates:
   that plane every half degree are tried for half turns (a dihedral group's two-fold axes, a flip end
   over end); where all three are equal (a cube, a tetrahedron, a sphere) the directions from the
   centroid to the farthest surface points and to the face centres of the convex hull are tried too;
-- about each candidate axis the turns by 360/k degrees, k = 12 down to 2 (the largest k that holds is
-  the axis's order), and five turns of unrelated angles: all five holding makes it a revolution axis.
+- about each candidate axis the turns by 360/k degrees, k = 72 down to 2 (the largest k that holds is
+  the axis's order: gears, sprockets and bolt circles run to 60 and more), and five turns of unrelated
+  angles: all five holding makes it a revolution axis.
 
 The rotations found generate the group (closed under composition, each product checked); it is then
 named as the metric wants it (:class:`opnet.geometry.symmetry.Symmetry`): none, cyclic k about one
@@ -39,12 +40,15 @@ from opnet.objects.surface import surface_moments
 
 #: the turns that must all hold for a revolution axis (degrees, unrelated to one another and to 360/k)
 REVOLUTION_TEST_DEG = (7.3, 23.9, 61.7, 97.1, 151.3)
-#: the highest order tried about an axis (a part of finer symmetry is a revolution part to any camera)
-MAX_ORDER = 12
+#: the highest order tried about an axis (gears, sprockets and bolt circles run to 60 and more; a part of finer
+#: symmetry is a revolution part to any camera)
+MAX_ORDER = 72
 #: two principal spreads within this share of one another are equal (a degenerate plane)
 EQUAL_SPREAD = 0.03
-#: the largest group assembled (the icosahedral group)
-MAX_GROUP = 60
+#: the sample a revolution verdict limited by the sampling is checked again on
+DENSE_SAMPLES = 12000
+#: the largest group assembled (the dihedral group of the highest order tried)
+MAX_GROUP = 2 * MAX_ORDER
 
 
 @dataclass
@@ -103,6 +107,10 @@ class _Surface:
     def deviation(self, R: np.ndarray) -> float:
         return float(np.percentile(self.tree.query(self.points @ R.T)[0], 98))
 
+    def screen(self, R: np.ndarray) -> float:
+        """The deviation on every 4th point: a quick look at whether a turn is close at all."""
+        return float(np.percentile(self.tree.query(self.points[::4] @ R.T)[0], 98))
+
     def mean_distance(self, R: np.ndarray) -> float:
         """The mean distance: smoother than the percentile, what an axis is refined by."""
         return float(self.tree.query(self.points @ R.T)[0].mean())
@@ -150,17 +158,37 @@ def _order(surface: _Surface, axis: np.ndarray, tol: float, rejected: list[Candi
     if all(c.deviation <= tol for c in revolution):
         return None, revolution
     worst = max(revolution, key=lambda c: c.deviation)
+    # an axis all of whose turns are close (a near-revolution: every k is close) is refined once, on an unrelated
+    # turn; any other axis for each close k, once each of its multiples is close too
+    shared = _refined(surface, axis.copy(), math.radians(REVOLUTION_TEST_DEG[2]))[0] \
+        if all(c.deviation <= 3.0 * tol for c in revolution) else None  # fmt: skip
+
+    def largest(about: np.ndarray, k: int, limit: float, quick: bool = False) -> float:
+        """The largest deviation of the multiples of 360/k about ``about``, the half turn first (where a part that
+        is only near-symmetric deviates most), stopping at the first beyond ``limit``; ``quick``: screened."""
+        measure = surface.screen if quick else surface.deviation
+        dev = 0.0
+        for m in range(k // 2, 0, -1):
+            dev = max(dev, measure(_axis_rotation(about, 2 * math.pi * m / k)))
+            if dev > limit:
+                break
+        return dev
+
     for k in range(max_order, 1, -1):
-        dev = surface.deviation(_axis_rotation(axis, 2 * math.pi / k))
-        if dev <= 3.0 * tol:  # close: the axis may be a degree off the mesh's own (a tessellation's asymmetry)
-            refined, dev = _refined(surface, axis, 2 * math.pi / k)
-            # every multiple of the turn must hold too (a 7-fold turn of a hexagon is close, twice it is not)
-            devs = [dev, *(surface.deviation(_axis_rotation(refined, 2 * math.pi * m / k)) for m in range(2, k // 2 + 1))]
-            if max(devs) <= tol:
-                axis[:] = refined
-                return k, [Candidate(axis, 360.0 / k, max(devs))]
-        if k == 2:
-            rejected.append(Candidate(axis, 180.0, dev))
+        if surface.screen(_axis_rotation(axis, 2 * math.pi / k)) > 3.0 * tol:
+            continue  # not close: the axis may be a degree off the mesh's own (a tessellation's asymmetry), no more
+        if shared is not None:
+            refined = shared
+        elif largest(axis, k, 3.0 * tol, quick=True) <= 3.0 * tol:
+            refined, _ = _refined(surface, axis.copy(), 2 * math.pi / k)
+        else:
+            continue
+        # every multiple of the turn must hold (a 7-fold turn of a hexagon is close, twice it is not)
+        worst_dev = largest(refined, k, tol)
+        if worst_dev <= tol:
+            axis[:] = refined
+            return k, [Candidate(axis, 360.0 / k, worst_dev)]
+    rejected.append(Candidate(axis, 180.0, surface.deviation(_axis_rotation(axis, math.pi))))
     rejected.append(worst)
     return 1, []
 
@@ -211,6 +239,19 @@ def find_symmetry(mesh: trimesh.Trimesh, tolerance: float, samples: int = 3000, 
     Raises:
         ValueError: a sphere-like part (several revolution axes), or turns that do not form a group.
     """
+    report = _find_symmetry(mesh, tolerance, samples, seed)
+    if report.spec["kind"] == "revolution" and report.tolerance > float(tolerance) and samples < DENSE_SAMPLES:
+        # the sampling floor, not the tolerance, let the revolution test pass: the teeth of a fine gear or a bolt
+        # circle of many holes are finer than the sample; the axis is tried again on a denser one
+        dense = _Surface(mesh, DENSE_SAMPLES, seed)
+        tol = max(float(tolerance), 1.5 * dense.floor)
+        axis = report.model_rotation.T @ np.array([0.0, 0.0, 1.0])
+        if any(dense.deviation(_axis_rotation(axis, math.radians(a))) > tol for a in REVOLUTION_TEST_DEG):
+            return _find_symmetry(mesh, tolerance, DENSE_SAMPLES, seed)
+    return report
+
+
+def _find_symmetry(mesh: trimesh.Trimesh, tolerance: float, samples: int, seed: int) -> SymmetryReport:
     surface = _Surface(mesh, samples, seed)
     tol = max(float(tolerance), 1.5 * surface.floor)
     spreads, V = _principal(surface.covariance)
@@ -249,12 +290,14 @@ def find_symmetry(mesh: trimesh.Trimesh, tolerance: float, samples: int = 3000, 
         plane = [k for k in range(3) if k != unique]
         degs = np.arange(0.0, 180.0, 0.5)
         dirs = [math.cos(math.radians(a)) * axes[plane[0]] + math.sin(math.radians(a)) * axes[plane[1]] for a in degs]
-        devs = np.array([surface.deviation(_axis_rotation(d, math.pi)) for d in dirs])
-        for i in np.flatnonzero((devs <= np.roll(devs, 1)) & (devs <= np.roll(devs, -1)) & (devs <= 3.0 * tol)):
-            d, dev = _refined(surface, dirs[i], math.pi)  # the sweep's local minima, refined
+        devs = np.array([surface.screen(_axis_rotation(d, math.pi)) for d in dirs])
+        minima = np.flatnonzero((devs <= np.roll(devs, 1)) & (devs <= np.roll(devs, -1)) & (devs <= 3.0 * tol))
+        for i in minima[np.argsort(devs[minima])][:3]:  # the sweep's three best local minima, refined
+            d, dev = _refined(surface, dirs[i], math.pi)
             if dev <= tol and not any(_same_axis(d, b) for b, _ in orders):
                 orders.append((d, 2))
                 found.append(Candidate(d, 180.0, dev))
+                break  # one half turn across generates the others with the main axis (a dihedral group)
     # two generators: the axis of highest order and the best other axis not along it (more would only add
     # their numerical errors to the products)
     ranked = sorted([(a, k) for a, k in orders if k and k > 1], key=lambda ak: -ak[1])
