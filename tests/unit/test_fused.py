@@ -53,10 +53,12 @@ def _close(a: torch.Tensor, b: torch.Tensor) -> None:
     ("tiny", 16, {"bottleneck": False, "depth": 10}),
     ("tiny", 16, {"output_activation": "identity"}),
     ("tiny", 16, {"growth_rate": 18}),  # 16 + 2 channels: the split 3x3 convolution at 32 x 32
+    ("small", 16, {"in_size": 256, "stem_stride": 8}),  # the 15 x 15 stem of a twice larger input
 ])  # fmt: skip
 def test_fused_equals_the_network(preset: str, grid: int, kw: dict) -> None:
     net = _net(preset, grid, **kw)
-    x = torch.rand(3, 1, 128, 128, generator=torch.Generator().manual_seed(1))
+    side = kw.get("in_size", 128)
+    x = torch.rand(3, 1, side, side, generator=torch.Generator().manual_seed(1))
     x[0, 0, :20] = 0.0  # missing-depth rows, as the preprocessing leaves them
     with torch.inference_mode():
         ref = net(x)

@@ -149,3 +149,17 @@ def test_model_presets_instantiate_without_output_keys(preset: str) -> None:
     assert "out_channels" not in cfg and "out_grid" not in cfg
     model = instantiate(cfg, out_channels=24, out_grid=8)
     assert isinstance(model, DenseNetBC) and model.out_grid == 8
+
+
+def test_a_stride_8_stem_feeds_twice_the_input_to_the_same_blocks() -> None:
+    """256 pixels at stem stride 8 reach the 32 x 32 maps 128 pixels reach at stride 4: the same blocks and
+    transitions (every weight but the stem's), the output grids of the 128-pixel network, and a stem that
+    still sees every input pixel (15 x 15 kernel)."""
+    for grid in (8, 16, 32):
+        wide = _tiny(out_grid=grid, out_channels=24, stem_stride=8, in_size=256).eval()
+        plain = _tiny(out_grid=grid, out_channels=24, stem_stride=4, in_size=128).eval()
+        assert wide.block_layers == plain.block_layers and wide.stem.kernel_size == (15, 15)
+        rest = lambda m: sum(p.numel() for n, p in m.named_parameters() if not n.startswith("stem"))  # noqa: E731
+        assert rest(wide) == rest(plain)
+        with torch.no_grad():
+            assert wide(torch.rand(1, 1, 256, 256)).shape == (1, 24, grid, grid)

@@ -23,9 +23,11 @@ every output grid; the number of transitions follows from the grid,
 - grid 8 (MP, 3 transitions): blocks of 4, 4, 5, 5 -> 41 weighted layers;
 - grid 32 (SI, 1 transition): blocks of 9, 9 -> 39 weighted layers.
 
-A stem stride of 4 (CPU presets) removes one transition (grid 16: two blocks). The stem kernel is
-3 x 3 for strides 1 and 2 and ``2·stride - 1`` (7 x 7 for stride 4) so that the stem still sees
-every input pixel.
+A stem stride of 4 (CPU presets) removes one transition (grid 16: two blocks); a stride of 8 feeds
+a twice larger input to the same blocks (256 pixels to the 32 x 32 maps a 128-pixel input gives at
+stride 4: more input pixels per part for about the same work). The stem kernel is 3 x 3 for strides
+1 and 2 and ``2·stride - 1`` (7 x 7 for stride 4, 15 x 15 for 8) so that the stem still sees every
+input pixel.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from torch import Tensor, nn
 from torch.utils.checkpoint import checkpoint
 
 OUTPUT_ACTIVATIONS = ("sigmoid", "identity")
-STEM_STRIDES = (1, 2, 4)
+STEM_STRIDES = (1, 2, 4, 8)
 
 
 def _bn_relu_conv(in_ch: int, out_ch: int, kernel: int) -> list[nn.Module]:
@@ -149,7 +151,7 @@ class DenseNetBC(nn.Module):
         depth: DenseNet-BC depth of the reference 3-block network, ``depth = c·L + 4``.
         growth_rate: ``k``, channels added per dense layer.
         compression: channel factor of the transitions (``θ`` of DenseNet-BC), in (0, 1].
-        stem_stride: stride of the stem convolution (1, 2 or 4).
+        stem_stride: stride of the stem convolution (1, 2, 4 or 8).
         bottleneck: use the 1x1 bottleneck (4k channels) before each 3x3 convolution ("B").
         output_activation: ``"sigmoid"`` (every target channel lies in [0, 1]) or ``"identity"``.
         in_channels: input channels (1 for depth).
