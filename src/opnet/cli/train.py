@@ -14,6 +14,7 @@ from omegaconf import DictConfig
 
 from opnet.cli.build import (
     absolutize_paths,
+    plain,
     build_components,
     build_datamodule,
     check_scene_address,
@@ -76,6 +77,11 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
     check_scene_address(cfg)
+    if cfg.get("part_pixels") is not None:
+        from opnet.cli.sizing import size_input_to_part
+        from opnet.objects.config import object_from_config
+
+        log.info(size_input_to_part(cfg, object_from_config(plain(cfg.object)).diameter))
     comps = build_components(cfg)
     datamodule = build_datamodule(cfg, comps.obj, train=True)
     trainer = build_trainer(cfg)
