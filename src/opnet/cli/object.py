@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,10 @@ import numpy as np
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 #: a bin-picking part is this big (metres, largest extent) or the units are wrong
 PART_SIZE = (0.003, 3.0)
+#: an object's name: its config is conf/object/<name>.yaml, a Hydra option (``object=<name>``)
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+#: the names an object config takes
+CONFIG_SUFFIXES = (".yaml", ".yml")
 
 
 def _fail(message: str) -> int:
@@ -52,6 +58,9 @@ def read_part(path: Path, units: str) -> tuple[Any, float, str]:
     if not isinstance(raw, trimesh.Trimesh) or len(raw.faces) == 0:
         raise ValueError(f"{path}: not a mesh: no triangles in the file")
     largest = float(raw.extents.max())
+    if not (math.isfinite(largest) and largest > 0):
+        raise ValueError(f"{path}: the mesh has no extent (its vertices lie in one point, {largest:g} file units "
+                         "across, as read): not a part")
     if units == "auto":
         units = "m" if largest <= PART_SIZE[1] else "mm"
         assumed = f"units: {units} (assumed from its largest extent, {largest:g} file units; give --units otherwise)"
@@ -94,6 +103,11 @@ def inspect_part(path: Path, units: str = "auto", tolerance_mm: float | None = N
 
     mesh, scale, assumed = read_part(path, units)
     centroid_d = 2.0 * float(np.linalg.norm(mesh.vertices - mesh.centroid, axis=1).max())
+    delta_mm = 100.0 * centroid_d  # 0.1 D, in millimetres
+    if tolerance_mm is not None and tolerance_mm > delta_mm:
+        raise ValueError(f"{path}: --tolerance-mm {tolerance_mm:g}: above delta ({delta_mm:.2f} mm, a tenth of the "
+                         "part's diameter), where the metric counts a pose as wrong: no turn that far off is a "
+                         f"symmetry; expected at most {delta_mm:.2f}")  # fmt: skip
     tol = tolerance_mm / 1000 if tolerance_mm is not None else 0.01 * centroid_d
     return mesh, scale, assumed, find_symmetry(mesh, tol)
 
@@ -212,6 +226,51 @@ def preview(mesh: Any, report: Any, out: Path) -> None:
     plt.close(fig)
 
 
+def object_name(given: str | None, mesh: Path) -> str:
+    """The object's name: ``given`` (``--name``) if a plain name (:data:`NAME`), else the mesh's stem made one.
+
+    Raises:
+        ValueError: ``given`` is no plain name (a path, a hidden or empty name): naming ``--name``.
+    """
+    if given is None:
+        return re.sub(r"[^a-z0-9_-]+", "_", mesh.stem.lower()).strip("_-") or "part"
+    if not NAME.fullmatch(given):
+        raise ValueError(f"--name {given!r}: expected a plain name (letters, digits, _ and -, starting with a letter "
+                         "or digit, at most 64): the object's config is conf/object/<name>.yaml")
+    return given
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
+def output_paths(mesh: Path, out: Path, force: bool) -> tuple[Path, Path]:
+    """The object config ``out`` and its preview beside it, checked before the work: an object config's name
+    (``.yaml``), neither of them the input mesh, not an existing file without ``force``, both writable.
+
+    Raises:
+        ValueError: one line naming the path and the option.
+    """
+    from opnet.cli.tools import require_writable
+
+    png = out.with_suffix(".png")
+    for target in (out, png):
+        if _same_file(target, mesh):
+            raise ValueError(f"--out {out}: {'its preview ' + str(png) if target == png else 'it'} is the input mesh "
+                             f"{mesh}; choose another --out (the mesh is left as it is)")
+    if out.suffix.lower() not in CONFIG_SUFFIXES:
+        raise ValueError(f"--out {out}: expected the name of a .yaml file (the object config; its preview is "
+                         "written beside it as .png)")
+    if out.exists() and not force:
+        raise ValueError(f"{out}: exists; give --force to overwrite it or another --out")
+    for target in (out, png):  # a folder, a device, a read-only folder
+        require_writable(target, "--out")
+    return out, png
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="opnet-object", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("mesh", type=Path)
@@ -224,19 +283,14 @@ def main(argv: list[str] | None = None) -> int:
                     help="declare the near-revolution or near-cyclic order about the main axis it names (every turn, "
                          "or every 360/k turn, moves 98 %% of the surface by less than delta) as the part's symmetry")
     args = ap.parse_args(argv)
-    name = args.name or args.mesh.stem.lower()
     if args.tolerance_mm is not None and not (math.isfinite(args.tolerance_mm) and args.tolerance_mm > 0):
         return _fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
-    from opnet.cli.tools import require_writable
+    from opnet import paths
     from opnet.fileio.atomic import write_text_atomic
-    from opnet.paths import config_dir
 
-    out = args.out or config_dir() / "object" / f"{name}.yaml"
-    if out.exists() and not args.force:
-        return _fail(f"{out}: exists; give --force to overwrite it or another --out")
-    try:  # the YAML and its preview: before the measuring, not after it (a folder, a device, a read-only folder)
-        for target in (out, out.with_suffix(".png")):
-            require_writable(target, "--out")
+    try:  # where it writes: before the measuring, not after it
+        name = object_name(args.name, args.mesh)
+        out, png = output_paths(args.mesh, args.out or paths.config_dir() / "object" / f"{name}.yaml", args.force)
     except ValueError as e:
         return _fail(str(e))
     try:
@@ -256,7 +310,6 @@ def main(argv: list[str] | None = None) -> int:
     text = write_config(out, name, args.mesh.resolve(), scale, report, assumed, near_spin, exact)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, text)
-    png = out.with_suffix(".png")
     preview(mesh, report, png)
     print(f"wrote {out} and {png}")
     return 0
