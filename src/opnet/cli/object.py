@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from opnet.arguments import ArgumentParser, fail
+
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 #: a bin-picking part is this big (metres, largest extent) or the units are wrong
 PART_SIZE = (0.003, 3.0)
@@ -34,11 +36,6 @@ PART_SIZE = (0.003, 3.0)
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 #: the names an object config takes
 CONFIG_SUFFIXES = (".yaml", ".yml")
-
-
-def _fail(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr)
-    return 2
 
 
 def read_part(path: Path, units: str) -> tuple[Any, float, str]:
@@ -272,7 +269,7 @@ def output_paths(mesh: Path, out: Path, force: bool) -> tuple[Path, Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="opnet-object", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(prog="opnet-object", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("mesh", type=Path)
     ap.add_argument("--name", default=None, help="the object's name (default: the file's stem, lower case)")
     ap.add_argument("--out", type=Path, default=None, help="the YAML to write (default conf/object/<name>.yaml)")
@@ -284,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
                          "or every 360/k turn, moves 98 %% of the surface by less than delta) as the part's symmetry")
     args = ap.parse_args(argv)
     if args.tolerance_mm is not None and not (math.isfinite(args.tolerance_mm) and args.tolerance_mm > 0):
-        return _fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
+        return fail(f"{args.mesh}: --tolerance-mm {args.tolerance_mm:g}: expected a positive number of millimetres")
     from opnet import paths
     from opnet.fileio.atomic import write_text_atomic
 
@@ -292,12 +289,12 @@ def main(argv: list[str] | None = None) -> int:
         name = object_name(args.name, args.mesh)
         out, png = output_paths(args.mesh, args.out or paths.config_dir() / "object" / f"{name}.yaml", args.force)
     except ValueError as e:
-        return _fail(str(e))
+        return fail(str(e))
     try:
         mesh, scale, assumed, report = inspect_part(args.mesh, args.units, args.tolerance_mm)
     except ValueError as e:
         msg = str(e)
-        return _fail(msg if msg.startswith(str(args.mesh)) else f"{args.mesh}: {msg}")
+        return fail(msg if msg.startswith(str(args.mesh)) else f"{args.mesh}: {msg}")
     from opnet.objects.near_symmetry import declared, near_axis
 
     near_spin, exact = near_axis(mesh, report), None

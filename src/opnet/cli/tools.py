@@ -1,7 +1,9 @@
-"""What the checkpoint tools (``opnet-tune-decoding``, ``opnet-record-trained-clip``,
-export.py) share with the entry points: a user error is one line ``error: <file>: <problem>`` and
-exit status 2, a target that cannot be written is refused before the work, and a checkpoint is
-written atomically (a failure leaves the target as it was and no temporary file).
+"""What the console tools (``opnet-tune-decoding``, ``opnet-record-trained-clip``, ``opnet-oracle``,
+``opnet-diagnose-sources``, ``opnet-compare-runs``, ``opnet-object``) and export.py share with the entry
+points: a user error is one line ``error: <file>: <problem>`` and exit status 2, a target that cannot be
+written (or an existing file without ``--force``) is refused before the work, and a checkpoint is written
+atomically (a failure leaves the target as it was and no temporary file). Their options are parsed by
+:mod:`opnet.arguments`.
 """
 
 from __future__ import annotations
@@ -11,8 +13,6 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-
-import torch
 
 from opnet.cli.console import guarded
 from opnet.fileio.atomic import write_bytes_atomic, write_errors_named
@@ -30,25 +30,49 @@ def tool_main(body: Callable[[], int]) -> int:
         return 2
 
 
-def require_writable(path: str | Path, option: str) -> Path:
+def require_writable(path: str | Path, option: str, replace: bool = True) -> Path:
     """``path`` if a file can be written there (checked before a long run that would fail only at
     its end): not a folder or another non-file, in a folder (or below the nearest existing one) that
-    this process may write into.
+    this process may write into; with ``replace`` False, no file yet.
 
     Args:
         option: how the user names ``path`` (``--write``, ``out=``), for the message.
+        replace: an existing file may be replaced (``--force``, ``--in-place``).
     Raises:
         ValueError: naming ``path``: what is in the way.
     """
     path = Path(path)
     if path.exists() and not path.is_file():
         raise ValueError(f"{path}: exists and is not a regular file; {option} takes the name of a file to write")
+    if path.exists() and not replace:
+        raise ValueError(f"{path}: exists; give --force to replace it, or another {option}")
+    _require_folder_above(path, option)
+    return path
+
+
+def require_folder(path: str | Path, option: str) -> Path:
+    """``path`` if it is a folder this process may write into, or one it may make (checked before the work).
+
+    Raises:
+        ValueError: naming ``path``: a file there (or above it), or a folder that is not writable.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{path}: exists and is not a folder; {option} takes a folder to write into")
+    if path.is_dir():
+        if not os.access(path, os.W_OK):
+            raise ValueError(f"{path}: the folder is not writable; choose another {option}")
+        return path
+    _require_folder_above(path, option)
+    return path
+
+
+def _require_folder_above(path: Path, option: str) -> None:
     folder = next(p for p in path.parents if p.exists())  # "." or the root at the latest
     if not folder.is_dir():
         raise ValueError(f"{path}: {folder} is a file, not a folder; choose another {option}")
     if not os.access(folder, os.W_OK):
         raise ValueError(f"{path}: the folder {folder} is not writable; choose another {option}")
-    return path
 
 
 def save_checkpoint(ckpt: dict[str, Any], dest: str | Path) -> None:
@@ -58,6 +82,8 @@ def save_checkpoint(ckpt: dict[str, Any], dest: str | Path) -> None:
     Raises:
         ValueError, DiskFullError: one line naming ``dest``.
     """
+    import torch
+
     buffer = io.BytesIO()
     torch.save(ckpt, buffer)
     with write_errors_named(dest):

@@ -18,6 +18,8 @@ import io
 import sys
 from pathlib import Path
 
+from opnet.arguments import ArgumentParser, fail
+from opnet.cli.tools import require_folder
 from opnet.studies import mean_sd
 from opnet.studies.sweeps import collect, markdown, table
 
@@ -45,18 +47,20 @@ def bar_chart(params: list[str], objects: list[str], cells: dict[tuple[str, str]
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("multirun", type=Path, help="a Hydra multirun folder (one sub-folder per arm)")
     ap.add_argument("--out", type=Path, default=None, help="where to write comparison.* (default: the multirun folder)")
     args = ap.parse_args(argv)
     if not args.multirun.is_dir():
-        print(f"error: {args.multirun}: not a folder", file=sys.stderr)
-        return 2
+        return fail(f"{args.multirun}: not a folder")
+    out = args.out or args.multirun
+    try:
+        require_folder(out, "--out")
+    except ValueError as e:
+        return fail(str(e))
     rows = collect(args.multirun)
     if not rows:
-        print(f"error: {args.multirun}: no finished arm (no */.hydra/hydra.yaml with test/summary.json)", file=sys.stderr)
-        return 2
-    out = args.out or args.multirun
+        return fail(f"{args.multirun}: no finished arm (no */.hydra/hydra.yaml with test/summary.json)")
     out.mkdir(parents=True, exist_ok=True)
     params, objects, cells = table(rows)
     md = markdown(params, objects, cells)

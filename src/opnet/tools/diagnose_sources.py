@@ -43,7 +43,10 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from opnet.arguments import ArgumentParser  # noqa: E402
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
+from opnet.cli.tools import require_folder, tool_main  # noqa: E402
+from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
 from opnet.metrics.diagnostics import MISS_REASONS, diagnose, rotation_errors_deg, scene_outcomes  # noqa: E402
 from opnet.parameterizations.positions import CameraBatch  # noqa: E402
@@ -232,16 +235,26 @@ def markdown(run: str, rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", action="append", required=True, type=Path, help="checkpoint (repeat)")
     parser.add_argument("--split", default="test", choices=("val", "test", "train"))
     parser.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "table1" / "diagnostics")
     args = parser.parse_args(argv)
+    return tool_main(lambda: diagnose(args))
+
+
+def _write(path: Path, text: str) -> None:
+    with write_errors_named(path):
+        write_text_atomic(path, text)
+
+
+def diagnose(args: argparse.Namespace) -> int:
+    """The tables :func:`main` asks for: the checkpoints and ``--out`` checked, then each checkpoint recorded."""
     for ckpt in args.ckpt:
         if not ckpt.is_file():
-            raise SystemExit(f"error: --ckpt {ckpt}: no such file")
+            raise ValueError(f"{ckpt}: checkpoint not found (--ckpt)")
+    require_folder(args.out, "--out")
     torch.set_grad_enabled(False)
-    args.out.mkdir(parents=True, exist_ok=True)
     all_rows = []
     first: tuple[str, dict[str, Any]] | None = None
     for ckpt in args.ckpt:
@@ -253,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         if first is not None:
             text += "\n" + versus(first[1], rec, first[0], run)
         print(text, flush=True)
-        (args.out / f"sources_{run.replace('/', '_')}.md").write_text(text)
+        _write(args.out / f"sources_{run.replace('/', '_')}.md", text)
         all_rows += [{"run": run, **r} for r in rows]
         if first is None:
             first = (run, {"outcomes": rec["outcomes"]})
@@ -263,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     writer = csv.DictWriter(buf, fieldnames=fields)
     writer.writeheader()
     writer.writerows(all_rows)
-    (args.out / "sources.csv").write_text(buf.getvalue())
+    _write(args.out / "sources.csv", buf.getvalue())
     print(f"written {args.out}/sources.csv")
     return 0
 

@@ -15,19 +15,27 @@ built-in or a conf/object/<name>.yaml). Prints the table and writes ceiling.md a
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
-import yaml
 from omegaconf import DictConfig
 
 from opnet.analysis.ceiling import dataset_object, parameterization_configs, run_ceiling_study
+from opnet.arguments import ArgumentParser, folder, variant_settings, whole
+from opnet.cli.tools import require_folder, tool_main
 from opnet.datasets import IPADataset, open_dataset
+from opnet.settings_schema import TRAINING, check_value
+
+#: the schema's names of the parameterization settings it declares (threshold, grid, ...), by config key
+SCHEMA_NAMES = {key.removeprefix("parameterization."): name for name, key in TRAINING.items()
+                if key.startswith("parameterization.")}
 
 
 def variant_configs(variants: list[str]) -> dict[str, DictConfig]:
-    """``NAME[:key=value,...]`` -> {the text: NAME's config with those settings}; ValueError for an
-    unknown name or a setting its config does not have."""
+    """``NAME[:key=value,...]`` -> {the text: NAME's config with those settings}; ValueError naming the
+    variant for an unknown name, a key its config does not document (``_target_`` and Hydra's other
+    keys are none), a value that is not plain or that the schema refuses."""
     known = parameterization_configs()
     out = {}
     for text in variants:
@@ -35,42 +43,34 @@ def variant_configs(variants: list[str]) -> dict[str, DictConfig]:
         if name not in known:
             raise ValueError(f"--variant {text}: unknown parameterization {name!r}; expected one of {sorted(known)}")
         cfg = known[name].copy()
-        for item in filter(None, settings.split(",")):
-            key, eq, value = item.partition("=")
-            if not eq or key not in cfg:
-                raise ValueError(f"--variant {text}: {item!r} is not a setting of {name} (key=value)")
-            cfg[key] = yaml.safe_load(value)
+        documented = [k for k in cfg if not str(k).startswith("_")]
+        for key, value in variant_settings(text, settings, documented, "--variant").items():
+            if key in SCHEMA_NAMES:
+                value = check_value(SCHEMA_NAMES[key], value, f"--variant {text}: {key}")
+            cfg[key] = value
         out[text] = cfg
     return out
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--data", type=Path, action="append", required=True, help="dataset folder (repeatable)"
-    )
-    parser.add_argument(
-        "--out", type=Path, required=True, help="folder for ceiling.md and ceiling.csv"
-    )
-    parser.add_argument(
-        "--max-scenes",
-        type=int,
-        default=None,
-        help="at most this many scenes per dataset, evenly spread",
-    )
+def main(argv: list[str] | None = None) -> int:
+    parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", type=folder, action="append", required=True, help="dataset folder (repeatable)")
+    parser.add_argument("--out", type=Path, required=True, help="folder for ceiling.md and ceiling.csv")
+    parser.add_argument("--max-scenes", type=whole(1), default=None,
+                        help="at most this many scenes per dataset, evenly spread")
     parser.add_argument("--object", default=None, help="object of datasets without object.json")
-    parser.add_argument(
-        "--min-objects", type=int, default=0, help="only scenes with at least this many objects (IPA layout)"
-    )
+    parser.add_argument("--min-objects", type=whole(0), default=0,
+                        help="only scenes with at least this many objects (IPA layout)")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME[:key=value,...]: a parameterization config with settings (repeatable)")
     args = parser.parse_args(argv)
-    try:
-        configs = variant_configs(args.variant) if args.variant else None
-    except ValueError as e:
-        parser.error(str(e))
+    return tool_main(lambda: study(args))
+
+
+def study(args: argparse.Namespace) -> int:
+    """The study :func:`main` asks for: variants and the output folder checked, then every dataset read."""
+    configs = variant_configs(args.variant) if args.variant else None
+    require_folder(args.out, "--out")
     datasets = []
     for root in args.data:
         dataset = open_dataset(root)
@@ -84,7 +84,8 @@ def main(argv: list[str] | None = None) -> None:
     print(report.markdown())
     report.write(args.out)
     print(f"wrote {args.out / 'ceiling.md'} and {args.out / 'ceiling.csv'}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

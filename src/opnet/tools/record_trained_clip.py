@@ -1,6 +1,6 @@
 """Record the training scenes' clip planes in a checkpoint written before train.py recorded them.
 
-    opnet-record-trained-clip <ckpt> [--data ROOT ...] (--write <file.ckpt> | --in-place)
+    opnet-record-trained-clip <ckpt> [--data ROOT ...] (--write <file.ckpt> [--force] | --in-place)
 
 train.py stores the clip planes of its training scenes' cameras in every checkpoint (``trained_clip``
 of its settings entry, :mod:`opnet.run_settings`; the run config's ``trained_clip`` in checkpoints
@@ -8,19 +8,20 @@ written before that entry): predict.py and the ONNX runtime normalize a new imag
 them. For an older checkpoint this reads the planes from its training datasets (the config's
 ``data.root`` unless ``--data`` names them; their scenes must share one pair), writes them into a
 copy (or the file itself with ``--in-place``) atomically, and reads it back. A refused checkpoint, a
-missing dataset or a target that cannot be written is one line ``error: <file>: <problem>`` with
-exit status 2, and leaves the target as it was and no temporary file.
+missing dataset, a target that cannot be written or an existing ``--write`` file without ``--force`` is
+one line ``error: <file>: <problem>`` with exit status 2, and leaves the target as it was and no
+temporary file.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+from opnet.arguments import ArgumentParser  # noqa: E402
 from opnet.cli.build import load_checkpoint, read_checkpoint  # noqa: E402
 from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
 from opnet.data.datamodule import ConcatScenes, SceneSamples, as_paths  # noqa: E402
@@ -64,17 +65,19 @@ def record(src: Path, dest: Path, roots: list[Path] | None = None) -> tuple[floa
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("ckpt", type=Path)
     ap.add_argument("--data", type=Path, nargs="+", default=None, help="the training datasets (default: the config's)")
     where = ap.add_mutually_exclusive_group(required=True)
     where.add_argument("--write", type=Path, help="the copy to write")
     where.add_argument("--in-place", action="store_true", help="rewrite the checkpoint itself")
+    ap.add_argument("--force", action="store_true", help="replace an existing --write file")
     args = ap.parse_args(argv)
     dest = args.ckpt if args.in_place else args.write
 
     def body() -> int:
-        planes = record(args.ckpt, require_writable(dest, "--write"), args.data)
+        option = "--in-place" if args.in_place else "--write"
+        planes = record(args.ckpt, require_writable(dest, option, replace=args.in_place or args.force), args.data)
         print(f"{dest}: trained_clip [{planes[0]:g}, {planes[1]:g}] m")
         return 0
 

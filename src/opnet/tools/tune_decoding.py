@@ -11,7 +11,7 @@ candidates, the others at their current best; two rounds). Prints a table and wr
 them decides, so that the chosen defaults hold for more than one model.
 
 ``--write <file.ckpt>`` saves a copy of the (first) checkpoint whose config decodes with the tuned
-settings, so that eval.py, predict.py and export.py use them. ``--stride K`` tunes on every K-th
+settings, so that eval.py, predict.py and export.py use them (an existing file only with ``--force``). ``--stride K`` tunes on every K-th
 scene of the split (the scenes of one pile are much alike; dense piles decode slowly).
 
 A refused checkpoint, a missing dataset or a target that cannot be written is one line
@@ -37,8 +37,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import torch  # noqa: E402
 
+from opnet.arguments import ArgumentParser, whole  # noqa: E402
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
-from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
+from opnet.cli.tools import require_folder, require_writable, save_checkpoint, tool_main  # noqa: E402
 from opnet.data.sample import Batch
 from opnet.evaluation import AveragePrecision, Evaluator, evaluate
 from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E402
@@ -56,6 +57,8 @@ SEARCH: dict[str, list[Any]] = {
     "cluster_score": ["max", "sum", "mean"],
 }
 AVERAGING_KEYS = ("eps", "min_samples", "cluster_score")
+#: the most rounds of the search (each round tries every candidate of every setting once more)
+MAX_ROUNDS = 10
 
 
 @dataclass
@@ -159,7 +162,13 @@ def current_settings(param: Parameterization) -> dict[str, Any]:
 
 
 def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """Coordinate-wise search from the configured settings; returns (best settings, every row)."""
+    """Coordinate-wise search from the configured settings, ``rounds`` >= 1; returns (best settings, every row).
+
+    Raises:
+        ValueError: ``rounds`` < 1 (nothing would be tuned).
+    """
+    if rounds < 1:
+        raise ValueError(f"--rounds {rounds}: expected a whole number >= 1 (0 rounds tune nothing)")
     best = current_settings(splits[0].parameterization)
     keys = [k for k in SEARCH if k in best]
     rows: list[dict[str, Any]] = []
@@ -235,27 +244,27 @@ def write_table(rows: list[dict[str, Any]], out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", action="append", required=True, help="checkpoint (repeat to tune jointly)")
     parser.add_argument("--split", default="val", choices=("val", "test", "train"))
-    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--rounds", type=whole(1, MAX_ROUNDS), default=2,
+                        help=f"rounds of the coordinate-wise search (1 to {MAX_ROUNDS})")
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--stride", type=int, default=1, help="tune on every K-th scene of the split")
+    parser.add_argument("--stride", type=whole(1), default=1, help="tune on every K-th scene of the split")
     parser.add_argument("--write", type=Path, default=None,
                         help="save a copy of the (first) checkpoint that decodes with the tuned settings")
+    parser.add_argument("--force", action="store_true", help="replace an existing --write file")
     args = parser.parse_args(argv)
-    if args.stride < 1:
-        print(f"error: --stride {args.stride}: expected an integer >= 1", file=sys.stderr)
-        return 2
     return tool_main(lambda: tune(args))
 
 
 def tune(args: argparse.Namespace) -> int:
     """The tuning :func:`main` asks for: record, search, write."""
     out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
-    require_writable(out / "decoding_sweep.csv", "--out")  # before the network runs, not after
+    require_folder(out, "--out")  # before the network runs, not after
+    require_writable(out / "decoding_sweep.csv", "--out")
     if args.write is not None:
-        require_writable(args.write, "--write")
+        require_writable(args.write, "--write", replace=args.force)
     torch.set_grad_enabled(False)
     splits = []
     for ckpt in args.ckpt:
