@@ -33,6 +33,7 @@ from opnet.settings_schema import (
     SettingError,
     check_settings,
     read_settings,
+    refuse_foreign,
 )
 
 #: the checkpoint entry that holds :meth:`RunSettings.to_dict`
@@ -82,6 +83,13 @@ def _require(tree: Any, keys: Sequence[str], source: str) -> None:
             if not isinstance(node, Mapping) or part not in node:
                 raise SettingError(key, MISSING, "missing; the entry is written whole", source)
             node = node[part]
+
+
+def check_format(value: Any, source: str = "") -> None:
+    """``value`` is the layout :data:`FORMAT` of a checkpoint's entry and an ONNX export's metadata; a
+    :class:`SettingError` naming ``format`` otherwise."""
+    if value != FORMAT or isinstance(value, bool):
+        raise SettingError("format", value, f"expected {FORMAT} (written by another opnet version)", source)
 
 
 def _plain(value: Any, key: str, source: str) -> Any:
@@ -195,8 +203,8 @@ class DecodingSettings:
     def with_overrides(self, overrides: Any, source: str = "") -> DecodingSettings:
         """These settings with eval.py's / predict.py's ``decoding=`` overrides: ``threshold``,
         ``min_visibility``, ``score`` and ``averaging`` (false, true, or a mapping of ``eps``,
-        ``min_samples``, ``cluster_score`` over the current ones, which turns it on); None or empty:
-        unchanged.
+        ``min_samples``, ``cluster_score``, ``keep_noise`` over the current ones, which turns it on); None
+        or empty: unchanged.
 
         Raises:
             SettingError: a bad value or an unknown key, named as written (``decoding.averaging.eps``).
@@ -221,12 +229,10 @@ class DecodingSettings:
         return (base or cls()).with_overrides(overrides, source)
 
     def overrides(self) -> dict[str, Any]:
-        """These settings as ``decoding=`` overrides spell them (``Parameterization.with_decoding``);
-        ``keep_noise`` is none of them."""
+        """These settings as ``decoding=`` overrides spell them (``Parameterization.with_decoding``)."""
         out: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score}
         avg = self.averaging
-        out["averaging"] = False if avg is None else {"eps": avg.eps, "min_samples": avg.min_samples,
-                                                      "cluster_score": avg.cluster_score}
+        out["averaging"] = False if avg is None else dataclasses.asdict(avg)
         return out
 
     def to_metadata(self) -> dict[str, Any]:
@@ -396,6 +402,9 @@ class RunSettings:
             SettingError: ``[<source> ]<key>=<value>: expected ...``, the key as the config spells it.
         """
         refine = cfg.get("deploy_refine") if isinstance(cfg, Mapping) else None
+        # eval.py's and predict.py's +decoding.* in a training config would be read by nobody
+        refuse_foreign(cfg, OVERRIDE, TRAINING, "train.py (+decoding.* overrides eval.py's and predict.py's decoding)",
+                       source)
         return cls(InputSettings.from_training_config(cfg, source),
                    decoding if decoding is not None else DecodingSettings.from_training_config(cfg, source),
                    ObjectSettings.from_training_config(cfg, source),
@@ -423,8 +432,7 @@ class RunSettings:
                 raise SettingError(str(key), d[key], f"unknown setting; expected one of {', '.join(ENTRY_KEYS)}",
                                    source)  # fmt: skip
         _require(d, ["format"], source)
-        if d["format"] != FORMAT or isinstance(d["format"], bool):
-            raise SettingError("format", d["format"], f"expected {FORMAT} (written by another opnet version)", source)
+        check_format(d["format"], source)
         _require(d, ["object"], source)
         obj = None if d["object"] is None else ObjectSettings(ObjectSettings.checked(d["object"], "object", source))
         # "refine" may be missing: entries written before it recorded no refinement

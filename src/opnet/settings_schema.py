@@ -251,6 +251,7 @@ OVERRIDE = {
     "averaging": "decoding.averaging", "averaging.eps": "decoding.averaging.eps",
     "averaging.min_samples": "decoding.averaging.min_samples",
     "averaging.cluster_score": "decoding.averaging.cluster_score",
+    "averaging.keep_noise": "decoding.averaging.keep_noise",
 }
 #: the keys of an ONNX export's opnet metadata (:mod:`opnet.deploy.metadata`)
 METADATA = {
@@ -319,3 +320,26 @@ def read_settings(config: Any, keys: Mapping[str, str], source: str = "", closed
         if value is not _ABSENT:
             given[name] = value
     return check_settings(given, keys, source)
+
+
+def _first_leaf(node: Any, key: str) -> tuple[str, Any]:
+    while isinstance(node, Mapping) and node:
+        child = next(iter(node))
+        node, key = node[child], f"{key}.{child}"
+    return key, node
+
+
+def refuse_foreign(config: Any, foreign: Mapping[str, str], own: Mapping[str, str], reader: str,
+                   source: str = "") -> None:  # fmt: skip
+    """Refuse a value ``config`` holds under a section of the keys another source spells (``foreign``:
+    eval.py's ``decoding.*`` overrides) that this source (``own``: a training config) has none of: it
+    would be read by nobody. A :class:`SettingError` naming the key, and how ``reader`` takes it."""
+    own_sections = {key.split(".")[0] for key in own.values()}
+    for section in dict.fromkeys(key.split(".")[0] for key in foreign.values()):
+        node = _lookup(config, section)
+        if section in own_sections or node is _ABSENT:
+            continue
+        key, value = _first_leaf(node, section)
+        name = next((n for n, k in foreign.items() if k == key), None)
+        where = own[name] if name in own else ", ".join(f"{s}.*" for s in sorted(own_sections))
+        raise SettingError(key, value, f"not a setting of {reader}, which takes it as {where}", source)

@@ -8,7 +8,6 @@ outside Lightning's loop, by :func:`opnet.evaluation.evaluate` (train.py, eval.p
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from typing import Any
@@ -98,10 +97,7 @@ class OPNetSystem(L.LightningModule):
         settings (its encoding unchanged)."""
         if decoding == DecodingSettings.of(self.parameterization):
             return
-        param = self.parameterization.with_decoding(**decoding.overrides())
-        if decoding.averaging is not None and param.averaging.keep_noise != decoding.averaging.keep_noise:
-            param.averaging = dataclasses.replace(param.averaging, keep_noise=decoding.averaging.keep_noise)
-        self.parameterization = param
+        self.parameterization = self.parameterization.with_decoding(**decoding.overrides())
 
     def on_fit_start(self) -> None:
         """Record the training scenes' clip planes in :attr:`settings` (``trained_clip``), which the

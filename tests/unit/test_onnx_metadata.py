@@ -81,3 +81,42 @@ def test_bad_metadata_is_refused_naming_file_and_key(key: str, value: Any, messa
 def test_metadata_that_is_not_an_object() -> None:
     with pytest.raises(ValueError, match="m.onnx: opnet metadata is a list, expected a JSON object"):
         validate_metadata([1, 2], "m.onnx")
+
+
+# ---------------------------------------------------- format and keys (a checkpoint's entry was refused, not these)
+
+
+def _full_meta() -> dict[str, Any]:
+    """The metadata an export writes, every key."""
+    return {
+        "format": 1, "opnet_version": "0", "checkpoint": "x.ckpt", "object": "bunny", "parameterization": "vanilla",
+        "rotation": "r6d", "grid_size": 16, "slots": 1, "channels_per_slot": 8, "out_channels": 8,
+        "outputs": ["presence", "visibility", "translation", "rotation"],
+        "input": {"size": 128, "fit": "pad", "interpolation": "area", "roi": None, "layout": "NCHW"},
+        "camera_input": ["fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"], "trained_clip": None,
+        "decoding": {"threshold": 0.5, "score": "p", "min_visibility": 0.0,
+                     "averaging": {"eps": 0.5, "min_samples": 1, "cluster_score": "max", "keep_noise": False}},
+        "pose_space": {"Lambda": np.eye(3).tolist(), "group": [np.eye(3).tolist()], "delta": 0.01,
+                       "revolution": False, "lam": 0.0},
+        "icp_model": None, "refine": None,
+    }  # fmt: skip
+
+
+def test_the_full_metadata_of_an_export_is_valid() -> None:
+    assert validate_metadata(_full_meta(), "m.onnx")["input_size"] == 128
+
+
+@pytest.mark.parametrize(("path", "value", "message"), [
+    ("format", 2, "m.onnx: opnet metadata format=2: expected 1"),
+    ("format", True, "format=True: expected 1"),
+    ("format", KeyError, "format"),
+    ("bogus", 1, "m.onnx: opnet metadata bogus=1: unknown key"),
+    ("input.bogus", 1, "input.bogus=1: unknown key"),
+    ("decoding.bogus", 1, "decoding.bogus=1: unknown setting"),
+    ("decoding.averaging.bogus", 1, "decoding.averaging.bogus=1: unknown setting"),
+    ("pose_space.bogus", 1, "pose_space.bogus=1: unknown key"),
+])  # fmt: skip
+def test_metadata_of_another_format_or_with_an_unknown_key_is_refused_as_a_checkpoints_entry_is(path: str, value: Any, message: str) -> None:
+    with pytest.raises(ValueError, match=message) as info:
+        validate_metadata(_set(_full_meta(), path, value), "m.onnx")
+    assert "\n" not in str(info.value)

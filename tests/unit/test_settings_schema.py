@@ -159,7 +159,7 @@ def test_a_misspelt_override_is_named_as_written() -> None:
     assert _command_line("decoding.treshold", 0.05) == (
         "decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, averaging")
     assert _command_line("decoding.averaging.radius", 2) == (
-        "decoding.averaging.radius=2: unknown setting; expected one of eps, min_samples, cluster_score")
+        "decoding.averaging.radius=2: unknown setting; expected one of eps, min_samples, cluster_score, keep_noise")
 
 
 def test_a_training_config_is_checked_by_the_same_schema() -> None:

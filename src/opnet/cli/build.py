@@ -246,6 +246,11 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
             raise ValueError(f"{path}: the checkpoint's {CHECKPOINT_KEY} object differs from its config's object "
                              "(one was edited without the other); the system is built from the config's")
         system.settings = settings  # the system decodes as they say
+    size, in_size = system.settings.input.size, getattr(system.backbone, "in_size", None)
+    if isinstance(in_size, int) and size != in_size:  # every image would fail on the network's shapes
+        key = f"{CHECKPOINT_KEY} input.size" if settings is not None else "config data.input_size"
+        raise ValueError(f"{path}: the checkpoint's {key}={size} but its network takes {in_size} x {in_size} pixels "
+                         "(model.in_size): one was edited without the other")
     try:
         system.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, ValueError) as e:  # missing or unexpected keys, wrong tensor shapes

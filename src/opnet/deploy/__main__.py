@@ -3,7 +3,7 @@
     python -m opnet.deploy <model.onnx> <depth png, .npy or folder> --out <dir>
         [--camera <camera.yaml>] [--fx PX --fy PX --cx PX --cy PX --clip-start M --clip-end M]
         [--depth-scale 0.001] [--threads N] [--overwrite] [--clip NEAR FAR | --camera-clip]
-        [--icp] [--search | --search-fast | --no-refine] [--no-averaging]
+        [--icp | --search | --search-fast | --no-refine] [--no-averaging]
 
 The inputs and cameras are predict.py's (:mod:`opnet.datasets.depth_inputs`: a dataset PNG takes
 the camera file above it, other images the intrinsics given here), and so are the outputs
@@ -18,9 +18,10 @@ once. Exit status: 0, 1 when some images failed, 2 on bad arguments.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
+
+from opnet.arguments import ArgumentParser
 
 from opnet.datasets.depth_inputs import (
     POSE_SUFFIXES,
@@ -36,7 +37,7 @@ from opnet.geometry.icp import ICPSettings
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m opnet.deploy", description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(prog="python -m opnet.deploy", description=__doc__.split("\n\n")[0])
     ap.add_argument("model", type=Path)
     ap.add_argument("input", type=Path)
     ap.add_argument("--out", type=Path, required=True)
@@ -54,14 +55,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="normalize with each camera's own clip planes, not the model's training planes")
     ap.add_argument("--no-averaging", action="store_true",
                     help="decode without the exported DBSCAN averaging (with --search: every hypothesis a start)")
-    ap.add_argument("--icp", action="store_true", help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
-    ap.add_argument("--search", action="store_true",
-                    help="ICP, then the depth-agreement search of each pose (turns about the part's axis, shifts "
-                         "across it; conf/refine/search.yaml's defaults): for flat parts; ranks poses by agreement")
-    ap.add_argument("--search-fast", action="store_true",
-                    help="--search in about half the time, a little less AP (conf/refine/search_fast.yaml's defaults)")
-    ap.add_argument("--no-refine", action="store_true",
-                    help="the poses as decoded, whatever refinement the model records (its default otherwise)")
+    refine = ap.add_mutually_exclusive_group()  # one refinement, or none
+    refine.add_argument("--icp", action="store_true",
+                        help="refine each pose by ICP against the depth (conf/refine/icp.yaml's defaults)")
+    refine.add_argument("--search", action="store_true",
+                        help="ICP, then the depth-agreement search of each pose (turns about the part's axis, shifts "
+                             "across it; conf/refine/search.yaml's defaults): for flat parts; ranks poses by agreement")
+    refine.add_argument("--search-fast", action="store_true",
+                        help="--search in about half the time, a little less AP (conf/refine/search_fast.yaml's "
+                             "defaults)")
+    refine.add_argument("--no-refine", action="store_true",
+                        help="the poses as decoded, whatever refinement the model records (its default otherwise)")
     ap.add_argument("--icp-budget-ms", type=float, default=None,
                     help="with --icp or --search: milliseconds per image (default 100 with --icp, none with --search; "
                          "0 = none refined)")
@@ -74,8 +78,6 @@ def main(argv: list[str] | None = None) -> int:
         searched = args.search or args.search_fast
         if args.icp_budget_ms is not None and not (args.icp or searched):
             raise ValueError("--icp-budget-ms is a setting of --icp, --search or --search-fast, none is given")
-        if args.no_refine and (args.icp or searched):
-            raise ValueError("--no-refine and --icp / --search / --search-fast: give one")
         named = "search_fast" if args.search_fast else "search" if args.search else "icp" if args.icp else None
         icp: ICPSettings | str | None = None if args.no_refine else "model"  # the model's own, by default
         if named is not None:

@@ -16,11 +16,19 @@ from typing import Any
 import numpy as np
 
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
-from opnet.run_settings import DecodingSettings, InputSettings, RunSettings
+from opnet.run_settings import DecodingSettings, InputSettings, RunSettings, check_format
 from opnet.settings_schema import METADATA, Flag, Number, SettingError, Spec, Whole, read_settings
 
 MAX_ICP_POINTS = 20_000  # points of the ICP model cloud in the metadata
-REQUIRED = ("parameterization", "grid_size", "slots", "channels_per_slot", "input", "decoding", "pose_space", "outputs")
+REQUIRED = ("format", "parameterization", "grid_size", "slots", "channels_per_slot", "input", "decoding", "pose_space",
+            "outputs")
+#: every key an export writes (:func:`opnet.deploy.export.export_metadata`), and those of its mappings
+KEYS = ("format", "opnet_version", "checkpoint", "object", "parameterization", "rotation", "grid_size", "slots",
+        "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs", "decoding",
+        "pose_space", "icp_model", "refine")
+INPUT_KEYS = (*(k.removeprefix("input.") for k in METADATA.values() if k.startswith("input.")), "layout")
+POSE_SPACE_KEYS = ("Lambda", "group", "delta", "revolution", "lam")
+ICP_KEYS = ("points", "normals", "diameter")
 #: the settings an export always writes (the others have defaults: fit pad, interpolation area, no roi)
 REQUIRED_SETTINGS = ("decoding.threshold", "decoding.score", "decoding.min_visibility", "input.size")
 AVERAGING_REQUIRED = ("eps", "min_samples", "cluster_score")
@@ -46,6 +54,13 @@ class _Fields:
         if key not in parent:
             raise ValueError(f"{self.source} lacks {prefix}{key}; export it again with python export.py")
         return parent[key]
+
+    def known(self, parent: dict[str, Any], keys: tuple[str, ...], prefix: str = "") -> None:
+        """Every key of ``parent`` is one of ``keys`` (an edited or foreign file is refused, not half read)."""
+        for key in parent:
+            if key not in keys:
+                raise SettingError(f"{prefix}{key}", parent[key], f"unknown key; expected some of {', '.join(keys)}",
+                                   self.source)  # fmt: skip
 
     def value(self, parent: dict[str, Any], key: str, spec: Spec, prefix: str = "") -> Any:
         """``parent[key]`` as ``spec`` (a type of :mod:`opnet.settings_schema`) types it."""
@@ -89,6 +104,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
     missing = [k for k in REQUIRED if k not in meta]
     if missing:
         raise ValueError(f"{f.path}: opnet metadata lacks {missing}; export it again with python export.py")
+    check_format(meta["format"], f.source)
+    f.known(meta, KEYS)
     if not isinstance(meta["parameterization"], str):
         raise f.fail("parameterization", meta["parameterization"], "a parameterization name")
     name = meta.get("object", "")
@@ -106,7 +123,9 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         raise f.fail("decoding.averaging", avg, "null or a mapping")
     for key in AVERAGING_REQUIRED if avg is not None else ():
         f.get(avg, key, "decoding.averaging.")
-    s = read_settings(meta, METADATA, f.source)  # every value the schema knows, in its order
+    f.known(f.mapping(meta, "input"), INPUT_KEYS, "input.")
+    # every value the schema knows, in its order; no other decoding setting
+    s = read_settings(meta, METADATA, f.source, closed=("decoding", "decoding.averaging"))
     framing = InputSettings.from_metadata(meta, f.source)  # absent trained_clip: exported before it was recorded
     decoding = DecodingSettings.from_metadata(meta, f.source)
     averaging = decoding.averaging
@@ -123,6 +142,7 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         "refine": RunSettings.checked_refine(meta.get("refine"), "refine", f.source),
     }
     ps = f.mapping(meta, "pose_space")
+    f.known(ps, POSE_SPACE_KEYS, "pose_space.")
     group = f.array(ps, "group", (-1, 3, 3), "pose_space.", max_size=8 * MAX_GROUP_SIZE)
     try:
         symmetry_from_rotations(group)  # proper rotations, a group, within the size cap
@@ -132,6 +152,7 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
     if icp is not None:
         if not isinstance(icp, dict):
             raise f.fail("icp_model", icp, "null or a mapping")
+        f.known(icp, ICP_KEYS, "icp_model.")
         points = f.array(icp, "points", (-1, 3), "icp_model.", max_size=MAX_ICP_POINTS)
         normals = f.array(icp, "normals", (-1, 3), "icp_model.", max_size=MAX_ICP_POINTS)
         if len(points) != len(normals) or not len(points):
