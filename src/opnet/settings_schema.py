@@ -39,6 +39,9 @@ MAX_CLIP_END_M = 50.0
 AUTO = "auto"
 #: the largest side ``auto:S`` takes, metres
 MAX_AUTO_SIDE = 20.0
+#: the smallest side ``auto:S`` takes, metres (the image of a smaller square is checked against
+#: :data:`MIN_BOX_SIDE` pixels where the bin is found, :mod:`opnet.data.bin_finder`)
+MIN_AUTO_SIDE = 0.01
 #: the smallest side of a fixed box, pixels (a smaller one holds less than a pixel per output cell of a 16-cell grid)
 MIN_BOX_SIDE = 16
 
@@ -165,7 +168,7 @@ class ClipPlanes(Spec):
 
 @dataclass(frozen=True)
 class RegionOfInterest(Spec):
-    """None, ``"auto"``, ``"auto:S"`` (S metres in (0, :data:`MAX_AUTO_SIDE`], written as ``%g``) or an
+    """None, ``"auto"``, ``"auto:S"`` (S metres in [:data:`MIN_AUTO_SIDE`, :data:`MAX_AUTO_SIDE`], written as ``%g``) or an
     ``(x0, y0, x1, y1)`` pixel box at least :data:`MIN_BOX_SIDE` a side (:mod:`opnet.data.roi`)."""
 
     def parse(self, value: Any) -> Box | str | None:
@@ -199,8 +202,9 @@ class RegionOfInterest(Spec):
                 metres = float(value.split(":", 1)[1].strip())
             except ValueError:
                 metres = math.nan
-            if not (math.isfinite(metres) and 0 < metres <= MAX_AUTO_SIDE):
-                raise Refused(f"auto:S takes the side S of the box in metres, a number in (0, {MAX_AUTO_SIDE:g}]")
+            if not (math.isfinite(metres) and MIN_AUTO_SIDE <= metres <= MAX_AUTO_SIDE):
+                raise Refused(f"auto:S takes the side S of the box in metres, a number in [{MIN_AUTO_SIDE:g}, "
+                              f"{MAX_AUTO_SIDE:g}]")
             return f"{AUTO}:{metres:g}"
         parts = value.replace("[", "").replace("]", "").split(",")
         try:

@@ -92,3 +92,19 @@ def test_auto_values_parse_and_tag(value: str, expected: str) -> None:
 def test_bad_auto_sizes_are_one_line_errors(value: str) -> None:
     with pytest.raises(ValueError, match=r"^data.roi=.*auto:S takes the side S of the box in metres"):
         parse_roi(value)
+
+
+@pytest.mark.parametrize("roi", ["auto:1e-9", "auto:0.001", "auto:0.009"])
+def test_an_auto_square_under_a_centimetre_is_refused_with_its_bounds(roi: str) -> None:
+    """``auto:1e-9`` passed validation and ended in an OverflowError; ``auto:0.001`` ran 4x longer."""
+    with pytest.raises(ValueError, match=rf"^data.roi='{roi}': auto:S takes .* in \[0.01, 20\]"):
+        parse_roi(roi)
+
+
+def test_an_auto_square_of_fewer_pixels_than_the_network_needs_is_refused_before_the_search() -> None:
+    """3 cm at about 1.5 m are 10 pixels of this camera: less than a pixel per output cell; it was cropped."""
+    depth, _ = _frame(0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match=r"^data.roi=auto:0.03: the 0.03 m square spans 9.\d pixels at the bin's "
+                                         r"depth .*at least 16"):
+        resolve_box(parse_roi("auto:0.03"), depth, CAM)
+    assert resolve_box(parse_roi("auto:0.06"), depth, CAM)[2] > 0  # 19 pixels: taken

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from opnet.geometry.camera import Camera
+from opnet.settings_schema import MIN_BOX_SIDE
 
 #: the subsampled image's longer side, pixels
 GRID_PIXELS = 320
@@ -142,6 +143,10 @@ def _centred(d: np.ndarray, sel: np.ndarray, u: np.ndarray, v: np.ndarray, s: in
     """The square box of ``side`` metres centred on the bin: the plateau of the best windows over the
     region's points (a window the whole region fits in slides over it without changing its sum)."""
     z = d[sel]
+    pixels = side * min(camera.fx, camera.fy) / float(np.median(z))
+    if pixels < MIN_BOX_SIDE:  # before the search, whose grid grows as the square shrinks
+        raise ValueError(f"{where}: the {side:g} m square spans {pixels:.1f} pixels at the bin's depth "
+                         f"({float(np.median(z)):.2f} m); the network needs at least {MIN_BOX_SIDE} a side: a larger S")
     x = (np.broadcast_to(u, d.shape)[sel] - camera.cx) * z / camera.fx
     y = (np.broadcast_to(v[:, None], d.shape)[sel] - camera.cy) * z / camera.fy
     area = (s * z) ** 2 / (camera.fx * camera.fy)  # the surface each sample stands for, m^2 (facing the camera)
