@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import inspect
 import pickle
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -11,9 +12,10 @@ from typing import Any
 
 import torch
 from hydra.errors import InstantiationException
-from hydra.utils import instantiate
+from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from opnet._repr import short_repr
 from opnet.cli.trusted import saved_config, short
 from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
@@ -63,6 +65,46 @@ def config_group(group: str) -> Iterator[None]:
         raise ValueError(f"config group '{group}': its keys do not fit its component ({short(text.splitlines()[0], 200)})") from e
 
 
+def check_keys(node: Any, section: str) -> None:
+    """Every key of the config ``node`` (``_target_`` and Hydra's other ``_`` keys apart) is a keyword its
+    component takes: a typo (``+data.bogus_key=1``) is named before anything runs, not a TypeError from
+    inside the component. A component that takes any keyword, or a node without a ``_target_``, is not checked.
+
+    Raises:
+        ValueError: ``<section>.<key>=<value>: not a setting of <section> (<component>); expected some of ...``.
+    """
+    if not isinstance(node, DictConfig) or not isinstance(node.get("_target_"), str):
+        return
+    try:
+        target = get_object(node._target_)
+        parameters = _keywords(target)
+    except (ImportError, AttributeError, TypeError, ValueError):
+        return  # instantiation names what it cannot find
+    if parameters is None:
+        return
+    for key in node:
+        if not str(key).startswith("_") and key not in parameters:
+            value = OmegaConf.to_container(node, resolve=False)[key]
+            raise ValueError(f"{section}.{key}={short_repr(value)}: not a setting of {section} "
+                             f"({getattr(target, '__name__', node._target_)}); expected some of "
+                             f"{', '.join(parameters)}")
+
+
+def _keywords(target: Any) -> list[str] | None:
+    """The keywords ``target`` takes, those its class's bases take through ``**kwargs`` too; None for any."""
+    names: list[str] = []
+    for owner in inspect.getmro(target) if inspect.isclass(target) else (target,):
+        init = owner.__init__ if inspect.isclass(owner) else owner
+        if inspect.isclass(owner) and "__init__" not in vars(owner):
+            continue
+        parameters = inspect.signature(init).parameters
+        names += [p.name for p in parameters.values() if p.name != "self" and p.kind in
+                  (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]  # fmt: skip
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
+            return list(dict.fromkeys(names))
+    return None
+
+
 def check_pixels(key: str, value: Any) -> None:
     """An input side: the schema's ``input_size`` (a whole number of pixels in 8..4096, never a boolean);
     a ``SettingError`` naming ``key`` otherwise."""
@@ -108,6 +150,8 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
+    for section in ("rotation", "parameterization", "model", "loss"):
+        check_keys(cfg.get(section), section)
     obj = object_from_config(plain(cfg.object))
     # _partial_: the object goes in as it is (a dataclass keyword would be turned into a config)
     rotation = None
@@ -134,6 +178,9 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
 
 def build_datamodule(cfg: DictConfig, obj: ObjectModel, train: bool = True) -> Any:
     """The DataModule of the config (with the augmentation config for training)."""
+    check_keys(cfg.get("data"), "data")
+    if train:
+        check_keys(cfg.get("augmentation"), "augmentation")
     augmenter = instantiate(cfg.augmentation) if train and cfg.get("augmentation") is not None else None
     make = instantiate(cfg.data, _partial_=True, _recursive_=False)
     return make(obj=obj, augmenter=augmenter, object_config=plain(cfg.object))
