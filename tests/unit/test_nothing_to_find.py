@@ -6,6 +6,7 @@ real Siléane ground-truth and results files on disk, read as eval.py and opnet-
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -93,3 +94,19 @@ def test_opnet_evaluate_prints_and_writes_the_empty_case(tmp_path: Path, capsys:
     assert f"{NOTE_ALL}, 7 false positives" in capsys.readouterr().out
     written = json.loads(out.read_text())
     assert written["ap"] == 1.0 and _counts(written) == (0, 2, 7)
+
+
+def test_the_evaluators_table_gives_no_scores_for_a_split_with_nothing_to_find(tmp_path: Path, pin,
+                                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """opnet-evaluate and ap_table.md printed F1 1.0 and R@P99 1.0 beside the note (935 false positives)."""
+    gt, results = _write_scenes(tmp_path, {"empty_a": (0, 0, 4), "empty_b": (0, 0, 3)})
+    assert evaluate_main(["--gt", str(gt), "--results", str(results), "--object", "pin"]) == 0
+    printed = capsys.readouterr().out
+    assert f"{NOTE_ALL}, 7 false positives" in printed
+    for metric in ("AP", "MAP", "F1", "R@P50", "R@P99"):
+        assert not re.search(rf"^  {re.escape(metric)} +1\.0", printed, re.M), printed
+    table = evaluate_scenes(read_scene_pairs(gt, results), pin.pose_space).table()
+    assert "1 by convention" in table and not re.search(r"^  F1 ", table, re.M)
+    some = evaluate_scenes(read_scene_pairs(*_write_scenes(tmp_path / "some", {"a": (1, 0, 0), "e": (0, 0, 2)})),
+                           pin.pose_space).table()
+    assert re.search(r"^  F1     \d\.\d+$", some, re.M)  # scores where something was to find

@@ -39,7 +39,7 @@ def test_untilted_rigs_are_unchanged_and_bad_tilts_are_one_line() -> None:
     assert "camera_tilt_deg" not in SceneConfig().to_dict()
     with pytest.raises(ValueError, match=r"camera_tilt_deg=95\.0, expected degrees in \[0, 90\)"):
         SceneConfig(camera_tilt_deg=95.0)
-    with pytest.raises(ValueError, match="the image reaches above the horizon"):
+    with pytest.raises(ValueError, match="the image.s corner reaches above the horizon; this camera takes a tilt below"):
         make_rig(obj, 10, 1, SceneConfig(resolution=128, fov_deg=100.0, camera_tilt_deg=60.0))
 
 

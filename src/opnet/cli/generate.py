@@ -52,7 +52,7 @@ def run(cfg: DictConfig) -> GenerationReport:
             seed=whole_number(cfg.seed, "seed"),
             scene=scene,
             progress=bool(cfg.get("progress", True)),
-            previews=int(cfg.get("previews", 4)),
+            previews=whole_number(cfg.get("previews", 4), "previews"),
             object_config=object_config,
             sensor=OmegaConf.to_container(cfg.sensor, resolve=True) if cfg.get("sensor") is not None else None,
         )

@@ -119,7 +119,10 @@ class EvaluationSummary:
         ]
         note = nothing_to_find_note(self.num_scenes, self.scenes_nothing_to_find,
                                     self.false_positives_nothing_to_find, self.ap)
-        if note is not None:
+        if note is not None and self.scenes_nothing_to_find >= self.num_scenes:  # no score at all: the note instead
+            lines[1:] = [f"  {note}", "  AP, MAP, F1, R@P50, R@P99: 1 by convention (recall is 1 where nothing is to be "
+                                      "found), not scores"]  # fmt: skip
+        elif note is not None:
             lines.insert(1, f"  {note}")
         if per_scene and self.per_scene:
             width = max(12, *(len(n) for n in self.per_scene))

@@ -18,6 +18,8 @@ COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 #: the smallest perforation of a generated bin (metres) and the largest length of a scene setting (metres)
 MIN_HOLE_M = 0.0005
 MAX_SCENE_M = 20.0
+#: the longest physics step, seconds (a longer one lets parts fall through the bin: no pile, only re-drops)
+MAX_TIME_STEP = 0.05
 #: physics engines of the generator (opnet.synthesis.physics)
 PHYSICS_ENGINES = ("mujoco", "pybullet")
 #: fields added after the first datasets were made (left out of to_dict at their defaults)
@@ -294,6 +296,8 @@ class SceneConfig:
         for key in ("bin_layers", "bin_wall_factor", "bin_wall_thickness", "time_step", "settle_linear",
                     "settle_angular", "settle_time_cap", "convexity_threshold", "coacd_threshold"):
             need(math.isfinite(getattr(self, key)) and getattr(self, key) > 0, key, "a number > 0")
+        need(self.time_step <= MAX_TIME_STEP, "time_step",
+             f"seconds in (0, {MAX_TIME_STEP:g}] (the physics step; 1/120 by default)")
         for key in ("vhacd_resolution", "solver_iterations", "settle_checks", "check_every", "max_redrops"):
             need(int(getattr(self, key)) >= 1, key, "an integer >= 1")
         need(isinstance(self.max_convex_pieces, int) and not isinstance(self.max_convex_pieces, bool)

@@ -163,6 +163,10 @@ def _metres(value: float | None) -> str:
     return "derived" if value is None else f"{value:.3f} m"
 
 
+#: the most parts a pile (ids 1..254 of the 8-bit segmentation; 0 is the bin, 255 the background)
+MAX_DROPS = 254
+
+
 def generate_dataset(
     obj: ObjectModel,
     out: Path,
@@ -200,10 +204,12 @@ def generate_dataset(
     Raises:
         ValueError: bad arguments, or ``out`` holds a dataset made with other settings.
     """
-    if cycles < 0 or not 0 <= drops <= 254:
-        raise ValueError(f"need cycles >= 0 and 0 <= drops <= 254; got {cycles}, {drops}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # SeedSequence takes no negative seed
-        raise ValueError(f"seed={short_repr(seed)}: expected a whole number >= 0")
+    # the seed: SeedSequence takes no negative one; the drops: ids of the 8-bit segmentation (0 bin, 255 background)
+    for key, value, high in (("cycles", cycles, None), ("drops", drops, MAX_DROPS), ("seed", seed, None),
+                             ("previews", previews, None)):  # fmt: skip
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0 or (high is not None and value > high):
+            bound = ">= 0" if high is None else f"in 0..{high} (parts a pile, each an id of the 8-bit segmentation)"
+            raise ValueError(f"{key}={short_repr(value)}: expected a whole number {bound}")
     check_threads(workers, "workers")
     start, wall_start = time.perf_counter(), time.time()
     out, scene = Path(out), scene or SceneConfig()

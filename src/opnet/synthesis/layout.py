@@ -42,30 +42,14 @@ from opnet.datasets.ipa_params import IPAParameters
 from opnet.geometry.camera import MAX_CLIP_END_M, Camera
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.tilt import homogeneous, inverse_pose, rotation_about, tilted, tilted_clip
+
+__all__ = ["R_WORLD_CAM_DOWN", "BinGeometry", "CycleLayout", "Rig", "bin_fill", "bin_geometry", "hull_volume",
+           "homogeneous", "inverse_pose", "make_rig", "random_rotation", "rotation_about", "sample_layout", "tilted",
+           "tilted_clip", "totes", "view_layout"]
 
 #: R_world_cam of the nominal camera: OpenCV axes, looking down (a half-turn about x)
 R_WORLD_CAM_DOWN = np.diag([1.0, -1.0, -1.0])
-
-
-def homogeneous(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation and (3,) translation -> (4, 4) float64 rigid transform."""
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
-
-
-def inverse_pose(T: np.ndarray) -> np.ndarray:
-    """Inverse of a (4, 4) rigid transform (exact for the rotation part: R^T)."""
-    R, t = T[:3, :3], T[:3, 3]
-    return homogeneous(R.T, -R.T @ t)
-
-
-def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
-    """(3, 3) rotation of ``angle`` radians about the unit vector ``axis`` (Rodrigues)."""
-    x, y, z = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -351,51 +335,21 @@ def check_camera_range(rig: Rig, cfg: SceneConfig) -> None:
                      f"{MAX_CLIP_END_M:g} m; give a smaller working area or bin")  # fmt: skip
 
 
-def tilted(T_world_cam: np.ndarray, tilt_deg: float, azimuth_deg: float) -> np.ndarray:
-    """A downward camera pose turned about the bin floor's centre (the world origin) by ``tilt_deg``
-    towards the horizontal direction ``azimuth_deg``: it keeps looking at the same point of the
-    floor from the same distance."""
-    phi = math.radians(azimuth_deg)
-    axis = np.array([-math.sin(phi), math.cos(phi), 0.0])  # z x (cos phi, sin phi, 0)
-    return homogeneous(rotation_about(axis, math.radians(tilt_deg)), np.zeros(3)) @ T_world_cam
-
-
-def tilted_clip(camera: Camera, T_world_cam: np.ndarray, bin_geom: BinGeometry, diameter: float,
-                cfg: SceneConfig) -> tuple[float, float]:  # fmt: skip
-    """Clip planes of a tilted camera: from the nearest bin corner a part's diameter above the rim
-    to the farthest point of the ground the image corners see (2 % and the jitters to spare)."""
-    R, C = T_world_cam[:3, :3], T_world_cam[:3, 3]
-    hx, hy = (side / 2.0 + bin_geom.thickness for side in bin_geom.sides)
-    top = bin_geom.wall_height + diameter + bin_geom.outer * math.sin(math.radians(cfg.bin_tilt_deg))
-    if cfg.bin_area is None:
-        corners = np.array([[x, y, z] for x in (-hx, hx) for y in (-hy, hy) for z in (-bin_geom.thickness, top)])
-    else:  # wherever the bin may stand: any yaw (a circle of its half diagonal) about any point of the area
-        x0, y0, x1, y1, reach = *cfg.bin_area, math.hypot(hx, hy)
-        corners = np.array([[x + reach * math.cos(a), y + reach * math.sin(a), z] for x in (x0, x1) for y in (y0, y1)
-                            for a in np.radians(np.arange(0.0, 360.0, 15.0)) for z in (-bin_geom.thickness, top)])
-    depth = (corners - C) @ R[:, 2]
-    rays = np.array([[(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0]
-                     for u in (-0.5, camera.width - 0.5) for v in (-0.5, camera.height - 0.5)])  # fmt: skip
-    down = (rays @ R.T)[:, 2]  # world z of each corner ray (camera z = 1)
-    if (down >= -1e-6).any():
-        raise ValueError(f"scene config: camera_tilt_deg={cfg.camera_tilt_deg}: the image reaches above the horizon "
-                         "(tilt + half the field of view >= 90 degrees); tilt less or narrow the field of view")
-    ground = (C[2] + bin_geom.thickness) / -down  # camera z where each corner ray meets the ground
-    tilt = math.tan(math.radians(cfg.camera_jitter_deg))
-    near = max(float(depth.min()) - cfg.camera_jitter_m, 0.1 * float(np.linalg.norm(C)))
-    far = float(max(ground.max(), depth.max())) * (1.0 + tilt) * 1.02 + cfg.camera_jitter_m
-    return near, far
-
-
 def _check_jitter(cfg: SceneConfig, height: float, wall: float, half_fov_deg: float) -> None:
-    """Refuse camera jitters no camera can take: reaching down to the wall tops, or tilting the
-    bin centre out of the image."""
+    """Refuse a camera no bin can be seen from (below the wall tops), and jitters no camera can take:
+    reaching down to the wall tops, or tilting the bin centre out of the image. Each names the key given."""
+    if cfg.camera_height is not None and height <= wall:
+        raise ValueError(f"scene config: camera_height={cfg.camera_height:g} m puts the camera below the top of the bin "
+                         f"walls ({wall:.3f} m above the floor); expected more than {wall + cfg.camera_jitter_m:.3f} "
+                         "(the walls and camera_jitter_m)")  # fmt: skip
     if cfg.camera_jitter_m >= height - wall:
         raise ValueError(f"scene config: camera_jitter_m={cfg.camera_jitter_m} m would move the camera down to the bin "
                          f"walls (camera {height:.3f} m above the floor, walls {wall:.3f} m); expected < {height - wall:.3f}")
     if cfg.camera_jitter_deg >= half_fov_deg:
+        fov = "the camera of scene.camera_file" if cfg.camera_file else f"scene.fov_deg={cfg.fov_deg:g}"
         raise ValueError(f"scene config: camera_jitter_deg={cfg.camera_jitter_deg} would tilt the bin centre out of the "
-                         f"image (half field of view {half_fov_deg:.1f} degrees); expected less")
+                         f"image: half the field of view is {half_fov_deg:.1f} degrees ({fov}); expected "
+                         f"camera_jitter_deg < {half_fov_deg:.1f}, or a wider field of view")
 
 
 def sample_layout(rig: Rig, cfg: SceneConfig, rng: np.random.Generator) -> CycleLayout:

@@ -72,6 +72,11 @@ class CycleStates:
     stats: CycleStats = field(default_factory=CycleStats)
 
 
+class PileError(ValueError, RuntimeError):
+    """The settings cannot make a pile of this part (a user error: one line naming what to change, not a
+    traceback; a RuntimeError too, as it was)."""
+
+
 class _DropFailed(Exception):
     """A drop kept pushing parts out of the bin."""
 
@@ -163,7 +168,7 @@ class BinSimulator(ABC):
         """Drop ``drops`` parts into the bin placed at ``layout.T_world_bin``.
 
         Raises:
-            RuntimeError: parts kept leaving the bin through every allowed restart (the bin is
+            PileError: parts kept leaving the bin through every allowed restart (the bin is
                 too small or the drop too violent for this part: enlarge ``bin_inner``).
         """
         stats = CycleStats()
@@ -173,7 +178,7 @@ class BinSimulator(ABC):
                 return CycleStates(self._simulate_once(layout, drops, rng, stats), stats)
             except _DropFailed:
                 continue
-        raise RuntimeError(
+        raise PileError(
             f"parts kept leaving the bin after {self.cfg.max_redrops} re-drops in each of "
             f"{self.cfg.max_cycle_restarts + 1} attempts; enlarge the bin (scene.bin_inner, "
             f"now {self.rig.bin.inner:.3f} m) or raise the walls (scene.bin_wall_height)"
