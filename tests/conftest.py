@@ -122,3 +122,16 @@ def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> 
     train_cli.run(tiny_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "test=false",
                                                      "trainer.precision=32"]))
     return out / "checkpoints" / "last.ckpt"
+
+
+@pytest.fixture(autouse=True)
+def _grad_mode_left_as_found():
+    """A test (or the code it calls) that turns autograd off for the process fails here, by name,
+    instead of every later test in its worker that needs gradients."""
+    import torch
+
+    before = torch.is_grad_enabled()
+    yield
+    after = torch.is_grad_enabled()
+    torch.set_grad_enabled(before)
+    assert after == before, "autograd left switched off: use torch.no_grad() as a context or decorator"

@@ -248,13 +248,13 @@ def _write(path: Path, text: str) -> None:
         write_text_atomic(path, text)
 
 
+@torch.no_grad()
 def diagnose(args: argparse.Namespace) -> int:
     """The tables :func:`main` asks for: the checkpoints and ``--out`` checked, then each checkpoint recorded."""
     for ckpt in args.ckpt:
         if not ckpt.is_file():
             raise ValueError(f"{ckpt}: checkpoint not found (--ckpt)")
     require_folder(args.out, "--out")
-    torch.set_grad_enabled(False)
     all_rows = []
     first: tuple[str, dict[str, Any]] | None = None
     for ckpt in args.ckpt:

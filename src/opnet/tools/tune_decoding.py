@@ -258,6 +258,7 @@ def main(argv: list[str] | None = None) -> int:
     return tool_main(lambda: tune(args))
 
 
+@torch.no_grad()
 def tune(args: argparse.Namespace) -> int:
     """The tuning :func:`main` asks for: record, search, write."""
     out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
@@ -265,7 +266,6 @@ def tune(args: argparse.Namespace) -> int:
     require_writable(out / "decoding_sweep.csv", "--out")
     if args.write is not None:
         require_writable(args.write, "--write", replace=args.force)
-    torch.set_grad_enabled(False)
     splits = []
     for ckpt in args.ckpt:
         print(f"recording {args.split} outputs of {ckpt}", flush=True)
