@@ -339,6 +339,7 @@ def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndar
     from opnet.deploy.export import export_onnx
     from opnet.deploy.runtime import OnnxPoseEstimator
     from opnet.models.fused import export_form
+    from opnet.run_settings import DecodingSettings, InputSettings, RunSettings
 
     folder = Path(tempfile.mkdtemp(prefix="opnet_bench_onnx_"))
     net = folder / "network.onnx"
@@ -346,7 +347,9 @@ def onnx_paths(model: torch.nn.Module, param: object) -> tuple[Callable[[np.ndar
         torch.onnx.export(export_form(model.cpu().eval()), torch.rand(1, 1, 128, 128), str(net), input_names=["x"],
                           dynamic_axes={"x": {0: "batch"}}, opset_version=17, dynamo=False)
     session = ort.InferenceSession(str(net), providers=["CPUExecutionProvider"])
-    system = types.SimpleNamespace(backbone=model, parameterization=param)
+    # the typed settings export_onnx reads (RunSettings): the network's input, the parameterization's decoding
+    settings = RunSettings(InputSettings(size=getattr(model, "in_size", 128)), DecodingSettings.of(param))
+    system = types.SimpleNamespace(backbone=model, parameterization=param, settings=settings)
     export_onnx(system, {}, Path("bench"), folder / "pipeline.onnx")
     return (lambda x: session.run(None, {"x": x})), OnnxPoseEstimator(folder / "pipeline.onnx")
 
