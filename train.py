@@ -10,10 +10,16 @@ from omegaconf import DictConfig  # noqa: E402
 
 @hydra.main(config_path="conf", config_name="train", version_base="1.3")
 def main(cfg: DictConfig) -> float | None:
-    from opnet.cli.console import guarded
+    from opnet.cli.cell_train import state_cell
+    from opnet.cli.console import guarded, report
     from opnet.cli.train import run
 
-    result = guarded(run, cfg)  # a user error: one line naming the file or key, exit 2
+    def train(cfg: DictConfig) -> dict:
+        if lines := state_cell(cfg):  # experiment=cell: the cell as resolved first (a missing key stops here)
+            report(lines)
+        return run(cfg)
+
+    result = guarded(train, cfg)  # a user error: one line naming the file or key, exit 2
     return result.get("ap")  # the value an optimizing sweeper would maximize
 
 

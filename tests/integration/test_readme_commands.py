@@ -19,6 +19,7 @@ import re
 import shlex
 import subprocess
 import sys
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -74,6 +75,43 @@ def fill(command: str, values: list[tuple[str, str]]) -> list[str]:
     if argv[0] == "python":
         argv[0] = sys.executable
     return argv
+
+
+def cell_rows(run: Callable[..., subprocess.CompletedProcess], ws: Path) -> None:
+    """The three rows of your cell: frames of a generated pile of a known rig (its depth PNGs and camera YAML, a
+    calibration of the generator's own pose), the cell file written into the workspace (train.py finds it there
+    through the config search path), the check, and a tiny training of the cell."""
+    from opnet.objects.library import builtin_object
+    from opnet.synthesis.config import SceneConfig
+    from opnet.synthesis.generate import generate_dataset
+    from opnet.synthesis.layout import R_WORLD_CAM_DOWN, homogeneous, tilted
+
+    camera = ws / "cell_camera.yaml"
+    camera.write_text("fx: 300\nfy: 300\ncx: 159.5\ncy: 119.5\nwidth: 320\nheight: 240\nclip_start: 0.5\nclip_end: 3.0\n")
+    frames = ws / "cell_frames"
+    scene = SceneConfig(camera_file=str(camera), camera_file_clip=True, camera_height=1.2, camera_tilt_deg=15.0,
+                        camera_azimuth_deg=40.0, bin_inner=0.3, bin_inner_y=0.45, bin_wall_height=0.12,
+                        bin_wall_thickness=0.004, camera_jitter_m=0.0, camera_jitter_deg=0.0, outside_clip="clamp")
+    generate_dataset(builtin_object("zbracket"), frames, cycles=1, drops=1, workers=1, seed=0, scene=scene,
+                     progress=False, previews=0)
+    calibration = ws / "T_base_cam.yaml"
+    pose = tilted(homogeneous(R_WORLD_CAM_DOWN, np.array([0.2, 0.1, 1.3])), 15.0, 40.0)
+    calibration.write_text(json.dumps({"T_base_cam": pose.tolist()}))  # JSON is YAML
+    cell_file = ws / "cell" / "mine.yaml"
+    printed = run("set your cell up from a few of its depth frames (no ground truth)",
+                  [("<frames>", str(frames)), ("<camera file>", str(camera)), ("<N>", "mine"),
+                   ("<preset>", "structured_light"), ("<cell file>", str(cell_file)),
+                   ("<T_base_cam yaml>", str(calibration))]).stdout
+    assert "bin inner 0.300" in printed and cell_file.is_file() and cell_file.with_suffix(".png").is_file()
+    run("check your cell against generated piles before training",
+        [("<N>", str(cell_file)), ("<frames>", str(frames)), ("<o>", "zbracket"), ("<dir>", str(ws / "cell_check"))],
+        ["--piles", "1", "--drops", "2"])
+    assert (ws / "cell_check" / "README.md").is_file()
+    trained = run("train for your cell (every measured key from its cell file)", [("<N>", "mine"), ("<o>", "zbracket")],
+                  [f"hydra.searchpath=[file://{ws}]", *TINY_DATA, "model=tiny", *TINY_FIT,
+                   f"hydra.run.dir={ws / 'cell_run'}"]).stdout
+    assert trained.startswith("cell mine: camera") and "sensor structured_light" in trained
+    assert next((ws / "outputs" / "data").glob("cell_mine_*_zbracket_c6_v2_d3_s0_sl"))
 
 
 @pytest.mark.slow
@@ -174,6 +212,7 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
         dense_data = next((ws / "outputs" / "data").glob("dense_bracket_c6_v2_d4_s0*"))
         dense_scene = json.loads((dense_data / "generation.json").read_text())["scene"]
         assert dense_scene["views"] == 2 and dense_scene["camera_height"] == 1.0  # your rig as it stands (rig_d=null)
+        cell_rows(run, ws)
         model = ws / "model.onnx"
         printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
         assert model.is_file() and "ONNX Runtime vs PyTorch" in printed
