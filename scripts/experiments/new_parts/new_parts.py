@@ -81,18 +81,22 @@ def symmetry_text(sym: dict[str, Any]) -> str:
 
 
 def check_object(part: str) -> str:
-    """Run ``opnet-object`` on the part's mesh; its symmetry must be the committed config's. Returns it."""
-    committed = yaml.safe_load((REPO_ROOT / "conf" / "object" / f"{part}.yaml").read_text())
+    """Run ``opnet-object`` on the part's mesh (with ``--declare-near`` where the committed config was written
+    with it: a near-revolution declared); its symmetry must be the committed config's. Returns it."""
+    text = (REPO_ROOT / "conf" / "object" / f"{part}.yaml").read_text()
+    committed = yaml.safe_load(text)
+    declare = ["--declare-near"] if "declared with --declare-near" in text else []
     mesh = shared_dir() / "data" / "meshes" / "new_parts" / PARTS[part]
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / f"{part}.yaml"
-        subprocess.run([sys.executable, "-m", "opnet.cli.object", str(mesh), "--name", part, "--out", str(out)],
+        subprocess.run([sys.executable, "-m", "opnet.cli.object", str(mesh), "--name", part, "--out", str(out), *declare],
                        check=True, cwd=REPO_ROOT, stdout=subprocess.DEVNULL)
         found = yaml.safe_load(out.read_text())
     if found["symmetry"] != committed["symmetry"]:
-        raise SystemExit(f"error: opnet-object finds {found['symmetry']} for {mesh}, conf/object/{part}.yaml "
-                         f"says {committed['symmetry']}: write it again with opnet-object")
-    print(f"[{part}] opnet-object: {symmetry_text(found['symmetry'])}, as conf/object/{part}.yaml", flush=True)
+        raise SystemExit(f"error: opnet-object {' '.join(declare)} finds {found['symmetry']} for {mesh}, "
+                         f"conf/object/{part}.yaml says {committed['symmetry']}: write it again with opnet-object")
+    print(f"[{part}] opnet-object{' --declare-near' if declare else ''}: {symmetry_text(found['symmetry'])}, as "
+          f"conf/object/{part}.yaml", flush=True)
     return symmetry_text(found["symmetry"])
 
 
