@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from opnet.geometry.frames import BASE_POSE_KEY, rigid_transform
 from opnet.settings_schema import (
     METADATA,
     OVERRIDE,
@@ -46,7 +47,7 @@ DECODING_NAMES = ("threshold", "min_visibility", "score", "averaging", "averagin
                   "averaging.cluster_score", "averaging.keep_noise")  # fmt: skip
 INPUT_NAMES = ("input_size", "fit", "interpolation", "roi", "trained_clip")
 #: the top-level keys of the checkpoint entry
-ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object", "refine")
+ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object", "refine", BASE_POSE_KEY)
 #: the refinements a model may be meant to run with (``deploy_refine``; conf/refine/<name>.yaml)
 REFINE_NAMES = ("icp", "search", "search_fast")
 
@@ -375,12 +376,28 @@ class RunSettings:
         refine: the refinement the model is meant to run with (train.py's ``deploy_refine``: a
             conf/refine/ name of :data:`REFINE_NAMES`), applied by eval.py and predict.py with their
             default ``refine=model``; None: the poses as decoded.
+        T_base_cam: the pose of the training's camera in the robot's base frame (4 x 4 rows, metres,
+            camera to base; the cell file's ``cell.T_base_cam``), or None: predict.py and the ONNX
+            runtime write base-frame poses with it when the camera file gives none.
     """
 
     input: InputSettings = InputSettings()
     decoding: DecodingSettings = DecodingSettings()
     object: ObjectSettings | None = None
     refine: str | None = None
+    T_base_cam: tuple[tuple[float, ...], ...] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "T_base_cam", self.checked_base_pose(self.T_base_cam))
+
+    @staticmethod
+    def checked_base_pose(value: Any, key: str = BASE_POSE_KEY, source: str = "") -> tuple[tuple[float, ...], ...] | None:
+        """``value`` as the rows of a rigid transform (None: none); a ValueError naming ``source`` and ``key``
+        otherwise (:func:`opnet.geometry.frames.rigid_transform`)."""
+        if value is None:
+            return None
+        T = rigid_transform(value, source or "run settings", key)
+        return tuple(tuple(float(x) for x in row) for row in T)
 
     @staticmethod
     def checked_refine(value: Any, key: str = "deploy_refine", source: str = "") -> str | None:
@@ -402,20 +419,28 @@ class RunSettings:
             SettingError: ``[<source> ]<key>=<value>: expected ...``, the key as the config spells it.
         """
         refine = cfg.get("deploy_refine") if isinstance(cfg, Mapping) else None
+        cell = cfg.get("cell") if isinstance(cfg, Mapping) else None
+        pose = cell.get(BASE_POSE_KEY) if isinstance(cell, Mapping) else None
         # eval.py's and predict.py's +decoding.* in a training config would be read by nobody
         refuse_foreign(cfg, OVERRIDE, TRAINING, "train.py (+decoding.* overrides eval.py's and predict.py's decoding)",
                        source)
         return cls(InputSettings.from_training_config(cfg, source),
                    decoding if decoding is not None else DecodingSettings.from_training_config(cfg, source),
                    ObjectSettings.from_training_config(cfg, source),
-                   cls.checked_refine(refine, "deploy_refine", source))  # fmt: skip
+                   cls.checked_refine(refine, "deploy_refine", source),
+                   cls.checked_base_pose(pose, f"cell.{BASE_POSE_KEY}", source))  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data: ``{"format", "input", "trained_clip", "decoding", "object", "refine"}``,
-        the input and the decoding spelt as in the ONNX metadata (:mod:`opnet.deploy.metadata`)."""
+        """Plain JSON-able data: ``{"format", "input", "trained_clip", "decoding", "object", "refine"}``
+        and ``T_base_cam`` when there is one, the input and the decoding spelt as in the ONNX metadata
+        (:mod:`opnet.deploy.metadata`)."""
         return {"format": FORMAT, **self.input.to_metadata(), **self.decoding.to_metadata(),
                 "object": None if self.object is None else _plain(self.object.config, "object", ""),
-                "refine": self.refine}
+                "refine": self.refine, **self.base_pose_entry()}
+
+    def base_pose_entry(self) -> dict[str, Any]:
+        """``{"T_base_cam": rows}`` when the settings hold a base pose, else nothing (the entry and the metadata)."""
+        return {} if self.T_base_cam is None else {BASE_POSE_KEY: [list(row) for row in self.T_base_cam]}
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "") -> RunSettings:
@@ -435,10 +460,11 @@ class RunSettings:
         check_format(d["format"], source)
         _require(d, ["object"], source)
         obj = None if d["object"] is None else ObjectSettings(ObjectSettings.checked(d["object"], "object", source))
-        # "refine" may be missing: entries written before it recorded no refinement
+        # "refine" may be missing: entries written before it recorded no refinement; T_base_cam: none recorded
         return cls(InputSettings.from_metadata(d, source, required=True),
                    DecodingSettings.from_metadata(d, source, required=True), obj,
-                   cls.checked_refine(d.get("refine"), "refine", source))  # fmt: skip
+                   cls.checked_refine(d.get("refine"), "refine", source),
+                   cls.checked_base_pose(d.get(BASE_POSE_KEY), BASE_POSE_KEY, source))  # fmt: skip
 
     def with_decoding(self, decoding: DecodingSettings) -> RunSettings:
         return dataclasses.replace(self, decoding=decoding)

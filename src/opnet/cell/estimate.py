@@ -121,32 +121,15 @@ def read_extrinsics(path: Path) -> np.ndarray:
     """The camera-to-base transform of a YAML file (``T_base_cam: [[4 numbers] x 4]``, or the 4 x 4 list
     alone; metres): a rigid transform, or a ValueError naming the file and what is wrong."""
     from opnet.datasets.camera_file import read_yaml
+    from opnet.geometry.frames import BASE_POSE_KEY, rigid_transform
 
     doc = read_yaml(path, "extrinsics YAML")
     if isinstance(doc, dict):
-        if set(doc) != {"T_base_cam"}:
+        if set(doc) != {BASE_POSE_KEY}:
             raise ValueError(f"{path}: expected one key, T_base_cam (a 4 x 4 camera-to-base transform), got "
                              f"{sorted(map(str, doc))}")
-        doc = doc["T_base_cam"]
-    try:
-        T = np.array(doc, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{path}: T_base_cam is not a 4 x 4 list of numbers") from None
-    if T.shape == (16,):
-        T = T.reshape(4, 4)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise ValueError(f"{path}: T_base_cam must be 4 x 4 finite numbers, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
-        raise ValueError(f"{path}: T_base_cam's last row is {T[3].tolist()}, expected [0, 0, 0, 1] (not a rigid transform)")
-    error = float(np.abs(R.T @ R - np.eye(3)).max())
-    if error > 1e-3 or np.linalg.det(R) < 0:
-        what = "a reflection (determinant -1)" if error <= 1e-3 else f"R^T R differs from the identity by {error:.2g}"
-        raise ValueError(f"{path}: T_base_cam's rotation is no rotation ({what}): not a rigid transform")
-    if np.linalg.norm(T[:3, 3]) > 20.0:
-        raise ValueError(f"{path}: T_base_cam puts the camera {np.linalg.norm(T[:3, 3]):.4g} m from the base; "
-                         "the translation is in metres (millimetres? divide by 1000)")
-    return T
+        doc = doc[BASE_POSE_KEY]
+    return rigid_transform(doc, str(path))
 
 
 def measure_cell(frames: list[Frame], camera: Camera, extrinsics: np.ndarray | None = None,

@@ -17,8 +17,10 @@ Accepted inputs:
 - a ``.npy`` array of depth in metres (NaN or 0 = missing; an integer array with
   ``camera.depth_scale``), with the intrinsics from the config as in 2.
 - a folder: every such file in it (recursively, regular files only).
-Per image it writes ``<name>.json`` (poses R, t in metres in the camera frame, score, and in the
-world frame when the camera pose is known: Siléane ``camera_params.txt``), ``results/<scene>.json``
+Per image it writes ``<name>.json`` (poses R, t in metres in the camera frame, score, in the
+world frame when the camera pose is known: Siléane ``camera_params.txt``, and in the robot's base
+frame as ``poses_base`` when the camera YAML (``camera.file``) or the checkpoint (its cell's) gives
+``T_base_cam``), ``results/<scene>.json``
 (the Siléane results format, world frame when known, which ``opnet-evaluate`` scores as it is),
 ``<name>.png`` (the depth image with each estimated object's model projected on it) and
 ``<name>.ply`` (the scene's points and the posed models, for any 3-D viewer), where
@@ -48,6 +50,7 @@ from opnet.data.preprocess_torch import to_network_input as device_input
 from opnet.data.roi import crop_image, parse_roi
 from opnet.datasets.depth_inputs import (
     DepthImage,
+    base_pose,
     claimed_outputs,
     given_camera,
     list_inputs,
@@ -95,9 +98,10 @@ def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint
 
 
 def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: OPNetSystem,
-                     min_score: float, scene: str | None = None) -> list[Path]:
-    """Write ``<out>/<name>.json`` and (with a mesh) ``<out>/<name>.png``; returns the files written."""
-    written = write_pose_files(out, name, image, hyps, system.parameterization.obj.name, scene)
+                     min_score: float, scene: str | None = None, T_base_cam: np.ndarray | None = None) -> list[Path]:
+    """Write ``<out>/<name>.json`` (with base-frame poses when ``T_base_cam`` is given) and (with a
+    mesh) ``<out>/<name>.png``; returns the files written."""
+    written = write_pose_files(out, name, image, hyps, system.parameterization.obj.name, scene, T_base_cam)
     mesh = system.parameterization.obj.mesh
     if mesh is not None:
         img = draw_models(image.depth, image.camera, mesh.vertices, mesh.faces, hyps.above(min_score))
@@ -162,6 +166,8 @@ def run(cfg: DictConfig) -> int:
     clip = working_clip(cfg.get("clip"), trained)
     print(describe_clip(clip, trained))
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
+    recorded = system.settings.T_base_cam
+    T_base_cam = base_pose(given, None if recorded is None else np.array(recorded), str(cfg.ckpt))
 
     roi = "checkpoint" if cfg.get("roi") is None else parse_roi(cfg.roi, "roi")
 
@@ -177,7 +183,8 @@ def run(cfg: DictConfig) -> int:
     with claimed_outputs(out, inputs, overwrite, PREDICT_SUFFIXES, (Path(cfg.ckpt),)) as scenes:
         failed = predict_inputs(
             inputs, given, out, scenes, estimate,
-            lambda name, image, hyps, scene: write_prediction(out, name, image, hyps, system, min_score, scene),
+            lambda name, image, hyps, scene: write_prediction(out, name, image, hyps, system, min_score, scene,
+                                                              T_base_cam),
             min_score)  # fmt: skip
     written = len(inputs) - failed
     if written:

@@ -3,7 +3,9 @@
 The YAML holds ``fx fy cx cy width height clip_start clip_end`` (pixels and metres; OpenCV
 convention: pixel centres at integers, x right, y down); predict.py's ``camera.file`` also accepts
 ``depth_scale`` and partial files (the rest comes from the command line), the generator needs all
-eight keys. Every error names the file and the problem.
+eight keys. Any camera YAML may carry ``T_base_cam``: the camera's pose in the robot's base frame
+(4 x 4, metres, camera to base; a rigid transform), with which predict.py and the ONNX runtime
+write poses in the base frame too. Every error names the file and the problem.
 """
 
 from __future__ import annotations
@@ -12,11 +14,13 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from opnet._repr import short_repr
 from opnet.fileio.files import read_json, read_text
 from opnet.geometry.camera import Camera
+from opnet.geometry.frames import BASE_POSE_KEY, rigid_transform
 
 YAML_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
 YAML_EXTRA_KEYS = ("depth_scale",)
@@ -76,15 +80,26 @@ def read_yaml(path: str | Path, what: str) -> Any:
 
 def read_camera_yaml(path: str | Path, allowed: tuple[str, ...] = (*YAML_CAMERA_KEYS, *YAML_EXTRA_KEYS)) -> dict[str, float]:
     """The numbers of a camera YAML (keys among ``allowed``; null values are left out)."""
+    return read_camera_yaml_pose(path, allowed)[0]
+
+
+def read_camera_yaml_pose(path: str | Path, allowed: tuple[str, ...] = (*YAML_CAMERA_KEYS, *YAML_EXTRA_KEYS)
+                          ) -> tuple[dict[str, float], np.ndarray | None]:
+    """The numbers of a camera YAML (keys among ``allowed``; null values are left out) and its
+    ``T_base_cam`` (a checked rigid transform, :func:`opnet.geometry.frames.rigid_transform`), or None."""
     path = Path(path)
     doc = read_yaml(path, "camera YAML")
     refuse_bop_scene_camera(doc, path)
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: a camera YAML holds a mapping of {', '.join(allowed)}")
+    doc = dict(doc)
+    pose = doc.pop(BASE_POSE_KEY, None)
     unknown = sorted(set(map(str, doc)) - set(allowed))
     if unknown:
-        raise ValueError(f"{path}: unknown camera key(s) {short_repr(unknown)}; expected {', '.join(allowed)}")
-    return {str(k): camera_number(v, str(k), str(path)) for k, v in doc.items() if v is not None}
+        raise ValueError(f"{path}: unknown camera key(s) {short_repr(unknown)}; expected {', '.join(allowed)} "
+                         f"[{BASE_POSE_KEY}]")
+    values = {str(k): camera_number(v, str(k), str(path)) for k, v in doc.items() if v is not None}
+    return values, None if pose is None else rigid_transform(pose, str(path))
 
 
 def read_camera_file(path: str | Path) -> Camera:

@@ -19,7 +19,7 @@ import numpy as np
 
 from opnet.datasets.camera_file import (
     camera_number,
-    read_camera_yaml,
+    read_camera_yaml_pose,
     require_principal_point_inside,
 )
 from opnet.datasets.ipa_params import read_parameters
@@ -27,10 +27,10 @@ from opnet.datasets.outputs import folder_lock, require_output_folder
 from opnet.datasets.png import decode_depth, read_png
 from opnet.datasets.sileane import read_camera_params
 from opnet.datasets.sileane_json import write_results_json
-from opnet.fileio.atomic import write_text_atomic
+from opnet.fileio.atomic import remove_stale_temporaries, write_text_atomic
 from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import MAX_CLIP_END_M, MAX_IMAGE_SIDE, Camera
-from opnet.geometry.frames import camera_to_world
+from opnet.geometry.frames import BASE_POSE_KEY, camera_to_base, camera_to_world
 from opnet.metrics.records import HypothesisSet
 
 IMAGE_SUFFIXES = {".png", ".npy"}
@@ -53,6 +53,9 @@ class GivenCamera:
 
     values: dict[str, float]
     origin: dict[str, str]
+    #: the camera's pose in the robot's base frame (4 x 4, camera to base) of ``camera.file``, or None
+    T_base_cam: np.ndarray | None = None
+    file: str | None = None  # camera.file
 
     def describe(self, key: str) -> str:
         return f"camera.{key}={self.values[key]:g} ({self.origin[key]})"
@@ -69,9 +72,11 @@ def given_camera(camera_cfg: dict[str, Any] | None) -> GivenCamera:
     values: dict[str, float] = {}
     origin: dict[str, str] = {}
     file = camera_cfg.pop("file", None)
+    pose = None
     if file is not None:
         path = Path(str(file))
-        for key, x in read_camera_yaml(path).items():
+        numbers, pose = read_camera_yaml_pose(path)
+        for key, x in numbers.items():
             values[key], origin[key] = x, str(path)
     for key in CAMERA_KEYS:
         value = camera_cfg.get(key)
@@ -81,7 +86,7 @@ def given_camera(camera_cfg: dict[str, Any] | None) -> GivenCamera:
         if key in values and not math.isclose(values[key], x, rel_tol=1e-9, abs_tol=1e-12):
             raise ValueError(f"camera.{key}: {x:g} on the command line conflicts with {values[key]:g} in {origin[key]}")
         values[key], origin[key] = x, "command line"
-    given = GivenCamera(values, origin)
+    given = GivenCamera(values, origin, pose, None if file is None else str(file))
     _check_plausible(given)
     return given
 
@@ -341,11 +346,14 @@ def claimed_outputs(out: Path, inputs: list[tuple[Path, Path]], overwrite: bool,
     """Hold ``out`` for one run: refuse an ``out`` that is an input (an image, the model in
     ``other_inputs``) or a file, lock the folder (:func:`opnet.datasets.outputs.folder_lock`: a
     concurrent run into it stops with an error naming it), check the outputs inside the lock
-    (:func:`check_outputs`), and yield the results-file scene name of every input."""
+    (:func:`check_outputs`), remove what a run killed while writing one of them left (its temporary
+    files: the planned file itself was never replaced), and yield the results-file scene name of every
+    input."""
     require_output_folder(out, [*(p for p, _ in inputs), *other_inputs], option)
-    planned_outputs(out, inputs, suffixes)  # name clashes: refused before anything is created
+    planned = planned_outputs(out, inputs, suffixes)  # name clashes: refused before anything is created
     with folder_lock(out, option):
         check_outputs(out, inputs, overwrite, suffixes, option)
+        remove_stale_temporaries(planned)
         yield scene_names(inputs)
 
 
@@ -386,20 +394,38 @@ def scene_names(inputs: list[tuple[Path, Path]]) -> dict[Path, str]:
     return scenes
 
 
+def base_pose(given: GivenCamera, recorded: np.ndarray | None, model: str) -> np.ndarray | None:
+    """The camera's pose in the robot's base frame a run writes base-frame poses with: the camera
+    file's ``T_base_cam``, else the one ``model`` records (its cell's), else None; said on the console."""
+    if given.T_base_cam is not None:
+        replaced = recorded is not None and not np.allclose(given.T_base_cam, recorded, atol=1e-9)
+        print(f"base frame: {BASE_POSE_KEY} of {given.file}" + (f" (in place of the one {model} records)" if replaced else ""))
+        return given.T_base_cam
+    if recorded is not None:
+        print(f"base frame: {BASE_POSE_KEY} recorded in {model}")
+    return recorded
+
+
+def _pose_list(R: np.ndarray, t: np.ndarray, score: np.ndarray) -> list[dict[str, Any]]:
+    return [{"R": r.tolist(), "t": x.tolist(), "score": float(s)} for r, x, s in zip(R, t, score)]
+
+
 def write_pose_files(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, object_name: str,
-                     scene: str | None = None) -> list[Path]:
-    """Write ``<out>/<name>.json`` (poses in the camera frame, and the world frame when the camera
-    pose is known) and ``<out>/results/<scene>.json`` (the Siléane results format, world frame when
-    known, which opnet-evaluate reads as it is); returns both paths."""
-    poses = [{"R": R.tolist(), "t": t.tolist(), "score": float(s)} for R, t, s in zip(hyps.R, hyps.t, hyps.score)]
+                     scene: str | None = None, T_base_cam: np.ndarray | None = None) -> list[Path]:
+    """Write ``<out>/<name>.json`` (poses in the camera frame, the world frame when the camera pose
+    is known, and the robot's base frame as ``poses_base`` when ``T_base_cam`` is given) and
+    ``<out>/results/<scene>.json`` (the Siléane results format, world frame when known, which
+    opnet-evaluate reads as it is); returns both paths."""
     doc = {"image": str(image.path), "frame": "camera (OpenCV: x right, y down, z forward), metres",
            "camera": {k: getattr(image.camera, k) for k in ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")},
-           "object": object_name, "poses": poses}
+           "object": object_name, "poses": _pose_list(hyps.R, hyps.t, hyps.score)}
     R_out, t_out = hyps.R, hyps.t
     if image.world_from_camera is not None:  # Siléane: the camera pose is known, give world poses too
         R_out, t_out = camera_to_world(hyps.R, hyps.t, *image.world_from_camera)
-        doc["poses_world"] = [{"R": R.tolist(), "t": t.tolist(), "score": float(s)}
-                              for R, t, s in zip(R_out, t_out, hyps.score)]
+        doc["poses_world"] = _pose_list(R_out, t_out, hyps.score)
+    if T_base_cam is not None:  # the robot's base frame: X_base = T_base_cam X_cam
+        doc[BASE_POSE_KEY] = np.asarray(T_base_cam, np.float64).tolist()
+        doc["poses_base"] = _pose_list(*camera_to_base(hyps.R, hyps.t, T_base_cam), hyps.score)
     written = [out / f"{name}.json", out / "results" / f"{scene or results_name(name)}.json"]
     write_text_atomic(written[0], json.dumps(doc, indent=1))
     write_results_json(written[1], HypothesisSet(R_out, t_out, hyps.score, hyps.visibility))

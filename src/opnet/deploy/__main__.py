@@ -7,7 +7,8 @@
 
 The inputs and cameras are predict.py's (:mod:`opnet.datasets.depth_inputs`: a dataset PNG takes
 the camera file above it, other images the intrinsics given here), and so are the outputs
-``<out>/<name>.json`` (poses, camera frame, and world frame when known) and
+``<out>/<name>.json`` (poses, camera frame, world frame when known, and the robot's base frame as
+``poses_base`` when the camera YAML or the model gives ``T_base_cam``) and
 ``<out>/results/<scene>.json`` (Siléane results format). Only numpy, OpenCV, SciPy, PyYAML and
 onnxruntime are imported. Without ``--icp``, ``--search`` or ``--search-fast`` the model refines as its
 export records (train.py's ``deploy_refine``; ``--no-refine``: the poses as decoded). An input's depth is normalized with the training scenes' clip planes
@@ -25,6 +26,7 @@ from opnet.arguments import ArgumentParser
 
 from opnet.datasets.depth_inputs import (
     POSE_SUFFIXES,
+    base_pose,
     claimed_outputs,
     given_camera,
     list_inputs,
@@ -87,12 +89,13 @@ def main(argv: list[str] | None = None) -> int:
         estimator = OnnxPoseEstimator(args.model, threads=args.threads, icp=icp, roi=roi,
                                       averaging=False if args.no_averaging else None, clip=clip)
         print(describe_clip(estimator.clip, estimator.trained_clip))
+        T_base_cam = base_pose(given, estimator.T_base_cam, str(args.model))
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))
             failed = predict_inputs(
                 inputs, given, args.out, scenes, lambda image: estimator.predict(image.depth, image.camera),
-                lambda name, image, hyps, scene: write_pose_files(args.out, name, image, hyps, obj, scene))
+                lambda name, image, hyps, scene: write_pose_files(args.out, name, image, hyps, obj, scene, T_base_cam))
     except (ValueError, FileNotFoundError, DiskFullError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -14,7 +14,8 @@ preprocessing, the presence threshold, the score, and the pose averaging (DBSCAN
 
 The metadata (ONNX ``metadata_props``, key ``opnet``, JSON) holds what those steps need: input
 size and framing, the decoding settings, the object's pose space for the averaging, the object
-and parameterization names and the output layout; ``opnet_version`` and the source checkpoint.
+and parameterization names and the output layout; ``opnet_version`` and the source checkpoint;
+``T_base_cam`` (the camera's pose in the robot's base frame) when the checkpoint records one.
 """
 
 from __future__ import annotations
@@ -106,6 +107,8 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "icp_model": icp_model_metadata(param.obj),
         # the refinement the model is meant to run with (train.py's deploy_refine), None: as decoded
         "refine": settings.refine,
+        # the training camera's pose in the robot's base frame (its cell's T_base_cam), when recorded
+        **settings.base_pose_entry(),
     }
 
 

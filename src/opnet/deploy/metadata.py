@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from opnet.geometry.frames import BASE_POSE_KEY
 from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
 from opnet.run_settings import DecodingSettings, InputSettings, RunSettings, check_format
 from opnet.settings_schema import METADATA, Flag, Number, SettingError, Spec, Whole, read_settings
@@ -25,7 +26,7 @@ REQUIRED = ("format", "parameterization", "grid_size", "slots", "channels_per_sl
 #: every key an export writes (:func:`opnet.deploy.export.export_metadata`), and those of its mappings
 KEYS = ("format", "opnet_version", "checkpoint", "object", "parameterization", "rotation", "grid_size", "slots",
         "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs", "decoding",
-        "pose_space", "icp_model", "refine")
+        "pose_space", "icp_model", "refine", BASE_POSE_KEY)
 INPUT_KEYS = (*(k.removeprefix("input.") for k in METADATA.values() if k.startswith("input.")), "layout")
 POSE_SPACE_KEYS = ("Lambda", "group", "delta", "revolution", "lam")
 ICP_KEYS = ("points", "normals", "diameter")
@@ -92,7 +93,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam),
         "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far)),
         "input" (:class:`~opnet.run_settings.InputSettings`), "decoding"
-        (:class:`~opnet.run_settings.DecodingSettings`), "refine" (the recorded refinement's name or None)}``:
+        (:class:`~opnet.run_settings.DecodingSettings`), "refine" (the recorded refinement's name or None),
+        "T_base_cam" (the camera's pose in the robot's base frame, 4 x 4 rows, or None)}``:
         the flat keys are those two's values.
     Raises:
         ValueError: ``<path>: opnet metadata <key>=<value>: expected <what>`` (a ``SettingError``) for the
@@ -140,6 +142,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         "trained_clip": framing.trained_clip, "input": framing, "decoding": decoding,
         # absent: exported before the key (no refinement recorded)
         "refine": RunSettings.checked_refine(meta.get("refine"), "refine", f.source),
+        # absent: no base pose recorded
+        BASE_POSE_KEY: RunSettings.checked_base_pose(meta.get(BASE_POSE_KEY), BASE_POSE_KEY, f.source),
     }
     ps = f.mapping(meta, "pose_space")
     f.known(ps, POSE_SPACE_KEYS, "pose_space.")

@@ -29,6 +29,7 @@ from opnet.data.roi import crop_image, parse_roi
 from opnet.deploy.metadata import validate_metadata
 from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera, with_clip, working_clip
+from opnet.geometry.frames import BASE_POSE_KEY
 from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
@@ -107,6 +108,9 @@ class OnnxPoseEstimator:
         space = PoseSpaceArrays(ps["Lambda"], ps["group"], ps["delta"], ps["revolution"], ps["lam"])
         #: the refinement the export records (train.py's deploy_refine), or None
         self.recorded_refine: str | None = s["refine"]
+        #: the training camera's pose in the robot's base frame (4 x 4, camera to base) the export
+        #: records, or None (:func:`opnet.geometry.frames.camera_to_base` takes it)
+        self.T_base_cam: np.ndarray | None = None if s[BASE_POSE_KEY] is None else np.array(s[BASE_POSE_KEY])
         by_model = isinstance(icp, str) and icp == "model"
         icp = recorded_refinement(self.recorded_refine) if by_model else icp
         if averaging is None:
