@@ -161,3 +161,40 @@ def test_a_cells_T_base_cam_is_recorded_in_the_run_settings() -> None:
     assert "T_base_cam" not in RunSettings().to_dict()  # none recorded: the entry as before
     with pytest.raises(ValueError, match=r"^run\.ckpt: cell\.T_base_cam's rotation is no rotation \(a reflection"):
         RunSettings.from_training_config({"cell": {"T_base_cam": np.diag([1.0, -1.0, 1.0, 1.0]).tolist()}}, "run.ckpt")
+
+
+def test_the_robot_loop_of_the_deployment_page_runs_and_picks_the_runtimes_best_part(
+        cell_model: tuple[Path, Path], tiny_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/deployment.md's Python loop, run as printed in a folder of its model.onnx, camera.yaml (with
+    T_base_cam) and frames/*.npy: one line per frame, the best-scored part where the runtime's poses_base put it."""
+    import re
+
+    from opnet.datasets.ipa import IPADataset
+    from opnet.paths import REPO_ROOT
+
+    page = (REPO_ROOT / "docs" / "deployment.md").read_text()
+    code = re.search(r"### Poses in the robot's base frame\n.*?```python\n(.*?)```", page, re.DOTALL).group(1)
+    _, model = cell_model
+    (tmp_path / "model.onnx").write_bytes(model.read_bytes())
+    records = [IPADataset(tiny_dataset)[i] for i in (3, 9)]
+    cam = records[0].camera
+    (tmp_path / "camera.yaml").write_text(yaml.safe_dump(
+        {**{k: float(getattr(cam, k)) for k in ("fx", "fy", "cx", "cy", "clip_start", "clip_end")},
+         "T_base_cam": T_FILE.tolist()}))
+    (tmp_path / "frames").mkdir()
+    for i, r in enumerate(records):
+        np.save(tmp_path / "frames" / f"frame{i}.npy", r.depth.astype(np.float32))
+    monkeypatch.chdir(tmp_path)
+    capsys.readouterr()
+    exec(compile(code, "docs/deployment.md", "exec"), {"__name__": "robot_loop"})  # noqa: S102 - the page's own code
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert [line.split(":")[0] for line in lines] == ["frame0.npy", "frame1.npy"], lines
+    assert deploy_main([str(tmp_path / "model.onnx"), str(tmp_path / "frames"), "--out", str(tmp_path / "out"),
+                        "--camera", str(tmp_path / "camera.yaml")]) == 0
+    for i, line in enumerate(lines):
+        poses = json.loads((tmp_path / "out" / f"frame{i}.json").read_text())["poses_base"]
+        best = max(poses, key=lambda p: p["score"])
+        picked = json.loads(line.split("pick at ")[1].split(" m,")[0])
+        assert np.allclose(picked, np.round(best["t"], 4), atol=1e-9), (line, best["t"])
+        assert f"score {best['score']:.3f}" in line

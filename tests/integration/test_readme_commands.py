@@ -213,6 +213,15 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
         dense_scene = json.loads((dense_data / "generation.json").read_text())["scene"]
         assert dense_scene["views"] == 2 and dense_scene["camera_height"] == 1.0  # your rig as it stands (rig_d=null)
         cell_rows(run, ws)
+        # your part, your camera, your cell: its first command here (a part's mesh into its object config, written
+        # into the workspace); the others are the rows of the cell, its training, the export and the runtime
+        import trimesh
+
+        mesh = ws / "part.stl"
+        trimesh.creation.box(extents=(0.08, 0.04, 0.02)).export(mesh)
+        run("your part, your camera, your cell", [("<mesh>", str(mesh)), ("<o>", "mypart")],
+            ["--out", str(ws / "object" / "mypart.yaml")])
+        assert "name: mypart" in (ws / "object" / "mypart.yaml").read_text()
         model = ws / "model.onnx"
         printed = run("export to ONNX (network + decoder + metadata)", [("<ckpt>", str(ckpt)), ("<model.onnx>", str(model))]).stdout
         assert model.is_file() and "ONNX Runtime vs PyTorch" in printed
