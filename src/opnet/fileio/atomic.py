@@ -14,7 +14,7 @@ import errno
 import os
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +99,25 @@ def temporary_beside(path: str | Path) -> tuple[int, Path]:
         Path(tmp).unlink(missing_ok=True)
         raise
     return fd, Path(tmp)
+
+
+def remove_stale_temporaries(targets: Iterable[str | Path]) -> int:
+    """Delete the temporary files (:func:`temporary_beside`: ``.<name>.<random>.tmp``) that a writer
+    killed in the middle of writing one of ``targets`` left beside it; returns how many. Only for a
+    caller that holds the folder for itself (its lock): a live writer's temporary file looks the same.
+    Each folder is listed once, however many targets it holds."""
+    names: dict[Path, set[str]] = {}
+    for target in map(Path, targets):
+        names.setdefault(target.parent, set()).add(target.name)
+    removed = 0
+    for folder, wanted in names.items():
+        if not folder.is_dir():
+            continue
+        for tmp in folder.glob(".*.tmp"):
+            if tmp.name[1:-len(".tmp")].rpartition(".")[0] in wanted and tmp.is_file():
+                tmp.unlink(missing_ok=True)
+                removed += 1
+    return removed
 
 
 def _require_replaceable(path: Path) -> None:
