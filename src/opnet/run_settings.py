@@ -25,6 +25,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from opnet.datasets.camera_file import YAML_CAMERA_KEYS
+from opnet.geometry.camera import Camera
 from opnet.geometry.frames import BASE_POSE_KEY, rigid_transform
 from opnet.settings_schema import (
     METADATA,
@@ -47,7 +49,9 @@ DECODING_NAMES = ("threshold", "min_visibility", "score", "averaging", "averagin
                   "averaging.cluster_score", "averaging.keep_noise")  # fmt: skip
 INPUT_NAMES = ("input_size", "fit", "interpolation", "roi", "trained_clip")
 #: the top-level keys of the checkpoint entry
-ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object", "refine", BASE_POSE_KEY)
+ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object", "refine", BASE_POSE_KEY, "camera")
+#: the training camera's values, in this order (a camera YAML's keys)
+CAMERA_KEYS = YAML_CAMERA_KEYS
 #: the refinements a model may be meant to run with (``deploy_refine``; conf/refine/<name>.yaml)
 REFINE_NAMES = ("icp", "search", "search_fast")
 
@@ -379,6 +383,9 @@ class RunSettings:
         T_base_cam: the pose of the training's camera in the robot's base frame (4 x 4 rows, metres,
             camera to base; the cell file's ``cell.T_base_cam``), or None: predict.py and the ONNX
             runtime write base-frame poses with it when the camera file gives none.
+        camera: the training scenes' camera (:data:`CAMERA_KEYS`: pixels and metres, at the image's full
+            size), or None: predict.py and the ONNX runtime take it for an image with no camera file
+            above it and no intrinsics given, when the image is of its size.
     """
 
     input: InputSettings = InputSettings()
@@ -386,9 +393,39 @@ class RunSettings:
     object: ObjectSettings | None = None
     refine: str | None = None
     T_base_cam: tuple[tuple[float, ...], ...] | None = None
+    camera: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "T_base_cam", self.checked_base_pose(self.T_base_cam))
+        object.__setattr__(self, "camera", self.checked_camera(self.camera))
+
+    @staticmethod
+    def checked_camera(value: Any, key: str = "camera", source: str = "") -> tuple[float, ...] | None:
+        """``value`` (the :data:`CAMERA_KEYS` in order, or a mapping of them) as a camera's values (None:
+        none); a :class:`SettingError` naming ``key`` otherwise."""
+        if value is None:
+            return None
+        given = [value.get(k) for k in CAMERA_KEYS] if isinstance(value, Mapping) else value
+        try:
+            values = tuple(float(x) for x in given)
+            if len(values) != len(CAMERA_KEYS) or not all(math.isfinite(x) for x in values):
+                raise ValueError
+            if not (values[4].is_integer() and values[5].is_integer()):
+                raise ValueError
+            Camera(*values[:4], int(values[4]), int(values[5]), *values[6:])
+        except (TypeError, ValueError):
+            raise SettingError(key, value, f"expected a camera: {', '.join(CAMERA_KEYS)} (pixels, metres)",
+                               source) from None
+        return values
+
+    def with_camera(self, camera: Any) -> RunSettings:
+        """The settings with the training scenes' camera (a :class:`~opnet.geometry.camera.Camera`, or None)."""
+        values = None if camera is None else tuple(float(getattr(camera, k)) for k in CAMERA_KEYS)
+        return dataclasses.replace(self, camera=values)
+
+    def camera_entry(self) -> dict[str, Any]:
+        """``{"camera": {key: value}}`` when the settings hold the training camera, else nothing."""
+        return {} if self.camera is None else {"camera": dict(zip(CAMERA_KEYS, self.camera, strict=True))}
 
     @staticmethod
     def checked_base_pose(value: Any, key: str = BASE_POSE_KEY, source: str = "") -> tuple[tuple[float, ...], ...] | None:
@@ -432,11 +469,11 @@ class RunSettings:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able data: ``{"format", "input", "trained_clip", "decoding", "object", "refine"}``
-        and ``T_base_cam`` when there is one, the input and the decoding spelt as in the ONNX metadata
+        and ``T_base_cam`` and ``camera`` when there are, the input and the decoding spelt as in the ONNX metadata
         (:mod:`opnet.deploy.metadata`)."""
         return {"format": FORMAT, **self.input.to_metadata(), **self.decoding.to_metadata(),
                 "object": None if self.object is None else _plain(self.object.config, "object", ""),
-                "refine": self.refine, **self.base_pose_entry()}
+                "refine": self.refine, **self.base_pose_entry(), **self.camera_entry()}
 
     def base_pose_entry(self) -> dict[str, Any]:
         """``{"T_base_cam": rows}`` when the settings hold a base pose, else nothing (the entry and the metadata)."""
@@ -464,7 +501,8 @@ class RunSettings:
         return cls(InputSettings.from_metadata(d, source, required=True),
                    DecodingSettings.from_metadata(d, source, required=True), obj,
                    cls.checked_refine(d.get("refine"), "refine", source),
-                   cls.checked_base_pose(d.get(BASE_POSE_KEY), BASE_POSE_KEY, source))  # fmt: skip
+                   cls.checked_base_pose(d.get(BASE_POSE_KEY), BASE_POSE_KEY, source),
+                   cls.checked_camera(d.get("camera"), "camera", source))  # fmt: skip
 
     def with_decoding(self, decoding: DecodingSettings) -> RunSettings:
         return dataclasses.replace(self, decoding=decoding)

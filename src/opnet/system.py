@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from opnet.data.sample import Batch
+from opnet.datasets.camera_file import dataset_camera
 from opnet.losses import MultiTaskLoss
 from opnet.metrics.diagnostics import MISS_REASONS
 from opnet.metrics.plot import pr_curve_figure
@@ -102,11 +103,15 @@ class OPNetSystem(L.LightningModule):
     def on_fit_start(self) -> None:
         """Record the training scenes' clip planes in :attr:`settings` (``trained_clip``), which the
         checkpoints carry: predict.py and the ONNX runtime normalize a new image's depth with them,
-        whatever planes its camera file gives."""
+        whatever planes its camera file gives; and the dataset's camera (``camera``), their camera
+        for an image that comes without one."""
         datamodule = getattr(self.trainer, "datamodule", None)
         train = (getattr(datamodule, "splits", None) or {}).get("train")
         if train is not None and hasattr(train, "clip_planes"):
             self.settings = self.settings.with_trained_clip(train.clip_planes())
+        roots = getattr(datamodule, "roots", None)
+        if roots is not None and len(roots) == 1:  # the training camera: predict.py's default for a bare image
+            self.settings = self.settings.with_camera(dataset_camera(roots[0]))
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Save :attr:`settings` as their own entry (:data:`opnet.run_settings.CHECKPOINT_KEY`), plain data."""

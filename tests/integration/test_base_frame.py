@@ -198,3 +198,36 @@ def test_the_robot_loop_of_the_deployment_page_runs_and_picks_the_runtimes_best_
         picked = json.loads(line.split("pick at ")[1].split(" m,")[0])
         assert np.allclose(picked, np.round(best["t"], 4), atol=1e-9), (line, best["t"])
         assert f"score {best['score']:.3f}" in line
+
+
+def test_the_training_camera_is_the_default_of_an_image_given_without_one(
+        cell_model: tuple[Path, Path], tiny_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A .npy of the training camera's size with no camera given: predict.py and the ONNX runtime take the camera
+    the checkpoint and the export record (the dataset's); an image of another size is refused naming both sizes."""
+    from opnet.datasets.camera_file import dataset_camera
+    from opnet.datasets.ipa import IPADataset
+
+    ckpt, model = cell_model
+    camera = dataset_camera(tiny_dataset)
+    want = [float(getattr(camera, k)) for k in ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")]
+    system, _ = load_checkpoint(ckpt)
+    assert list(system.settings.camera) == want
+    assert list(OnnxPoseEstimator(model).camera) == want
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    np.save(frames / "frame.npy", IPADataset(tiny_dataset)[4].depth.astype(np.float32))
+    capsys.readouterr()
+    by_torch, by_onnx = _run_both(ckpt, model, frames, tmp_path, None)
+    printed = capsys.readouterr().out
+    assert f"(from the training camera of {ckpt})" in printed and f"(from the training camera of {model})" in printed
+    for doc in (by_torch["frame"], by_onnx["frame"]):
+        assert [float(doc["camera"][k]) for k in ("fx", "fy", "cx", "cy", "width", "height")] == want[:6]
+        assert len(doc["poses"]) > 0
+    other = tmp_path / "other"
+    other.mkdir()
+    np.save(other / "small.npy", np.full((60, 80), 0.2, np.float32))
+    assert predict_cli.run(compose_cfg("predict", [f"ckpt={ckpt}", f"input={other}", f"out={tmp_path / 'o1'}"])) == 1
+    assert deploy_main([str(model), str(other), "--out", str(tmp_path / "o2")]) == 1
+    for line in [x for x in capsys.readouterr().out.splitlines() if x.startswith("error:")]:
+        assert f"{other / 'small.npy'}: no camera file above it and no intrinsics given; the training camera of" in line
+        assert "is 128x128, the image 80x60" in line

@@ -6,7 +6,8 @@ Accepted inputs:
      depth coded between the clip planes. Values given in the config must agree with that file
      (a conflict is an error naming both);
   2. else the config: ``camera.fx, fy, cx, cy, clip_start, clip_end`` on the command line and/or in
-     a camera YAML (``camera.file=<yaml>`` with the same keys). The PNG's depth encoding is
+     a camera YAML (``camera.file=<yaml>`` with the same keys); with none of ``fx, fy, cx, cy``
+     given, the camera of the training scenes the checkpoint records, for an image of its size. The PNG's depth encoding is
      ``camera.depth_scale`` metres per unit (0.001 for millimetre PNGs of RealSense / Kinect /
      Zivid exports; 0 = no depth) or, when it is null, the datasets' code between the clip planes
      (65535 = no depth).
@@ -168,6 +169,7 @@ def run(cfg: DictConfig) -> int:
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
     recorded = system.settings.T_base_cam
     T_base_cam = base_pose(given, None if recorded is None else np.array(recorded), str(cfg.ckpt))
+    given = given.with_default(system.settings.camera, str(cfg.ckpt))
 
     roi = "checkpoint" if cfg.get("roi") is None else parse_roi(cfg.roi, "roi")
 

@@ -146,6 +146,18 @@ def read_camera_file(path: str | Path) -> Camera:
     return require_principal_point_inside(camera, str(path))
 
 
+def dataset_camera(folder: str | Path) -> Camera | None:
+    """The camera of a dataset folder (its ``camera_params.txt`` or ``parameter.json``), or None when it
+    holds neither (a BOP split, a list of folders)."""
+    from opnet.datasets.ipa_params import PARAMETER_FILE
+    from opnet.datasets.sileane import CAMERA_FILE
+
+    folder = Path(folder)
+    if not any((folder / name).is_file() for name in (CAMERA_FILE, PARAMETER_FILE)):
+        return None
+    return read_camera_file(folder)
+
+
 def refuse_bop_scene_camera(doc: Any, path: Path) -> None:
     """A ValueError naming ``path`` when ``doc`` is a BOP ``scene_camera.json`` (a ``cam_K`` per image
     id): its cameras belong to the images of a scene (read as a dataset), and it has no clip planes;

@@ -7,6 +7,7 @@ torch-free ONNX runner (``python -m opnet.deploy``) share it. Every error names 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import re
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from opnet.datasets.camera_file import (
+    YAML_CAMERA_KEYS,
     camera_number,
     read_camera_yaml_pose,
     require_principal_point_inside,
@@ -56,9 +58,18 @@ class GivenCamera:
     #: the camera's pose in the robot's base frame (4 x 4, camera to base) of ``camera.file``, or None
     T_base_cam: np.ndarray | None = None
     file: str | None = None  # camera.file
+    #: the model's training camera (the values of a camera YAML's keys, in their order) for an image given
+    #: without intrinsics
+    default: tuple[float, ...] | None = None
+    default_origin: str = ""
 
     def describe(self, key: str) -> str:
         return f"camera.{key}={self.values[key]:g} ({self.origin[key]})"
+
+    def with_default(self, camera: tuple[float, ...] | None, model: str) -> GivenCamera:
+        """These values, with ``model``'s training camera (None: none) for an image given without intrinsics."""
+        return self if camera is None else dataclasses.replace(self, default=tuple(camera),
+                                                               default_origin=f"the training camera of {model}")
 
     def sources(self) -> str:
         """Where the intrinsics came from: "command line", a YAML file, or both."""
@@ -108,6 +119,21 @@ def _check_plausible(given: GivenCamera) -> None:
                          "expected 0 < clip_start < clip_end (metres)")
     if "depth_scale" in v and v["depth_scale"] > 1.0:
         raise ValueError(f"{given.describe('depth_scale')}: metres per depth unit, expected <= 1 (0.001 for millimetres)")
+
+
+def _with_default(path: Path, given: GivenCamera, width: int, height: int) -> GivenCamera:
+    """``given`` with the model's training camera for the keys it lacks, where it gives none of the
+    intrinsics; an image of another size than that camera's is a ValueError naming both."""
+    if given.default is None or any(k in given.values for k in ("fx", "fy", "cx", "cy")):
+        return given
+    default = dict(zip(YAML_CAMERA_KEYS, given.default, strict=True))
+    if (int(default["width"]), int(default["height"])) != (width, height):
+        raise ValueError(f"{path}: no camera file above it and no intrinsics given; {given.default_origin} is "
+                         f"{int(default['width'])}x{int(default['height'])}, the image {width}x{height}: give "
+                         "camera.fx, camera.fy, camera.cx, camera.cy, camera.clip_start, camera.clip_end (or camera.file=<yaml>)")
+    values = {**{k: default[k] for k in INTRINSIC_KEYS}, **given.values}
+    origin = {**{k: given.default_origin for k in INTRINSIC_KEYS}, **given.origin}
+    return dataclasses.replace(given, values=values, origin=origin)
 
 
 def _camera_from_given(path: Path, given: GivenCamera, width: int, height: int) -> Camera:
@@ -198,6 +224,7 @@ def _load_npy(path: Path, given: GivenCamera) -> DepthImage:
     elif not np.issubdtype(depth.dtype, np.floating):
         raise ValueError(f"{path}: expected float depth in metres, got dtype {depth.dtype} "
                          "(integer depth needs camera.depth_scale, metres per unit)")
+    given = _with_default(path, given, depth.shape[1], depth.shape[0])
     cam = _camera_from_given(path, given, depth.shape[1], depth.shape[0])
     depth = depth.astype(np.float32)
     if np.isinf(depth).any():
@@ -244,6 +271,7 @@ def _load_png(path: Path, given: GivenCamera) -> DepthImage:
     code = read_png(path, np.uint16)
     h, w = code.shape
     if source is None:
+        given = _with_default(path, given, w, h)
         cam = _camera_from_given(path, given, w, h)
         scale = given.values.get("depth_scale")
         if scale is not None:

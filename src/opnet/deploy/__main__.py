@@ -9,7 +9,8 @@ The inputs and cameras are predict.py's (:mod:`opnet.datasets.depth_inputs`: a d
 the camera file above it, other images the intrinsics given here), and so are the outputs
 ``<out>/<name>.json`` (poses, camera frame, world frame when known, and the robot's base frame as
 ``poses_base`` when the camera YAML or the model gives ``T_base_cam``) and
-``<out>/results/<scene>.json`` (Siléane results format). Only numpy, OpenCV, SciPy, PyYAML and
+``<out>/results/<scene>.json`` (Siléane results format); an image with no camera file above it and no
+intrinsics given takes the training camera the export records, when it is of its size. Only numpy, OpenCV, SciPy, PyYAML and
 onnxruntime are imported. Without ``--icp``, ``--search`` or ``--search-fast`` the model refines as its
 export records (train.py's ``deploy_refine``; ``--no-refine``: the poses as decoded). An input's depth is normalized with the training scenes' clip planes
 the export records (``--clip`` other planes, ``--camera-clip`` the camera's own). Outputs are never
@@ -90,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
                                       averaging=False if args.no_averaging else None, clip=clip)
         print(describe_clip(estimator.clip, estimator.trained_clip))
         T_base_cam = base_pose(given, estimator.T_base_cam, str(args.model))
+        given = given.with_default(estimator.camera, str(args.model))
         inputs = list_inputs(args.input)
         with claimed_outputs(args.out, inputs, args.overwrite, POSE_SUFFIXES, (args.model,), "--out") as scenes:
             obj = str(estimator.meta.get("object", ""))

@@ -109,6 +109,8 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "refine": settings.refine,
         # the training camera's pose in the robot's base frame (its cell's T_base_cam), when recorded
         **settings.base_pose_entry(),
+        # the training scenes' camera: the runtime's camera for an image given without one
+        **settings.camera_entry(),
     }
 
 

@@ -26,7 +26,7 @@ REQUIRED = ("format", "parameterization", "grid_size", "slots", "channels_per_sl
 #: every key an export writes (:func:`opnet.deploy.export.export_metadata`), and those of its mappings
 KEYS = ("format", "opnet_version", "checkpoint", "object", "parameterization", "rotation", "grid_size", "slots",
         "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs", "decoding",
-        "pose_space", "icp_model", "refine", BASE_POSE_KEY)
+        "pose_space", "icp_model", "refine", BASE_POSE_KEY, "camera")
 INPUT_KEYS = (*(k.removeprefix("input.") for k in METADATA.values() if k.startswith("input.")), "layout")
 POSE_SPACE_KEYS = ("Lambda", "group", "delta", "revolution", "lam")
 ICP_KEYS = ("points", "normals", "diameter")
@@ -94,7 +94,8 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far)),
         "input" (:class:`~opnet.run_settings.InputSettings`), "decoding"
         (:class:`~opnet.run_settings.DecodingSettings`), "refine" (the recorded refinement's name or None),
-        "T_base_cam" (the camera's pose in the robot's base frame, 4 x 4 rows, or None)}``:
+        "T_base_cam" (the camera's pose in the robot's base frame, 4 x 4 rows, or None), "camera" (the
+        training camera's values, :data:`~opnet.run_settings.CAMERA_KEYS`, or None)}``:
         the flat keys are those two's values.
     Raises:
         ValueError: ``<path>: opnet metadata <key>=<value>: expected <what>`` (a ``SettingError``) for the
@@ -144,6 +145,7 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         "refine": RunSettings.checked_refine(meta.get("refine"), "refine", f.source),
         # absent: no base pose recorded
         BASE_POSE_KEY: RunSettings.checked_base_pose(meta.get(BASE_POSE_KEY), BASE_POSE_KEY, f.source),
+        "camera": RunSettings.checked_camera(meta.get("camera"), "camera", f.source),  # absent: none recorded
     }
     ps = f.mapping(meta, "pose_space")
     f.known(ps, POSE_SPACE_KEYS, "pose_space.")

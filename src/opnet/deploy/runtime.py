@@ -111,6 +111,8 @@ class OnnxPoseEstimator:
         #: the training camera's pose in the robot's base frame (4 x 4, camera to base) the export
         #: records, or None (:func:`opnet.geometry.frames.camera_to_base` takes it)
         self.T_base_cam: np.ndarray | None = None if s[BASE_POSE_KEY] is None else np.array(s[BASE_POSE_KEY])
+        #: the training scenes' camera the export records (:data:`opnet.run_settings.CAMERA_KEYS`), or None
+        self.camera: tuple[float, ...] | None = s["camera"]
         by_model = isinstance(icp, str) and icp == "model"
         icp = recorded_refinement(self.recorded_refine) if by_model else icp
         if averaging is None:
