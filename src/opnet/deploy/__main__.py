@@ -44,7 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("model", type=Path)
     ap.add_argument("input", type=Path)
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--camera", dest="file", help="camera YAML (fx fy cx cy clip_start clip_end [depth_scale])")
+    ap.add_argument("--camera", dest="file", help="camera YAML (fx fy cx cy clip_start clip_end [depth_scale] [T_base_cam: 4 x 4, camera to robot "
+                         "base, for poses_base])")
     for key in ("fx", "fy", "cx", "cy", "clip-start", "clip-end", "depth-scale"):
         ap.add_argument(f"--{key}", dest=key.replace("-", "_"), type=float)
     ap.add_argument("--threads", type=int, default=None, help="ONNX Runtime threads (default: one per core)")
