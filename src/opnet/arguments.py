@@ -99,6 +99,8 @@ def variant_settings(text: str, settings: str, known: Iterable[str], option: str
             raise ValueError(f"{option} {text}: {item!r} is no KEY=VALUE setting")
         if key not in known:
             raise ValueError(f"{option} {text}: {key!r} is not one of its settings; expected one of {', '.join(known)}")
+        if key in out:
+            raise ValueError(f"{option} {text}: {key!r} is given twice; give each setting once")
         out[key] = plain_value(value, f"{option} {text}: {key}={value}")
     return out
 

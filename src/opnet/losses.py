@@ -30,6 +30,7 @@ every cell exactly as before; the other combinations gather the occupied cells f
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 
 import torch
@@ -100,8 +101,8 @@ class MultiTaskLoss(nn.Module):
         for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
                            ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose),
                            ("lambda_pos", lambda_pos), ("lambda_z", lambda_z), ("lambda_xy", lambda_xy)):  # fmt: skip
-            if not float(value) >= 0:
-                raise ValueError(f"loss.{key} must be >= 0, got {value}")
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value >= 0:
+                raise ValueError(f"loss.{key} must be a number >= 0, got {value!r}")
         self.lambda_p, self.lambda_v, self.lambda_ori = (
             float(lambda_p),
             float(lambda_v),

@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from opnet._repr import short_repr
 from opnet.cli.trusted import saved_config, short
+from opnet.fileio.files import require_regular_file
 from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
@@ -186,6 +187,19 @@ def build_datamodule(cfg: DictConfig, obj: ObjectModel, train: bool = True) -> A
     return make(obj=obj, augmenter=augmenter, object_config=plain(cfg.object))
 
 
+def require_checkpoint_file(path: str | Path, option: str = "") -> Path:
+    """``path`` as a checkpoint file, before anything reads it.
+
+    Raises:
+        FileNotFoundError: nothing there ("<path>: checkpoint not found", `` (<option>)`` after it if given).
+        ValueError: a folder, FIFO, socket or device there, said which (a FIFO would block the reader).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: checkpoint not found" + (f" ({option})" if option else ""))
+    return require_regular_file(path)
+
+
 def read_checkpoint(path: str | Path, map_location: str = "cpu") -> dict[str, Any]:
     """The contents of a checkpoint file, read as data: tensors and plain values only.
 
@@ -193,9 +207,7 @@ def read_checkpoint(path: str | Path, map_location: str = "cpu") -> dict[str, An
         FileNotFoundError: no such file.
         ValueError: naming ``path``: not a PyTorch checkpoint, unreadable, or holding other objects.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
+    path = require_checkpoint_file(path)
     with open(path, "rb") as f:
         magic = f.read(4)
     if magic[:2] != b"PK" and magic[:1] != b"\x80":  # a zip archive (torch.save) or a pickle (legacy)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig
 
-from opnet.cli.build import load_checkpoint
+from opnet.cli.build import load_checkpoint, require_checkpoint_file
 from opnet.cli.tools import require_writable
 from opnet.datasets.outputs import is_within
 from opnet.deploy.export import (
@@ -53,9 +53,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     fmt = str(cfg.format).lower()
     if fmt not in FORMATS:
         raise ValueError(f"format={cfg.format!r}: unknown export format; expected one of {', '.join(FORMATS)}")
-    ckpt = Path(str(cfg.ckpt))
-    if not ckpt.is_file():
-        raise FileNotFoundError(f"{ckpt}: checkpoint not found")
+    ckpt = require_checkpoint_file(str(cfg.ckpt))
     out = Path(str(cfg.out)) if cfg.get("out") else ckpt.with_suffix(f".{fmt}")
     if is_within(out, ckpt):
         raise ValueError(f"out={out}: the checkpoint itself; the export would replace it, choose another out=")

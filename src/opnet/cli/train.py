@@ -21,6 +21,7 @@ from opnet.cli.build import (
     checkpoint_config,
     load_checkpoint,
     read_checkpoint,
+    require_checkpoint_file,
 )
 from opnet.cli.console import format_duration, report, result_summary
 from opnet.cli.eval import evaluate_split
@@ -39,9 +40,7 @@ def resolve_ckpt_path(ckpt_path: str | None, output_dir: Path) -> str | None:
             log.warning("ckpt_path=last but %s does not exist: starting from scratch", last)
             return None
         return check_checkpoint_file(last)
-    if not Path(ckpt_path).is_file():
-        raise FileNotFoundError(f"{ckpt_path}: checkpoint not found")
-    return check_checkpoint_file(Path(ckpt_path))
+    return check_checkpoint_file(require_checkpoint_file(ckpt_path))
 
 
 def check_checkpoint_file(path: Path) -> str:
@@ -74,6 +73,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     """Entry logic of train.py. Returns the test summary (empty if ``test=false``)."""
     started = time.monotonic()
     absolutize_paths(cfg)
+    if cfg.seed is not None and (isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int)):
+        raise ValueError(f"seed={cfg.seed!r}: expected a whole number")
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
     check_scene_address(cfg)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import numbers
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -264,6 +265,15 @@ class OPNetDataModule(L.LightningDataModule):
             raise ValueError("data.generate: synthetic data is generated into one data.root, not a list")
         self.generate = dict(generate) if generate is not None else None
         self.input_size = input_size
+        for key, value in (("val_fraction", val_fraction), ("test_fraction", test_fraction)):
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0 <= value < 1:
+                raise ValueError(f"data.{key}={value!r}: expected the share of the scenes held out, a number in [0, 1)")
+        if not val_fraction + test_fraction < 1:
+            raise ValueError(f"data.val_fraction={val_fraction} and data.test_fraction={test_fraction} leave no scene "
+                             "to train on; their sum must be below 1")
+        for key, value, low in (("batch_size", batch_size, 1), ("num_workers", num_workers, 0), ("seed", seed, 0)):
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+                raise ValueError(f"data.{key}={value!r}: expected a whole number >= {low}")
         self.val_fraction, self.test_fraction = val_fraction, test_fraction
         self.include_empty = include_empty
         self.batch_size, self.num_workers = batch_size, num_workers

@@ -18,10 +18,12 @@ def open_dataset(path: str | Path, object_id: int | None = None,
     working range in metres).
 
     Raises:
-        FileNotFoundError: ``path`` is not a folder.
-        ValueError: neither layout recognised (the message says what was looked for).
+        FileNotFoundError: nothing at ``path``.
+        ValueError: ``path`` is a file, or neither layout is recognised (the message says what was looked for).
     """
     path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{path}: a file, not a dataset folder; give the folder that holds the dataset")
     if not path.is_dir():
         raise FileNotFoundError(f"{path}: dataset folder not found")
     if (path / PARAMETER_FILE).is_file():

@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from opnet.arguments import ArgumentParser  # noqa: E402
-from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
+from opnet.cli.build import build_datamodule, load_checkpoint, require_checkpoint_file  # noqa: E402
 from opnet.cli.tools import require_folder, tool_main  # noqa: E402
 from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes  # noqa: E402
@@ -252,8 +252,7 @@ def _write(path: Path, text: str) -> None:
 def diagnose(args: argparse.Namespace) -> int:
     """The tables :func:`main` asks for: the checkpoints and ``--out`` checked, then each checkpoint recorded."""
     for ckpt in args.ckpt:
-        if not ckpt.is_file():
-            raise ValueError(f"{ckpt}: checkpoint not found (--ckpt)")
+        require_checkpoint_file(ckpt, "--ckpt")
     require_folder(args.out, "--out")
     all_rows = []
     first: tuple[str, dict[str, Any]] | None = None

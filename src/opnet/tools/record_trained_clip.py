@@ -39,6 +39,8 @@ def datasets_clip(roots: list[Path]) -> tuple[float, float]:
         ValueError: a dataset is missing, or the scenes' planes differ.
     """
     for root in roots:
+        if root.exists() and not root.is_dir():
+            raise ValueError(f"{root}: a file, not a dataset folder (give the training datasets with --data)")
         if not root.is_dir():
             raise ValueError(f"{root}: training dataset not found (give the datasets with --data)")
     sources = [open_dataset(root) for root in roots]
