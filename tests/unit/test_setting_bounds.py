@@ -55,6 +55,7 @@ def test_the_data_modules_bounds_keep_what_trains() -> None:
     dm = OPNetDataModule(builtin_object("zbracket"), "x", val_fraction=0.0, test_fraction=0.0, batch_size=1,
                          num_workers=0, seed=3)  # fmt: skip
     assert (dm.val_fraction, dm.batch_size) == (0.0, 1)
+    assert OPNetDataModule(builtin_object("zbracket"), "x", seed=None).seed is None  # seed=null: a random split
 
 
 def test_train_names_a_seed_that_is_no_whole_number(tiny_dataset: Path, tmp_path: Path) -> None:

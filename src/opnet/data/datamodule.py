@@ -271,7 +271,8 @@ class OPNetDataModule(L.LightningDataModule):
         if not val_fraction + test_fraction < 1:
             raise ValueError(f"data.val_fraction={val_fraction} and data.test_fraction={test_fraction} leave no scene "
                              "to train on; their sum must be below 1")
-        for key, value, low in (("batch_size", batch_size, 1), ("num_workers", num_workers, 0), ("seed", seed, 0)):
+        for key, value, low in (("batch_size", batch_size, 1), ("num_workers", num_workers, 0),
+                                ("seed", 0 if seed is None else seed, 0)):  # seed null: a split drawn at random
             if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
                 raise ValueError(f"data.{key}={value!r}: expected a whole number >= {low}")
         self.val_fraction, self.test_fraction = val_fraction, test_fraction
