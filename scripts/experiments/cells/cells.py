@@ -194,7 +194,7 @@ def write_table(csv_path: Path, rows: list[dict[str, Any]], head: list[str], col
 
 def report(rows: list[dict[str, Any]], out: Path, command: str, notes: list[str]) -> None:
     head = ["# A cell whose bin moves: generated piles where the basket stood in training and where it did not", "",
-            f"Made by {command}. IPD object 18 in the IPD cell (its Photoneo at the measured pose, the wire basket "
+            f"Made by {command}.\n\nIPD object 18 in the IPD cell (its Photoneo at the measured pose, the wire basket "
             f"standing 0.6 m above the ground, up to 10 plates and 8 foreign pieces); test piles of another seed "
             f"at the camera's full resolution: `trained` = the basket within {TRAINED_JITTER * 100:g} cm of the "
             f"camera's aim point (where the earlier recipe always put it), `moved` = in the four corners of the "

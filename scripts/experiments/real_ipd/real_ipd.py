@@ -383,7 +383,7 @@ def write_results(args: argparse.Namespace, rows: list[dict[str, Any]], evals: P
              f"region of interest {args.roi}, clip planes {args.clip} m, {args.cycles} generated cycles "
              f"({args.views} views per pile, up to {args.drops} plates), {run_info(args.run_dir)[1]}, training seed "
              f"{run_info(args.run_dir)[0]}, {args.steps} steps; checkpoint "
-             f"`{os.path.relpath(ckpt, REPO_ROOT)}`. AP: Brégier, max occlusion 0.5, over the three frames "
+             f"`{os.path.relpath(ckpt, REPO_ROOT)}`.\n\nAP: Brégier, max occlusion 0.5, over the three frames "
              "(the same six plates captured three times). Refinement: none, `refine=icp`, or `refine=search "
              "+decoding.averaging=false` (ICP and the depth-agreement search; the hypotheses then ranked by their "
              "agreement, so 'confident', score >= 0.5, means agreement >= 0.5 there).", "",
