@@ -23,6 +23,7 @@ in the README, ``../results/...`` in a docs page):
 | real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/experiments/real_ipd/real_ipd.py --seeds``) |
 | cells | ``results/cells/cells.csv`` (``scripts/experiments/cells/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
 | verification | ``results/verification/verification.csv`` (``scripts/experiments/verification/verify_ab.py``) |
+| headline | the README's one table: ``results/quickstart/summary.json``, ``dense/dense.csv``, ``real_ipd/cell_one_command.csv``, ``new_parts/new_parts.csv``, ``table1/table1.csv`` |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
 | pictures_method | the ceiling chart |
@@ -354,6 +355,43 @@ def block_verification(results: Path, prefix: str = "") -> str:
     return _table(["part", "decoding", "refine", "frames", "**AP**", "found %", "refine ms / frame"], rows) + "\n"
 
 
+def block_headline(results: Path, prefix: str = "") -> str:
+    """The README's one headline table: a row per user's path (the quickstart, dense piles, the cell, new parts,
+    Table I), its figure drawn from the same results files as the full tables of docs/results.md."""
+    q = json.loads((results / "quickstart" / "summary.json").read_text())
+    quickstart = (f"test AP **{q['ap']:.3f}** on {q['scenes']} held-out scenes, {format_duration(q['wall_s'])} "
+                  f"end to end on a 2-core CPU")
+    dense = [r for r in _csv(results / "dense" / "dense.csv") if r["config"] == DENSE_HEADLINE]
+    dense_text = (", ".join(f"{r['object'].replace('_', ' ')} **{float(r['ap']):.3f}**" for r in dense)
+                  + f" held-out AP on 70–75-part piles, ≤ {max(float(r['total_minutes']) for r in dense):.0f} min "
+                  "generation + training per part")
+    cell = next(r for r in _csv(results / "real_ipd" / "cell_one_command.csv") if r["refine"] == "search_fast")
+    cell_text = (f"AP **{float(cell['ap']):.3f}** on {cell['scenes']} real Photoneo frames of flat plates "
+                 f"(`refine=search_fast`, {float(cell['ms_per_frame']):.0f} ms / frame)")
+    parts = _csv(results / "new_parts" / "new_parts.csv")
+    targets = "/".join(sorted({f"{float(r['target']):g}" for r in parts}))
+    parts_text = (f"{sum(r['met'] == '1' for r in parts)} of {len(parts)} parts nobody here tuned for meet AP ≥ {targets} ("
+                  + ", ".join(f"{r['object']} {float(r['ap']):.3f}" for r in parts) + ")")
+    table1 = [r for r in _csv(results / "table1" / "table1.csv") if r["decoding"] == "tuned on val"]
+    objects = list(dict.fromkeys(r["object"] for r in table1))
+    best = {o: max((r for r in table1 if r["object"] == o), key=lambda r: float(r["ap_mean"])) for o in objects}
+    winners = sorted({r["parameterization"] for r in best.values()})
+    aps = [float(r["ap_mean"]) for r in best.values()]
+    table1_text = (f"best per object: {', '.join(f'`{w}`' for w in winners)} on all {len(objects)} objects, held-out AP "
+                   f"**{min(aps):.3f}–{max(aps):.3f}** (mean over {'/'.join(sorted({r['runs'] for r in best.values()}))} seeds) "
+                   "at a small CPU budget")
+    rows = [["quickstart", f"`{q['command']}`", quickstart, f"[results]({prefix}docs/results.md#quickstart)"],
+            ["dense bulk piles", "`python train.py experiment=dense object=<o> scene.camera_file=<camera>`", dense_text,
+             f"[results/dense]({prefix}results/dense/README.md)"],
+            ["your cell, real frames", "`python train.py experiment=cell cell=<N> object=<o>`", cell_text,
+             f"[results/cells]({prefix}results/cells/README.md)"],
+            ["new parts", "`opnet-object <mesh>`, then the dense recipe", parts_text,
+             f"[results/new_parts]({prefix}results/new_parts/README.md)"],
+            ["Table I, the six parameterizations", "`python scripts/experiments/table1/table1.py`", table1_text,
+             f"[results/table1]({prefix}results/table1/README.md)"]]  # fmt: skip
+    return _table(["result", "command", "figure", "results page"], rows) + "\n"
+
+
 PICTURES = [
     ("quickstart/overlay.png", "Quickstart: the densest held-out scene, each estimated part's model drawn on the depth image"),
     ("quickstart/pr_curve.png", "Quickstart: the test split's precision-recall curve (Brégier protocol)"),
@@ -396,7 +434,7 @@ BLOCKS = {"quickstart": block_quickstart, "defaults": block_defaults, "learning"
           "pictures_method": block_pictures_method, "table1": block_table1, "dense": block_dense,
           "new_parts": block_new_parts,
           "real_ipd": block_real_ipd, "real_ipd_seeds": block_real_ipd_seeds, "cells": block_cells,
-          "verification": block_verification}
+          "verification": block_verification, "headline": block_headline}
 
 
 def docs_pages(docs: Path = DOCS) -> dict[Path, str]:

@@ -54,8 +54,10 @@ def test_every_block_sits_in_a_page_and_links_from_its_own_folder() -> None:
 
 def test_quickstart_figure_is_the_recorded_run() -> None:
     q = json.loads((REPO_ROOT / "results" / "quickstart" / "summary.json").read_text())
-    section = README.read_text().split("<!-- figures:quickstart -->")[1]
+    section = (DOCS / "results.md").read_text().split("<!-- figures:quickstart -->")[1]
     assert f"test AP {q['ap']:.4f}" in section
+    # the README's headline row of the quickstart, rounded
+    assert f"test AP **{q['ap']:.3f}**" in README.read_text().split("<!-- figures:headline -->")[1]
     # the console's last lines, recorded by the same run, print the same AP
     tail = (REPO_ROOT / "results" / "quickstart" / "console_tail.txt").read_text()
     assert f"AP {q['ap']:.4f}" in tail and tail.rstrip().splitlines()[-1].startswith("predictions")
@@ -64,9 +66,10 @@ def test_quickstart_figure_is_the_recorded_run() -> None:
 def test_a_changed_result_fails_the_check(tmp_path: Path) -> None:
     results = tmp_path / "results"
     shutil.copytree(REPO_ROOT / "results", results)
-    path = results / "learning" / "learning.csv"
+    path = results / "dense" / "dense.csv"  # a row of the README's headline table
     rows = list(csv.DictReader(path.open()))
-    rows[0]["ap"] = str(float(rows[0]["ap"]) - 0.1)
+    row = next(r for r in rows if r["config"] == figures.DENSE_HEADLINE)
+    row["ap"] = str(float(row["ap"]) - 0.1)
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]), lineterminator="\n")
         writer.writeheader()
@@ -113,8 +116,9 @@ def test_every_results_number_sits_in_a_rendered_block() -> None:
     sections = re.split(r"^## Results\b.*$", README.read_text(), flags=re.MULTILINE)
     assert len(sections) == 2, "the README has one '## Results ...' section"
     section = sections[1].split("\n## ")[0]
-    assert "<!-- figures:quickstart -->" in section
+    assert "<!-- figures:headline -->" in section
     assert not _hand_written_ap(section), "a hand-written AP outside the rendered blocks of the README"
+    assert "<!-- figures:quickstart -->" in (DOCS / "results.md").read_text()
     for path, page in figures.docs_pages().items():
         assert not _hand_written_ap(page), f"a hand-written AP outside the rendered blocks of {path}"
     assert _hand_written_ap("<!-- figures:ab -->\n<!-- /figures:ab -->\nreached AP 0.81 here") == ["AP 0.81"]
