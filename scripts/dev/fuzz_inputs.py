@@ -1,6 +1,6 @@
 """Fuzz every reader and command line with bad input; print the table of verdicts.
 
-``python scripts/dev/fuzz_inputs.py [--out results/fuzz.md] [--no-cli]``
+``python scripts/dev/fuzz_inputs.py [--out results/fuzz.md] [--no-cli] [--only FAMILY ...]``
 
 Each case is a file (or argument) a careless or hostile user could hand us, derived from a valid
 tiny dataset: truncated, garbled, impossible values, wrong units, special files; BOP copies of it,
@@ -9,7 +9,10 @@ meshes, camera YAMLs, its checkpoint edited and exported to ONNX (metadata edite
 its own process with a time limit. The cases of each kind of defect (decoding overrides, booleans
 read as numbers, ground-truth integrity, a split with nothing to find, two writers into one folder,
 the checkpoint tools, generation settings, inputs foreign to the model, messages that mislead) are
-in their own families. Verdicts:
+in their own families, as are the newer surfaces: the object tool's paths and numbers, the console
+tools' arguments, training's overrides and the bin finder's crop ``roi=auto:S`` (each entry run in a
+forked child as its command runs, :func:`new_surface_cases`). ``--only FAMILY ...`` runs some
+families while cases are added. Verdicts:
 
 - ``error``: refused with a one-line error that names the file (or the option / key);
 - ``ok``: a valid input, accepted (the controls: each family has one);
@@ -69,6 +72,7 @@ class Case:
     after: Callable[[], str] | None = None  # a check after the run: what it left or lost ("" = clean)
     status: int | None = None  # the exit status a refused command line must give (None: any but 0)
     says: str = ""  # what an accepted input's output must state (a reader's returned text, a command's output)
+    timeout: float = READER_TIMEOUT_S  # an in-process case's time limit
 
 
 # ---------------------------------------------------------------------------------------- fixtures
@@ -1659,6 +1663,290 @@ def cli_defect_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) ->
 # ------------------------------------------------------------------------------------------ running
 
 
+# --------------------------------------------------------------- the newer tools, in-process
+
+
+def _as_command(call: Callable[[], Any], status: int) -> str:
+    """Run a command's entry (a console tool's ``main``, a script as ``__main__``) in this forked child as
+    its command line would run, and classify it as :func:`run_cli` does: an exit of 0 returns the text it
+    printed; a refusal must exit with ``status`` and print its error on one line (``error: ...``), raised as
+    a ValueError of that line; a traceback, another exit status or an error on several lines is a
+    RuntimeError (a bug)."""
+    import contextlib
+    import io
+
+    out, err, code = io.StringIO(), io.StringIO(), 0
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = call() or 0
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    text = out.getvalue() + err.getvalue()
+    if "Traceback" in text:
+        raise RuntimeError(text.strip().splitlines()[-1][:200])
+    errors = [line for line in text.splitlines() if line.lower().startswith("error") and "HYDRA_FULL_ERROR" not in line]
+    if code == 0 and not errors:
+        return text
+    if code != status:
+        raise RuntimeError(f"exit status {code}, expected {status}: {(errors or text.strip().splitlines() or [''])[-1][:200]}")
+    if not errors or (status == 2 and len(errors) > 1):
+        raise RuntimeError(f"exit status {code} with {len(errors)} error lines: {text.strip()[-300:]}")
+    raise ValueError(errors[-1])
+
+
+def _tool(module: str, argv: list[str]) -> Callable[[], Callable[[], Any]]:
+    """A console tool (``opnet.tools.oracle`` ...) called as its entry point calls it."""
+    def call() -> Any:
+        import importlib
+
+        return importlib.import_module(module).main(argv)
+
+    return call
+
+
+def _script(script: str, argv: list[str]) -> Callable[[], Any]:
+    """``python <script> <argv>`` (``-m <module>`` for a module name) in this process."""
+    def call() -> Any:
+        import runpy
+
+        sys.argv = [script, *argv]
+        if script.endswith(".py"):
+            runpy.run_path(str(REPO_ROOT / script), run_name="__main__")
+        else:
+            runpy.run_module(script, run_name="__main__", alter_sys=True)
+
+    return call
+
+
+def new_surface_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -> list[Case]:
+    """The surfaces new since the last pass, each entry run in a forked child as its command would run
+    (:func:`_as_command`): the object tool's paths and numbers, the console tools' arguments (opnet-oracle,
+    opnet-diagnose-sources, opnet-tune-decoding, opnet-record-trained-clip, opnet-compare-runs, opnet-cell),
+    training's overrides (train.py, refused before it trains) and the bin finder's crop ``roi=auto:S``
+    (predict.py, eval.py, the ONNX runtime). A refusal exits 2 (1 for predict.py's failed image), names the
+    option, key or file on one line and writes nothing."""
+    import pickle
+
+    import trimesh
+
+    data, ckpt, model = base["data"], base["ckpt"], extra["onnx"]
+    c = ws / "cases" / "new"
+    c.mkdir(parents=True, exist_ok=True)
+    cases: list[Case] = []
+    numbers = iter(range(10_000))
+
+    def o(tag: str) -> Path:
+        return c / f"{tag}{next(numbers)}"
+
+    def add(family: str, name: str, valid: bool, call: Callable[[], Any], names: tuple[str, ...] = (), status: int = 2,
+            out: Path | None = None, says: str = "", timeout: float = 60.0) -> None:  # fmt: skip
+        after = nothing_written(out) if out is not None and not valid else None
+        cases.append(Case(family, name, valid, run=lambda: _as_command(call, status), names=names, after=after,
+                          says=says, timeout=timeout))
+
+    # files the cases hand over
+    box = trimesh.creation.box((0.04, 0.03, 0.02))
+    box.export(c / "box.stl")
+    (c / "box_link.stl").symlink_to(c / "box.stl")
+    trimesh.Trimesh(box.vertices * 1e-9, box.faces, process=False).export(c / "nano.stl")
+    trimesh.Trimesh(np.zeros_like(box.vertices) + 0.01, box.faces, process=False).export(c / "point.stl")
+    trimesh.Trimesh(box.vertices * 1e6, box.faces, process=False).export(c / "huge.stl")
+    (c / "kept.yaml").write_text("kept: true\n")
+    (c / "replaced.yaml").write_text("replaced: true\n")
+    (c / "a_file").write_text("kept\n")
+    (c / "folder.stl").mkdir()
+    os.mkfifo(c / "fifo.stl")
+    (c / "text.ckpt").write_text("a checkpoint in name only\n")
+    (c / "code.ckpt").write_bytes(pickle.dumps({"state_dict": Path("x")}))
+    (c / "empty").mkdir()
+    shutil.copy(ckpt, c / "copy.ckpt")
+    png = data / "p_depth" / "cycle_0000" / "002_depth_uint16.png"
+    camera = c / "camera.yaml"
+    camera.write_text("fx: 100\nfy: 100\ncx: 47.5\ncy: 47.5\nwidth: 96\nheight: 96\nclip_start: 0.5\nclip_end: 1.5\n")
+
+    # 1. opnet-object: where it writes, and the numbers it takes
+    def obj(name: str, valid: bool, argv: list[str], names: tuple[str, ...] = (), out: Path | None = None) -> None:
+        add("opnet-object", name, valid, _tool("opnet.cli.object", argv), names, out=out, timeout=120.0)
+
+    mesh = str(c / "box.stl")
+    for name in ("../x", "../../../../elsewhere/x", "a/b", "/tmp/x", "..", ".", "x/../../y", "x\\..\\y", "-", " "):
+        out = o("name")
+        obj(f"--name {name!r}", False, [mesh, "--name", name], ("--name",), out=out)
+    for name, argv, named in (
+        ("--out the input mesh", ["--out", mesh], "box.stl"),
+        ("--out the input mesh --force", ["--out", mesh, "--force"], "box.stl"),
+        ("--out a link to the mesh --force", ["--out", str(c / "box_link.stl"), "--force"], "box_link.stl"),
+        ("--out a .stl", ["--out", str(c / "new.stl")], "new.stl"),
+        ("--out an existing file, no --force", ["--out", str(c / "kept.yaml")], "kept.yaml"),
+        ("--out a folder", ["--out", str(c / "empty")], "empty"),
+        ("--out a FIFO", ["--out", str(c / "fifo.stl")], "fifo.stl"),
+        ("--out below a file", ["--out", str(c / "a_file" / "x.yaml")], "a_file"),
+        ("--tolerance-mm 0", ["--out", str(c / "t0.yaml"), "--tolerance-mm", "0"], "--tolerance-mm"),
+        ("--tolerance-mm -1", ["--out", str(c / "t1.yaml"), "--tolerance-mm", "-1"], "--tolerance-mm"),
+        ("--tolerance-mm nan", ["--out", str(c / "t2.yaml"), "--tolerance-mm", "nan"], "--tolerance-mm"),
+        ("--tolerance-mm inf", ["--out", str(c / "t3.yaml"), "--tolerance-mm", "inf"], "--tolerance-mm"),
+        ("--tolerance-mm 1e9", ["--out", str(c / "t4.yaml"), "--tolerance-mm", "1e9"], "--tolerance-mm"),
+        ("--tolerance-mm abc", ["--out", str(c / "t5.yaml"), "--tolerance-mm", "abc"], "--tolerance-mm"),
+        ("--units furlong", ["--out", str(c / "u.yaml"), "--units", "furlong"], "--units"),
+    ):  # fmt: skip
+        obj(name, False, [mesh, *argv], (named,))
+    for name, file, named in (("a part of nanometres", "nano.stl", "nano.stl"), ("every vertex in one point", "point.stl", "point.stl"),
+                              ("a mesh path that is a folder", "folder.stl", "folder.stl"), ("a FIFO named .stl", "fifo.stl", "fifo.stl"),
+                              ("a missing mesh", "gone.stl", "gone.stl")):  # fmt: skip
+        out = o("mesh")
+        obj(name, False, [str(c / file), "--out", str(out / "x.yaml")], (named,), out=out)
+    obj("a box, --out a new YAML", True, [mesh, "--out", str(c / "ok1.yaml")])
+    obj("a box, --units m --tolerance-mm 0.5", True, [mesh, "--out", str(c / "ok2.yaml"), "--units", "m", "--tolerance-mm", "0.5"])
+    obj("a box, --out an existing file --force", True, [mesh, "--out", str(c / "replaced.yaml"), "--force"])
+
+    # 2. the console tools' arguments
+    def tool(family: str, module: str, name: str, valid: bool, argv: list[str], names: tuple[str, ...] = (),
+             out: Path | None = None) -> None:  # fmt: skip
+        add(family, name, valid, _tool(module, argv), names, out=out, timeout=120.0)
+
+    oracle = lambda out, *a: ["--data", str(data), "--out", str(out), "--max-scenes", "2", *a]  # noqa: E731
+    for variant, named in (("vanilla:_target_=builtins.dict", "_target_"), ("vanilla:_target_=os.system", "_target_"),
+                           ("vanilla:_convert_=all", "_convert_"), ("vanilla:bogus_key=1", "bogus_key"),
+                           ("vanilla:threshold=7", "threshold"), ("vanilla:threshold=nan", "threshold"),
+                           ("vanilla:threshold=abc", "threshold"), ("vanilla:grid=${oc.env:HOME}", "grid"),
+                           ("ap:points={_target_: os.system}", "points"), ("vanilla:threshold", "threshold"),
+                           ("nosuch", "nosuch"), ("nosuch:threshold=0.2", "nosuch"), (":threshold=0.2", "--variant"),
+                           ("vanilla:threshold=0.2,threshold=0.3", "threshold")):  # fmt: skip
+        out = o("oracle")
+        tool("opnet-oracle", "opnet.tools.oracle", f"--variant {variant}", False, oracle(out, "--variant", variant),
+             ("--variant",) if named == "--variant" else (named,), out=out)
+    for name, argv, named in (
+        ("--max-scenes 0", ["--max-scenes", "0"], "--max-scenes"), ("--max-scenes -1", ["--max-scenes", "-1"], "--max-scenes"),
+        ("--max-scenes abc", ["--max-scenes", "abc"], "--max-scenes"), ("--max-scenes 1.5", ["--max-scenes", "1.5"], "--max-scenes"),
+        ("--min-objects -2", ["--min-objects", "-2"], "--min-objects"), ("--min-objects x", ["--min-objects", "x"], "--min-objects"),
+        ("--data a missing folder", ["--data", str(c / "gone")], "gone"), ("--data a file", ["--data", str(c / "a_file")], "a_file"),
+        ("--data an empty folder", ["--data", str(c / "empty")], "empty"),
+        ("--data a FIFO", ["--data", str(c / "fifo.stl")], "fifo.stl"),
+    ):  # fmt: skip
+        out = o("oracle")
+        tool("opnet-oracle", "opnet.tools.oracle", name, False, [*oracle(out), *argv], (named,), out=out)
+    tool("opnet-oracle", "opnet.tools.oracle", "--out a file", False, oracle(c / "a_file"), ("a_file",))
+    tool("opnet-oracle", "opnet.tools.oracle", "a documented setting (vanilla:threshold=0.2)", True,
+         oracle(o("oracle"), "--variant", "vanilla:threshold=0.2"))
+    tool("opnet-oracle", "opnet.tools.oracle", "--variant vanilla: (no settings: the config as it is)", True,
+         oracle(o("oracle"), "--variant", "vanilla:"))
+    add("opnet-oracle", "--object beside a dataset's object.json (the dataset's, said)", True,
+        _tool("opnet.tools.oracle", oracle(o("oracle"), "--object", "nosuch")), says="object zbracket", timeout=120.0)
+
+    diag = "opnet.tools.diagnose_sources"
+    for name, ck, named in (("--ckpt not a checkpoint", "text.ckpt", "text.ckpt"), ("--ckpt a pickle holding code", "code.ckpt", "code.ckpt"),
+                            ("--ckpt missing", "gone.ckpt", "gone.ckpt"), ("--ckpt a folder", "empty", "empty"),
+                            ("--ckpt a FIFO", "fifo.stl", "fifo.stl")):  # fmt: skip
+        out = o("diag")
+        tool("opnet-diagnose-sources", diag, name, False, ["--ckpt", str(c / ck), "--out", str(out)], (named,), out=out)
+    tool("opnet-diagnose-sources", diag, "--out a file", False, ["--ckpt", str(ckpt), "--out", str(c / "a_file")], ("a_file",))
+    out = o("diag")
+    tool("opnet-diagnose-sources", diag, "--split bogus", False, ["--ckpt", str(ckpt), "--split", "bogus", "--out", str(out)],
+         ("--split",), out=out)
+
+    tune = "opnet.tools.tune_decoding"
+    for name, argv, named in (
+        ("--rounds 0", ["--rounds", "0"], "--rounds"), ("--rounds -3", ["--rounds", "-3"], "--rounds"),
+        ("--rounds abc", ["--rounds", "abc"], "--rounds"), ("--rounds 1e9", ["--rounds", "1000000000"], "--rounds"),
+        ("--stride 0", ["--stride", "0"], "--stride"), ("--stride -1", ["--stride", "-1"], "--stride"),
+        ("--split bogus", ["--split", "bogus"], "--split"), ("--ckpt missing", ["--ckpt", str(c / "gone.ckpt")], "gone.ckpt"),
+        ("--ckpt not a checkpoint", ["--ckpt", str(c / "text.ckpt")], "text.ckpt"),
+        ("--write an existing file, no --force", ["--write", str(c / "kept.yaml")], "kept.yaml"),
+        ("--write a folder", ["--write", str(c / "empty")], "empty"),
+    ):  # fmt: skip
+        out = o("tune")
+        tool("opnet-tune-decoding", tune, name, False, ["--ckpt", str(ckpt), "--out", str(out), *argv], (named,), out=out)
+    tool("opnet-tune-decoding", tune, "--out a file", False, ["--ckpt", str(ckpt), "--out", str(c / "a_file")], ("a_file",))
+
+    record = "opnet.tools.record_trained_clip"
+    for name, argv, named in (
+        ("--write an existing file, no --force", [str(ckpt), "--write", str(c / "kept.yaml")], "kept.yaml"),
+        ("--write the checkpoint itself", [str(c / "copy.ckpt"), "--write", str(c / "copy.ckpt")], "copy.ckpt"),
+        ("--write and --in-place", [str(c / "copy.ckpt"), "--write", str(c / "r1.ckpt"), "--in-place"], "--in-place"),
+        ("neither --write nor --in-place", [str(c / "copy.ckpt")], "--write"),
+        ("--data a missing folder", [str(ckpt), "--data", str(c / "gone"), "--write", str(c / "r2.ckpt")], "gone"),
+        ("--data a file", [str(ckpt), "--data", str(c / "a_file"), "--write", str(c / "r3.ckpt")], "a_file"),
+        ("a missing checkpoint", [str(c / "gone.ckpt"), "--write", str(c / "r4.ckpt")], "gone.ckpt"),
+        ("a FIFO checkpoint", [str(c / "fifo.stl"), "--write", str(c / "r5.ckpt")], "fifo.stl"),
+    ):  # fmt: skip
+        tool("opnet-record-trained-clip", record, name, False, argv, (named,))
+
+    compare = "opnet.tools.compare_runs"
+    for name, argv, named in (("a missing multirun folder", [str(c / "gone")], "gone"), ("a file", [str(c / "a_file")], "a_file"),
+                              ("an empty folder", [str(c / "empty")], "empty"),
+                              ("--out a file", [str(c / "empty"), "--out", str(c / "a_file")], "a_file")):  # fmt: skip
+        tool("opnet-compare-runs", compare, name, False, argv, (named,))
+
+    cell = "opnet.cli.cell"
+    frames = str(data / "p_depth" / "cycle_0000")
+    for name, argv, named in (
+        ("frames missing", [str(c / "gone"), "--camera", str(camera)], "gone"),
+        ("--camera missing", [frames, "--camera", str(c / "gone.yaml")], "gone.yaml"),
+        ("--camera a FIFO", [frames, "--camera", str(c / "fifo.stl")], "fifo.stl"),
+        ("--camera not YAML", [frames, "--camera", str(c / "text.ckpt")], "text.ckpt"),
+        ("--depth-scale -1", [frames, "--camera", str(camera), "--depth-scale", "-1"], "--depth-scale"),
+        ("--depth-scale nan", [frames, "--camera", str(camera), "--depth-scale", "nan"], "--depth-scale"),
+        ("--area 1,2,3", [frames, "--camera", str(camera), "--area", "1,2,3"], "--area"),
+        ("--area a,b,c,d", [frames, "--camera", str(camera), "--area", "a,b,c,d"], "--area"),
+        ("--area reversed", [frames, "--camera", str(camera), "--area", "0.5,0.5,-0.5,-0.5"], "--area"),
+        ("--area-margin -1", [frames, "--camera", str(camera), "--area-margin", "-1"], "--area-margin"),
+        ("--volume-margin nan", [frames, "--camera", str(camera), "--volume-margin", "nan"], "--volume-margin"),
+        ("--sensor nosuch", [frames, "--camera", str(camera), "--sensor", "nosuch"], "nosuch"),
+        ("--extrinsics missing", [frames, "--camera", str(camera), "--extrinsics", str(c / "gone_x.yaml")], "gone_x.yaml"),
+        ("--name ../x", [frames, "--camera", str(camera), "--name", "../x"], "--name"),
+        ("--out an existing file, no --force", [frames, "--camera", str(camera), "--out", str(c / "kept.yaml")], "kept.yaml"),
+        ("--out a folder", [frames, "--camera", str(camera), "--out", str(c / "empty")], "empty"),
+    ):  # fmt: skip
+        if "--out" not in argv:
+            argv = [*argv, "--out", str(o("cell") / "cell.yaml")]
+        tool("opnet-cell", cell, name, False, argv, (named,))
+
+    # 3. training's overrides: refused before it trains (a wrong acceptance trains 2 steps of the tiny network)
+    train = ["model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
+             "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1", "test=false",
+             "trainer.enable_progress_bar=false", "example_predictions=0"]  # fmt: skip
+    for override, key in (
+        ("+decoding.threshold=7", "decoding"), ("+decoding.averaging=false", "decoding"), ("+decoding.bogus=1", "decoding"),
+        ("+data.bogus_key=1", "bogus_key"), ("+model.bogus_key=1", "bogus_key"), ("+loss.bogus_key=1", "bogus_key"),
+        ("+augmentation.bogus_key=1", "bogus_key"), ("+parameterization.bogus_key=1", "bogus_key"),
+        ("loss.lambda_xy=-1", "lambda_xy"), ("loss.lambda_xy=nan", "lambda_xy"), ("loss.lambda_xy=abc", "lambda_xy"),
+        ("loss.lambda_z=-1", "lambda_z"), ("data.batch_size=0", "batch_size"), ("data.batch_size=-4", "batch_size"),
+        ("data.batch_size=abc", "batch_size"), ("data.val_fraction=1.5", "val_fraction"),
+        ("data.val_fraction=-0.1", "val_fraction"), ("data.input_size=7", "input_size"), ("data.input_size=0", "input_size"),
+        ("data.root=" + str(c / "gone"), "gone"), ("data.root=" + str(c / "a_file"), "a_file"),
+        ("data.roi=auto:1e-9", "roi"), ("data.roi=auto:0.001", "roi"), ("data.roi=auto:abc", "roi"),
+        ("data.roi=[1,2]", "roi"), ("part_pixels=0", "part_pixels"), ("part_pixels=-5", "part_pixels"),
+        ("part_pixels=abc", "part_pixels"), ("seed=abc", "seed"), ("seed=1.5", "seed"), ("model.in_size=100", "in_size"),
+        ("data.test_fraction=1", "test_fraction"), ("data.val_fraction=0.95", "val_fraction"),
+        ("data.num_workers=-1", "num_workers"), ("data.batch_size=2.5", "batch_size"),
+    ):  # fmt: skip
+        run = o("train")  # Hydra's own record of the run goes there first
+        add("train.py overrides", override, False, _script("train.py", [*train, override, f"hydra.run.dir={run}"]), (key,),
+            timeout=120.0)
+
+    # 4. the bin finder's crop: roi=auto:S (S in metres, from 0.01; the square must span 16 pixels)
+    for value in ("auto:1e-9", "auto:0.001", "auto:0", "auto:-1", "auto:nan", "auto:inf", "auto:abc", "auto:", "auto:1e9",
+                  "auto:0.005", "auto:1e-300", "auto:0x10"):  # fmt: skip
+        out = o("roi")
+        add("roi=auto:S", f"predict.py roi={value}", False,
+            _script("predict.py", [f"ckpt={ckpt}", f"input={png}", f"out={out}", f"roi={value}", f"hydra.run.dir={out}_h"]),
+            ("roi",), out=out, timeout=120.0)
+    for value in ("auto:1e-9", "auto:0", "auto:nan", "auto:abc", "auto:1e9"):
+        out = o("roi")
+        add("roi=auto:S", f"python -m opnet.deploy --roi {value}", False,
+            _script("opnet.deploy", [str(model), str(png), "--out", str(out), "--roi", value]), ("roi",), out=out, timeout=120.0)
+    for value in ("auto:1e-9", "auto:nan", "auto:abc"):
+        out = o("roi")
+        add("roi=auto:S", f"eval.py +data.roi={value}", False,
+            _script("eval.py", [f"ckpt={ckpt}", "examples=0", f"out={out}", f"+data.roi={value}", f"hydra.run.dir={out}_h"]),
+            ("roi",), out=out, timeout=120.0)
+    out = o("roi")
+    add("roi=auto:S", "predict.py roi=auto:0.3 (a bin of the dataset)", True,
+        _script("predict.py", [f"ckpt={ckpt}", f"input={png}", f"out={out}", "roi=auto:0.3", f"hydra.run.dir={out}_h"]),
+        timeout=120.0)
+    return cases
+
+
 def _child(fn: Callable[[], Any], conn: Any) -> None:
     try:
         result = fn()
@@ -1673,30 +1961,101 @@ def run_reader(case: Case) -> tuple[str, str]:
     parent, child = mp.Pipe(duplex=False)
     proc = mp.get_context("fork").Process(target=_child, args=(case.run, child))
     proc.start()
-    if not parent.poll(READER_TIMEOUT_S):
+    if not parent.poll(case.timeout):
         proc.kill()
         proc.join()
-        return "HANG", f"no answer in {READER_TIMEOUT_S:g} s"
+        return "HANG", f"no answer in {case.timeout:g} s"
     outcome, message = parent.recv()
     proc.join()
     return _verdict(case, outcome == "returned", outcome == "user_error", message)
 
 
-def run_cli(case: Case) -> tuple[str, str]:
+#: the environment of every command line a case runs
+CLI_ENV = {"PYOPENGL_PLATFORM": "egl", "OPNET_VHACD_TIMEOUT": "30"}
+
+
+def _entry(argv: list[str]) -> Callable[[], Any] | None:
+    """What ``argv`` runs, to be called in a forked child: ``python <script>.py ...``, ``python -m <module> ...``
+    or a console script of the package; None for another command line (run as a subprocess)."""
+    import runpy
+    from importlib.metadata import entry_points
+
+    if argv[0] == sys.executable and len(argv) > 1 and argv[1].endswith(".py"):
+        return lambda: runpy.run_path(str(REPO_ROOT / argv[1]), run_name="__main__") and None
+    if argv[0] == sys.executable and len(argv) > 2 and argv[1] == "-m":
+        return lambda: runpy.run_module(argv[2], run_name="__main__", alter_sys=True) and None
+    found = [e for e in entry_points(group="console_scripts") if e.name == argv[0] and e.value.startswith("opnet.")]
+    return (lambda: found[0].load()()) if found else None
+
+
+def _run_forked(argv: list[str], entry: Callable[[], Any], log: Path) -> None:
+    """In the forked child: ``argv`` as its own process would run it, its stdout and stderr (file
+    descriptors 1 and 2) into ``log``, its exit status as Python gives it (an uncaught exception: the
+    traceback and 1; ``sys.exit("text")``: the text and 1)."""
+    import traceback
+
+    fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.environ.update(CLI_ENV)
+    os.chdir(REPO_ROOT)
+    sys.argv = argv[2:] if argv[0] == sys.executable and argv[1] == "-m" else argv[1:] if argv[0] == sys.executable else argv
+    code = 0
     try:
-        proc = subprocess.run(case.argv, cwd=REPO_ROOT, capture_output=True, text=True, timeout=CLI_TIMEOUT_S,
-                              env={**os.environ, "PYOPENGL_PLATFORM": "egl", "OPNET_VHACD_TIMEOUT": "30"})
-    except subprocess.TimeoutExpired:
-        return "HANG", f"no answer in {CLI_TIMEOUT_S:g} s"
-    text = proc.stdout + proc.stderr
+        result = entry()
+        code = result if isinstance(result, int) else 0
+    except SystemExit as e:
+        if isinstance(e.code, int) or e.code is None:
+            code = e.code or 0
+        else:
+            print(e.code, file=sys.stderr)
+            code = 1
+    except BaseException:  # noqa: BLE001 - as the interpreter would: the traceback, then exit 1
+        traceback.print_exc()
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def run_cli(case: Case) -> tuple[str, str]:
+    """Run ``case.argv``: a command of this package in a forked child of this process (its imports done
+    once: the same entry, arguments, environment, folder, output and exit status as its own process,
+    seconds less of start-up), generate.py and any other command line as a subprocess (generation's
+    physics and renderer are made in this process and are not forked)."""
+    entry = _entry(case.argv) if "generate.py" not in case.argv[1:2] else None
+    if entry is None:
+        try:
+            proc = subprocess.run(case.argv, cwd=REPO_ROOT, capture_output=True, text=True, timeout=CLI_TIMEOUT_S,
+                                  env={**os.environ, **CLI_ENV})
+        except subprocess.TimeoutExpired:
+            return "HANG", f"no answer in {CLI_TIMEOUT_S:g} s"
+        return _cli_verdict(case, proc.returncode, proc.stdout + proc.stderr)
+    with tempfile.TemporaryDirectory(prefix="fuzz_cli_") as tmp:
+        log = Path(tmp) / "output.txt"
+        sys.stdout.flush()
+        sys.stderr.flush()
+        child = mp.get_context("fork").Process(target=_run_forked, args=(case.argv, entry, log))
+        child.start()
+        child.join(CLI_TIMEOUT_S)
+        if child.is_alive():
+            child.kill()
+            child.join()
+            return "HANG", f"no answer in {CLI_TIMEOUT_S:g} s"
+        text = log.read_text(errors="replace") if log.is_file() else ""
+    return _cli_verdict(case, child.exitcode, text)
+
+
+def _cli_verdict(case: Case, returncode: int, text: str) -> tuple[str, str]:
+    """The verdict of a command line from its exit status and output."""
     if "Traceback" in text:
         return "TRACEBACK", text.strip().splitlines()[-1][:200]
     # Hydra's hint line ("Set the environment variable HYDRA_FULL_ERROR=1 ...") is not a message
     errors = [line for line in text.splitlines() if "error" in line.lower() and "HYDRA_FULL_ERROR" not in line]
-    accepted = proc.returncode == 0 and not errors
-    verdict, message = _verdict(case, accepted, proc.returncode != 0 or bool(errors),
+    accepted = returncode == 0 and not errors
+    verdict, message = _verdict(case, accepted, returncode != 0 or bool(errors),
                                 text if accepted else (errors[-1] if errors else text.strip().splitlines()[-1] if text.strip() else "")[:300])
-    return _exit_status(case, verdict, message, [proc.returncode])
+    return _exit_status(case, verdict, message, [returncode])
 
 
 def run_concurrent(case: Case) -> tuple[str, str]:
@@ -1763,6 +2122,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="also write the table (markdown) here")
     parser.add_argument("--no-cli", action="store_true", help="readers only (seconds instead of minutes)")
     parser.add_argument("--keep", type=Path, help="work in this folder and keep it")
+    parser.add_argument("--only", nargs="+", metavar="FAMILY", help="run only these families (the table's first "
+                        "column), e.g. while adding cases; the table is then no full pass")
     args = parser.parse_args(argv)
     ws = args.keep or Path(tempfile.mkdtemp(prefix="opnet_fuzz_"))
     ws.mkdir(parents=True, exist_ok=True)
@@ -1776,7 +2137,9 @@ def main(argv: list[str] | None = None) -> int:
                  + boolean_cases(ws, base, extra) + ground_truth_cases(ws, extra) + empty_metric_cases(ws, base)
                  + scene_cases() + input_cases(ws, extra)
                  + ([] if args.no_cli else cli_cases(ws, base) + cli_more_cases(ws, base, extra)
-                    + cli_defect_cases(ws, base, extra)))
+                    + cli_defect_cases(ws, base, extra) + new_surface_cases(ws, base, extra)))
+        if args.only:
+            cases = [case for case in cases if case.family in args.only]
         for case in cases:
             verdict, message = run_case(case)
             message = re.sub(r"\(pid \d+\)", "(pid <n>)", message.replace(str(ws), "<ws>"))  # the same table each run
