@@ -40,6 +40,7 @@ class _FakeEstimator:
     meta = {"object": "box"}
     on_predict = None  # a hook run inside the first prediction
     clip = trained_clip = None  # each camera's own planes
+    T_base_cam = camera = None  # no base pose, no training camera recorded
 
     def __init__(self, path: Path, threads: int | None = None, **settings: object) -> None:  # icp=, roi=
         self.path = Path(path)

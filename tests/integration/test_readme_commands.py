@@ -81,9 +81,7 @@ def cell_rows(run: Callable[..., subprocess.CompletedProcess], ws: Path) -> None
     """The three rows of your cell: frames of a generated pile of a known rig (its depth PNGs and camera YAML, a
     calibration of the generator's own pose), the cell file written into the workspace (train.py finds it there
     through the config search path), the check, and a tiny training of the cell."""
-    from opnet.objects.library import builtin_object
     from opnet.synthesis.config import SceneConfig
-    from opnet.synthesis.generate import generate_dataset
     from opnet.synthesis.layout import R_WORLD_CAM_DOWN, homogeneous, tilted
 
     camera = ws / "cell_camera.yaml"
@@ -92,8 +90,14 @@ def cell_rows(run: Callable[..., subprocess.CompletedProcess], ws: Path) -> None
     scene = SceneConfig(camera_file=str(camera), camera_file_clip=True, camera_height=1.2, camera_tilt_deg=15.0,
                         camera_azimuth_deg=40.0, bin_inner=0.3, bin_inner_y=0.45, bin_wall_height=0.12,
                         bin_wall_thickness=0.004, camera_jitter_m=0.0, camera_jitter_deg=0.0, outside_clip="clamp")
-    generate_dataset(builtin_object("zbracket"), frames, cycles=1, drops=1, workers=1, seed=0, scene=scene,
-                     progress=False, previews=0)
+    # in a child process: this runs in a lane's thread, and the renderer's EGL context belongs to the thread
+    # that made it (another lane's, or the main thread's)
+    generate = (f"from opnet.objects.library import builtin_object; from opnet.synthesis.config import SceneConfig; "
+                f"from opnet.synthesis.generate import generate_dataset; "
+                f"generate_dataset(builtin_object('zbracket'), {str(frames)!r}, cycles=1, drops=1, workers=1, seed=0, "
+                f"scene=SceneConfig.from_dict({scene.to_dict()!r}), progress=False, previews=0)")
+    subprocess.run([sys.executable, "-c", generate], check=True, cwd=REPO_ROOT,
+                   env={**os.environ, "PYOPENGL_PLATFORM": "egl"})
     calibration = ws / "T_base_cam.yaml"
     pose = tilted(homogeneous(R_WORLD_CAM_DOWN, np.array([0.2, 0.1, 1.3])), 15.0, 40.0)
     calibration.write_text(json.dumps({"T_base_cam": pose.tolist()}))  # JSON is YAML
