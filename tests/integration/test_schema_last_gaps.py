@@ -73,3 +73,18 @@ def test_the_runtime_takes_one_refinement_flag(tmp_path: Path, capsys, flags: li
     assert err.startswith("error: ") and "\n" not in err and flags[0] in err and flags[1] in err, err
     assert not (tmp_path / "out").exists()
     shutil.rmtree(tmp_path / "out", ignore_errors=True)
+
+
+@pytest.mark.parametrize(("key", "value"), [("roi", "auto:0.5"), ("fit", "crop")])
+def test_a_framing_edited_in_the_config_and_not_in_the_settings_is_refused(checkpoint: Path, tmp_path: Path,
+                                                                          key: str, value: object) -> None:  # fmt: skip
+    """predict.py runs the settings entry's framing: a config edited alone (data.roi=auto on a checkpoint
+    recorded without one) was ignored without a word, and predicted on the whole frame."""
+    ckpt = read_checkpoint(checkpoint)
+    ckpt["hyper_parameters"]["config"]["data"][key] = value
+    edited = tmp_path / "edited.ckpt"
+    torch.save(ckpt, edited)
+    with pytest.raises(ValueError, match=rf"^{edited}: the checkpoint's config data.{key}=.* but its {CHECKPOINT_KEY} "
+                                         r"input\.\w+=.*edited without the other") as info:  # fmt: skip
+        load_checkpoint(edited)
+    assert "\n" not in str(info.value)

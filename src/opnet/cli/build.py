@@ -22,7 +22,7 @@ from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.base import Parameterization
-from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, RunSettings
+from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, InputSettings, RunSettings
 from opnet.settings_schema import TRAINING, check_value, read_settings
 from opnet.system import OPNetSystem
 
@@ -283,6 +283,23 @@ def saved_settings(cfg: DictConfig, path: str | Path, decoding: DecodingSettings
     return RunSettings.from_training_config(cfg, f"{path}: the checkpoint's config", decoding=decoding)
 
 
+def check_framing_agrees(cfg: DictConfig, settings: RunSettings, path: str | Path) -> None:
+    """The framing a checkpoint's config sets (``data.input_size``, ``data.fit``, ``data.interpolation``,
+    ``data.roi``) against the one its settings entry records, which is what runs: a value edited in one
+    and not in the other would be ignored without a word.
+
+    Raises:
+        ValueError: ``<path>: the checkpoint's config data.<key>=<value> but its opnet_settings input.<key>=...``.
+    """
+    framing = InputSettings.from_training_config(cfg, f"{path}: the checkpoint's config")
+    for key, field in (("input_size", "size"), ("fit", "fit"), ("interpolation", "interpolation"), ("roi", "roi")):
+        theirs, ours = getattr(framing, field), getattr(settings.input, field)
+        if theirs != ours:
+            raise ValueError(f"{path}: the checkpoint's config data.{key}={theirs!r} but its {CHECKPOINT_KEY} "
+                             f"input.{field}={ours!r}, which is what runs: one was edited without the other; "
+                             "edit both, or neither")
+
+
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
     """Rebuild a trained system from a checkpoint written by ``train.py``: the network from its run
     config and weights, its :attr:`~opnet.system.OPNetSystem.settings` from its settings entry
@@ -310,6 +327,8 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
         key = f"{CHECKPOINT_KEY} input.size" if settings is not None else "config data.input_size"
         raise ValueError(f"{path}: the checkpoint's {key}={size} but its network takes {in_size} x {in_size} pixels "
                          "(model.in_size): one was edited without the other")
+    if settings is not None:
+        check_framing_agrees(cfg, settings, path)
     try:
         system.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, ValueError) as e:  # missing or unexpected keys, wrong tensor shapes
