@@ -246,21 +246,23 @@ def dense_rows(part: str, arm: str, seed: int, refine: bool) -> list[dict[str, A
 #: what the tables say, written from them (each number is in the CSV)
 NOTES = [
     "## Notes", "",
+    "- *Seeds*: the base recipe's two seeds differ by 0.03-0.04 AP as decoded on either split (val 0.103 and "
+    "0.059, held-out 0.065 and 0.099): one seed of another arm tells apart only a change larger than that.",
     "- *Found*: the share of the parts to find that a decoded pose matches. The plate's network finds about one "
-    "in six, whatever the arm; the misses are lateral (the nearest pose's origin is across the image, median "
-    "16-18 mm with δ 17.4 mm) before they are spins (median 13-17°) or tilts.",
+    "in six, whatever the arm or seed; the misses are lateral (the nearest pose's origin is across the image, "
+    "median 16-18 mm with δ 17.4 mm) before they are spins (median 13-17°) or tilts.",
     "- *Position* (`loss.lambda_xy=10`): the lateral error did not move, so the lateral misses are not the loss's "
-    "weighting; within one seed's noise on both splits.",
+    "weighting; its AP lies within the base's seed spread on both splits.",
     "- *Pixels* (`in256_st8`: a 256-pixel input with a stride-8 stem, the part spanning 40 pixels instead of 20, "
     "same grid and work): on held-out cycles of the training piles' own generator (*AP in training*, rendered at "
-    "half the camera's resolution as the training piles are) it rose from 0.088 to 0.129, but on the validation "
-    "and held-out piles, rendered at the camera's full resolution, it did not (val 0.067 against 0.103, held-out "
-    "0.071 against 0.065). A sign that the finer input learns the half-resolution render's texture, which "
-    "full-resolution depth does not have (untested here: training piles rendered at the camera's resolution). Not kept; the cell "
-    "recipe stays at 128 pixels (`part_pixels` sizes the input where wanted).",
-    "- *Decoding*: pose averaging helps the plate a little (no averaging: 0.052 against 0.065 held-out).",
-    "- *Refinement*: the recorded search (`search_fast`) lifts every arm to 0.44-0.49; its time here is the "
-    "refinement's alone, measured with other jobs on the machine (the whole frame's: `scripts/bench/bench_frame.py`).",
+    "half the camera's resolution as the training piles are) it scored 0.129 (base 0.088 and 0.121), on the "
+    "full-resolution validation and held-out piles 0.067 and 0.071, within the base's spread and below its mean "
+    "on val. No gain measured; not kept, the cell recipe stays at 128 pixels (`part_pixels` sizes the input where "
+    "wanted). Untested here: training piles rendered at the camera's full resolution, which a finer input may need.",
+    "- *Decoding*: pose averaging helps the plate a little (no averaging: 0.052 against 0.065 held-out, seed 0).",
+    "- *Refinement*: the recorded search (`search_fast`) lifts every arm and seed to 0.42-0.52; its time here is "
+    "the refinement's alone, measured with other jobs on the machine (the whole frame's: "
+    "`scripts/bench/bench_frame.py`).",
     "",
 ]
 
