@@ -1591,9 +1591,10 @@ def cli_defect_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) ->
     add("predict.py", "roi=auto on a frame with no bin", False, [py, "predict.py", f"ckpt={ckpt}", f"input={c / 'wall.npy'}",
                                                                 f"out={out}", *cam, "roi=auto", h(out.name)], ("wall.npy", "roi"), status=1, out=out)
     out = o("p")
-    add("predict.py", "checkpoint data.roi=auto, a frame with no bin", False,
+    # the config edited alone: its settings entry (what runs) records no region of interest
+    add("predict.py", "checkpoint data.roi=auto in its config alone", False,
         [py, "predict.py", f"ckpt={c / 'roi_auto.ckpt'}", f"input={c / 'wall.npy'}", f"out={out}", *cam, h(out.name)],
-        ("wall.npy", "roi"), status=1, out=out)
+        ("roi_auto.ckpt", "data.roi"), out=out)
     add("export.py", "out= a new .ckpt", False, [*export, f"ckpt={ckpt}", f"out={c / 'model.ckpt'}", h("x6")], (".ckpt",),
         out=c / "model.ckpt")
     # 9. messages that mislead
@@ -2123,7 +2124,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-cli", action="store_true", help="readers only (seconds instead of minutes)")
     parser.add_argument("--keep", type=Path, help="work in this folder and keep it")
     parser.add_argument("--only", nargs="+", metavar="FAMILY", help="run only these families (the table's first "
-                        "column), e.g. while adding cases; the table is then no full pass")
+                        "column), e.g. while adding cases; with --out onto a full pass's table, their rows there are "
+                        "replaced and the rest kept")
     args = parser.parse_args(argv)
     ws = args.keep or Path(tempfile.mkdtemp(prefix="opnet_fuzz_"))
     ws.mkdir(parents=True, exist_ok=True)
@@ -2147,13 +2149,17 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{verdict:9s} {case.family} / {case.name}: {message[:150]}", flush=True)
     finally:
         unmount_all()
+    seconds = time.perf_counter() - start
+    if args.only and args.out and args.out.is_file():  # re-score these families in the full pass's table
+        rows, seconds = merged_rows(args.out, rows, set(args.only)), None
     counts: dict[str, int] = {}
     for row in rows:
         counts[row[3]] = counts.get(row[3], 0) + 1
     bugs = sum(v for k, v in counts.items() if k.isupper())
     lines = ["| input | case | kind | verdict | message |", "|---|---|---|---|---|"]
     lines += [f"| {f} | {n} | {k} | {v} | {m.replace('|', '/')[:160]} |" for f, n, k, v, m in rows]
-    summary = (f"{len(rows)} cases in {time.perf_counter() - start:.0f} s: "
+    took = f"{seconds:.0f} s" if seconds is not None else f"a full pass, {', '.join(args.only)} re-run"
+    summary = (f"{len(rows)} cases in {took}: "
                + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())) + f"; bugs: {bugs}")
     print("\n" + "\n".join(lines) + "\n\n" + summary)
     if args.out:
@@ -2163,6 +2169,21 @@ def main(argv: list[str] | None = None) -> int:
     if not args.keep:
         shutil.rmtree(ws, ignore_errors=True)
     return 1 if bugs else 0
+
+
+def merged_rows(table: Path, rows: list[tuple[str, ...]], families: set[str]) -> list[tuple[str, ...]]:
+    """The rows of ``table`` (a pass's Markdown) with those of ``families`` replaced by ``rows``, in the
+    table's order (a family's new cases after its old place)."""
+    old = [tuple(c.strip() for c in line.strip().strip("|").split("|")) for line in table.read_text().splitlines()
+           if line.startswith("| ") and not line.startswith("| input |")]  # fmt: skip
+    merged, placed = [], set()
+    for row in old:
+        if row[0] not in families:
+            merged.append(row)
+        elif row[0] not in placed:
+            placed.add(row[0])
+            merged += [r for r in rows if r[0] == row[0]]
+    return merged + [r for r in rows if r[0] not in placed]
 
 
 if __name__ == "__main__":
