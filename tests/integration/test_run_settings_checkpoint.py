@@ -30,10 +30,16 @@ def _old_layout(ckpt: dict[str, Any]) -> dict[str, Any]:
 
 
 def _with_entry(checkpoint: Path, path: Path, **changes: Any) -> Path:
-    """A copy of ``checkpoint`` whose settings entry has ``changes`` (``decoding={...}``, ``input={...}``)."""
+    """A copy of ``checkpoint`` whose settings entry has ``changes`` (``decoding={...}``, ``input={...}``); a
+    framing changed in the entry is changed in the run config alike (``data.<key>``: a checkpoint whose two
+    disagree is refused when read)."""
     ckpt = read_checkpoint(checkpoint)
     for section, values in changes.items():
         ckpt[CHECKPOINT_KEY][section].update(values)
+    config_keys = {"size": "input_size", "fit": "fit", "interpolation": "interpolation", "roi": "roi"}
+    for key, value in changes.get("input", {}).items():
+        if key in config_keys:
+            ckpt["hyper_parameters"]["config"]["data"][config_keys[key]] = value
     torch.save(ckpt, path)
     return path
 
