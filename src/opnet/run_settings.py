@@ -328,6 +328,13 @@ class InputSettings:
             _require(meta, list(keys.values()), source)
         return cls._from_values(read_settings(meta, keys, source, closed=("input",) if required else ()))
 
+    def framing_differences(self, other: InputSettings) -> list[tuple[str, Any, Any]]:
+        """``(schema name, this value, other's)`` of each framing setting (size, fit, interpolation, region
+        of interest; not the clip planes, recorded apart) on which ``other`` differs."""
+        names = [name for name in INPUT_NAMES if name != "trained_clip"]
+        return [(name, mine, theirs) for name in names
+                if (mine := getattr(self, self._FIELDS[name])) != (theirs := getattr(other, self._FIELDS[name]))]
+
     def with_trained_clip(self, planes: Sequence[float] | None) -> InputSettings:
         """These settings with the training scenes' clip planes ``planes`` (None: none recorded)."""
         return dataclasses.replace(self, trained_clip=None if planes is None else (float(planes[0]), float(planes[1])))

@@ -23,7 +23,7 @@ from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.base import Parameterization
 from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, InputSettings, RunSettings
-from opnet.settings_schema import TRAINING, check_value, read_settings
+from opnet.settings_schema import METADATA, TRAINING, check_value, read_settings
 from opnet.system import OPNetSystem
 
 
@@ -292,12 +292,11 @@ def check_framing_agrees(cfg: DictConfig, settings: RunSettings, path: str | Pat
         ValueError: ``<path>: the checkpoint's config data.<key>=<value> but its opnet_settings input.<key>=...``.
     """
     framing = InputSettings.from_training_config(cfg, f"{path}: the checkpoint's config")
-    for key, field in (("input_size", "size"), ("fit", "fit"), ("interpolation", "interpolation"), ("roi", "roi")):
-        theirs, ours = getattr(framing, field), getattr(settings.input, field)
-        if theirs != ours:
-            raise ValueError(f"{path}: the checkpoint's config data.{key}={theirs!r} but its {CHECKPOINT_KEY} "
-                             f"input.{field}={ours!r}, which is what runs: one was edited without the other; "
-                             "edit both, or neither")
+    if differences := framing.framing_differences(settings.input):
+        name, theirs, ours = differences[0]
+        raise ValueError(f"{path}: the checkpoint's config {TRAINING[name]}={theirs!r} but its {CHECKPOINT_KEY} "
+                         f"{METADATA[name]}={ours!r}, which is what runs: one was edited without the other; "
+                         "edit both, or neither")
 
 
 def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
