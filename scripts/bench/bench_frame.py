@@ -37,6 +37,7 @@ def frames(root: Path, count: int) -> list:
     return [dataset[i] for i in range(min(count, len(dataset)))]
 
 
+@torch.no_grad()
 def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]:
     """Milliseconds per stage (each (N,)) of every frame but the first."""
     from opnet.cli.build import load_checkpoint
@@ -44,20 +45,17 @@ def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]
     from opnet.data.preprocess import to_network_input
     from opnet.data.roi import crop_image
     from opnet.geometry.camera import with_clip, working_clip
-    from opnet.geometry.icp import Refiner
+    from opnet.geometry.icp import Refiner, refine_config
 
     system, _ = load_checkpoint(ckpt)
     system.configure_inference(None)
     # the search refines every hypothesis on its own: decoded without pose averaging (as eval.py and predict.py do)
-    from opnet.geometry.icp import refine_config
-
     group = {"method": refine} if refine in ("model", "none") else refine_config(refine)
     icp = model_settings(system, group, {"averaging": False} if group.get("method") == "search" else None)
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
     framing = system.settings.input
     clip = working_clip(None, framing.trained_clip)
     times: dict[str, list[float]] = {s: [] for s in STAGES}
-    torch.set_grad_enabled(False)
     for k, record in enumerate(records):
         camera = with_clip(record.camera, clip) if clip is not None else record.camera
         t0 = time.perf_counter()

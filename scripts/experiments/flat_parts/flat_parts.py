@@ -111,12 +111,18 @@ def run_dir(part: str, arm: str, seed: int) -> Path:
 def trained_to(out: Path, steps: int) -> bool:
     """Whether the run in ``out`` reached ``steps`` (its learning curve's last row; a run stopped part-way
     has a ``last.ckpt`` but has not)."""
+    rows = learning_curve(out)
+    return bool(rows) and int(rows[-1]["step"]) >= steps
+
+
+def learning_curve(out: Path) -> list[dict[str, str]]:
+    """The rows of the run's ``learning_curve.csv`` (train.py's: step, train_minutes, val_ap, ...); none
+    before its first validation."""
     curve = out / "learning_curve.csv"
     if not curve.is_file():
-        return False
+        return []
     with curve.open() as f:
-        rows = list(csv.DictReader(f))
-    return bool(rows) and int(rows[-1]["step"]) >= steps
+        return list(csv.DictReader(f))
 
 
 # ---------------------------------------------------------------------------------------------- the plate
@@ -164,8 +170,7 @@ def row_of(part: str, arm: str, seed: int, split: str, decoded: dict[str, Any], 
     b = decoded.get("breakdown", {})
     n = max(b.get("to_find", 0), 1)
     spec = arm_spec(part, arm)[1]
-    curve = run_dir(part, spec.get("from", arm), seed) / "learning_curve.csv"
-    points = list(csv.DictReader(curve.open())) if curve.is_file() else []
+    points = learning_curve(run_dir(part, spec.get("from", arm), seed))
     minutes = points[-1]["train_minutes"] if points else ""
     # the best validation AP during training: held-out cycles of the training piles' own generator (rendered as
     # they were), against which the split's AP shows what does not carry over to other piles
