@@ -22,21 +22,38 @@ MAX_SCENE_M = 20.0
 MAX_TIME_STEP = 0.05
 #: physics engines of the generator (opnet.synthesis.physics)
 PHYSICS_ENGINES = ("mujoco", "pybullet")
-#: fields added after the first datasets were made (left out of to_dict at their defaults)
-_LATER_FIELDS = ("camera_file", "camera_file_clip", "views", "coacd_threshold", "camera_tilt_deg",
-                 "camera_azimuth_deg", "bin_inner_y", "bin_hole_size", "bin_hole_pitch", "bin_clearance",
-                 "outside_clip", "clutter", "bin_area", "bin_yaw_deg", "bin_tilt_deg", "bin_models", "camera_scale",
-                 "small_part_d", "sized_for_d", "rig_d", "max_convex_pieces", "convex_merge_budget",
-                 "bin_max_fill")
 #: what the written depth holds where a surface lies outside the clip planes (``outside_clip``)
 OUTSIDE_CLIP = ("missing", "clamp")
 #: datasets made before ``physics`` existed were made with pybullet: the key is left out of
 #: to_dict for that engine, so their generation.json still matches ``physics=pybullet``
 _LEGACY_PHYSICS = "pybullet"
-#: the keys a bin model (``scene.bin_models``) may set, besides its ``weight``
-BIN_MODEL_KEYS = ("bin_inner", "bin_inner_y", "bin_wall_height", "bin_wall_thickness", "bin_hole_size",
-                  "bin_hole_pitch", "bin_clearance")
+#: the groups of scene settings (a field's ``group``): what a user measures for a real cell apart from the
+#: generator's internals (docs/extending.md#a-scene-setting)
+SETTING_GROUPS = {
+    "cell": "measured for a real cell: the camera file and its pose, the working volume, the working area, the bin",
+    "camera": "the built-in camera, the rendered pixels and the views per pile",
+    "randomization": "per-cycle jitters of the camera and the bin, foreign pieces",
+    "bin": "the automatic bin and the bins a cell swaps",
+    "physics": "the physics engine, collision shapes, contacts and when a pile is at rest",
+    "rendering": "caches of the renderer",
+    "sizing": "how the lengths follow the part's diameter",
+}
 
+
+def _setting(default: Any, group: str, *, later: bool = False, rig: bool = False, part: bool = False,
+             bin_model: bool = False) -> Any:
+    """A :class:`SceneConfig` field declared once, with what the rest of the code needs to know of it.
+
+    group: one of :data:`SETTING_GROUPS`.
+    later: added after the first datasets were made: left out of :meth:`SceneConfig.to_dict` at its default,
+        so the ``generation.json`` of those datasets still matches (every new field sets it).
+    rig: a length of the camera rig, scaled by D / ``rig_d`` (:meth:`SceneConfig.for_part`).
+    part: a length set for parts of ``small_part_d`` and more, scaled down for a smaller part.
+    bin_model: a key each entry of ``bin_models`` may set."""
+    if group not in SETTING_GROUPS:
+        raise ValueError(f"scene setting group {group!r}: expected one of {list(SETTING_GROUPS)}")
+    return dataclasses.field(default=default, metadata={"group": group, "later": later, "rig": rig, "part": part,
+                                                        "bin_model": bin_model})
 
 def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -> Any:
     """``cls(**values)`` for a dataclass; keys that are not its fields are an error naming ``section``."""
@@ -196,68 +213,68 @@ class SceneConfig:
             reused within a cycle while its pose moved less than this since it was counted.
     """
 
-    resolution: int = 512
-    width: int | None = None
-    height: int | None = None
-    fov_deg: float = 50.0
-    camera_height: float | None = None
-    view_margin: float = 0.08
-    clip_start: float | None = None
-    clip_end: float | None = None
-    camera_tilt_deg: float = 0.0
-    camera_azimuth_deg: float = 0.0
-    camera_jitter_m: float = 0.005
-    camera_jitter_deg: float = 1.0
-    bin_jitter_m: float = 0.01
-    bin_jitter_deg: float = 5.0
-    bin_inner: float | None = None
-    bin_layers: float = 1.5
-    bin_wall_height: float | None = None
-    bin_wall_factor: float = 0.6
-    bin_max_fill: float | None = None
-    bin_wall_thickness: float = 0.01
-    collision: str = "auto"
-    convexity_threshold: float = 0.85
-    vhacd_resolution: int = 1_000_000
-    cache_dir: str | None = None
-    time_step: float = 1.0 / 120.0
-    solver_iterations: int = 10
-    friction: float = 0.5
-    rolling_friction: float = 0.002
-    restitution: float = 0.0
-    linear_damping: float = 0.04
-    angular_damping: float = 0.5
-    drop_gap: float = 0.01
-    settle_linear: float = 0.05
-    settle_angular: float = 0.5
-    settle_checks: int = 3
-    check_every: int = 4
-    settle_time_cap: float = 3.0
-    max_redrops: int = 10
-    max_cycle_restarts: int = 3
-    solo_cache_mm: float = 0.3
-    solo_cache_deg: float = 0.3
-    camera_file: str | None = None
-    camera_file_clip: bool = False
-    views: int = 1
-    physics: str = "mujoco"
-    coacd_threshold: float = 0.1
-    max_convex_pieces: int = 0
-    convex_merge_budget: float = 0.01
-    bin_inner_y: float | None = None
-    bin_hole_size: float = 0.0
-    bin_hole_pitch: float = 0.0
-    bin_clearance: float = 0.0
-    outside_clip: str = "missing"
-    clutter: int = 0
-    bin_area: tuple[float, float, float, float] | None = None
-    bin_yaw_deg: tuple[float, float] | None = None
-    bin_tilt_deg: float = 0.0
-    bin_models: tuple | None = None
-    camera_scale: float = 1.0
-    small_part_d: float = 0.05
-    sized_for_d: float | None = None
-    rig_d: float | None = None
+    resolution: int = _setting(512, "camera")
+    width: int | None = _setting(None, "camera")
+    height: int | None = _setting(None, "camera")
+    fov_deg: float = _setting(50.0, "camera")
+    camera_height: float | None = _setting(None, "cell", rig=True)
+    view_margin: float = _setting(0.08, "camera")
+    clip_start: float | None = _setting(None, "cell", rig=True)
+    clip_end: float | None = _setting(None, "cell", rig=True)
+    camera_tilt_deg: float = _setting(0.0, "cell", later=True)
+    camera_azimuth_deg: float = _setting(0.0, "cell", later=True)
+    camera_jitter_m: float = _setting(0.005, "randomization", rig=True, part=True)
+    camera_jitter_deg: float = _setting(1.0, "randomization")
+    bin_jitter_m: float = _setting(0.01, "randomization", rig=True, part=True)
+    bin_jitter_deg: float = _setting(5.0, "randomization")
+    bin_inner: float | None = _setting(None, "cell", bin_model=True)
+    bin_layers: float = _setting(1.5, "bin")
+    bin_wall_height: float | None = _setting(None, "cell", bin_model=True)
+    bin_wall_factor: float = _setting(0.6, "bin")
+    bin_max_fill: float | None = _setting(None, "bin", later=True)
+    bin_wall_thickness: float = _setting(0.01, "cell", part=True, bin_model=True)
+    collision: str = _setting("auto", "physics")
+    convexity_threshold: float = _setting(0.85, "physics")
+    vhacd_resolution: int = _setting(1_000_000, "physics")
+    cache_dir: str | None = _setting(None, "physics")
+    time_step: float = _setting(1.0 / 120.0, "physics")
+    solver_iterations: int = _setting(10, "physics")
+    friction: float = _setting(0.5, "physics")
+    rolling_friction: float = _setting(0.002, "physics")
+    restitution: float = _setting(0.0, "physics")
+    linear_damping: float = _setting(0.04, "physics")
+    angular_damping: float = _setting(0.5, "physics")
+    drop_gap: float = _setting(0.01, "physics", part=True)
+    settle_linear: float = _setting(0.05, "physics", part=True)
+    settle_angular: float = _setting(0.5, "physics")
+    settle_checks: int = _setting(3, "physics")
+    check_every: int = _setting(4, "physics")
+    settle_time_cap: float = _setting(3.0, "physics")
+    max_redrops: int = _setting(10, "physics")
+    max_cycle_restarts: int = _setting(3, "physics")
+    solo_cache_mm: float = _setting(0.3, "rendering")
+    solo_cache_deg: float = _setting(0.3, "rendering")
+    camera_file: str | None = _setting(None, "cell", later=True)
+    camera_file_clip: bool = _setting(False, "cell", later=True)
+    views: int = _setting(1, "camera", later=True)
+    physics: str = _setting("mujoco", "physics")
+    coacd_threshold: float = _setting(0.1, "physics", later=True)
+    max_convex_pieces: int = _setting(0, "physics", later=True)
+    convex_merge_budget: float = _setting(0.01, "physics", later=True)
+    bin_inner_y: float | None = _setting(None, "cell", later=True, bin_model=True)
+    bin_hole_size: float = _setting(0.0, "cell", later=True, bin_model=True)
+    bin_hole_pitch: float = _setting(0.0, "cell", later=True, bin_model=True)
+    bin_clearance: float = _setting(0.0, "cell", later=True, bin_model=True)
+    outside_clip: str = _setting("missing", "cell", later=True)
+    clutter: int = _setting(0, "randomization", later=True)
+    bin_area: tuple[float, float, float, float] | None = _setting(None, "cell", later=True)
+    bin_yaw_deg: tuple[float, float] | None = _setting(None, "randomization", later=True)
+    bin_tilt_deg: float = _setting(0.0, "randomization", later=True)
+    bin_models: tuple | None = _setting(None, "bin", later=True)
+    camera_scale: float = _setting(1.0, "camera", later=True)
+    small_part_d: float = _setting(0.05, "sizing", later=True)
+    sized_for_d: float | None = _setting(None, "sizing", later=True)
+    rig_d: float | None = _setting(None, "sizing", later=True)
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -386,12 +403,11 @@ class SceneConfig:
             out.append(tuple(sorted((k, float(v) if _number(v) else v) for k, v in model.items())))
         return tuple(out)
 
-    #: the settings :meth:`for_part` scales for a part smaller than ``small_part_d``
-    PART_LENGTHS: ClassVar[tuple[str, ...]] = ("bin_wall_thickness", "drop_gap", "bin_jitter_m", "camera_jitter_m",
-                                               "settle_linear")
-    #: the settings :meth:`for_part` scales by D / ``rig_d`` (besides the camera file's clip planes)
-    RIG_LENGTHS: ClassVar[tuple[str, ...]] = ("camera_height", "clip_start", "clip_end", "camera_jitter_m",
-                                              "bin_jitter_m")
+    #: the settings :meth:`for_part` scales for a part smaller than ``small_part_d`` (fields declared ``part``)
+    PART_LENGTHS: ClassVar[tuple[str, ...]]
+    #: the settings :meth:`for_part` scales by D / ``rig_d`` (fields declared ``rig``; besides the camera
+    #: file's clip planes)
+    RIG_LENGTHS: ClassVar[tuple[str, ...]]
 
     def for_part(self, diameter: float) -> SceneConfig:
         """The settings used for a part of ``diameter`` metres, once (settings already sized are
@@ -467,6 +483,21 @@ class SceneConfig:
             del out["physics"]
         return out
 
+
+
+def scene_keys(flag: str | None = None, group: str | None = None) -> tuple[str, ...]:
+    """The :class:`SceneConfig` fields declared with ``flag`` (``later``, ``rig``, ``part``, ``bin_model``)
+    and / or in ``group`` (:data:`SETTING_GROUPS`), in declaration order; every field without either."""
+    return tuple(f.name for f in dataclasses.fields(SceneConfig)
+                 if (flag is None or f.metadata[flag]) and (group is None or f.metadata["group"] == group))
+
+
+#: fields added after the first datasets were made (left out of to_dict at their defaults)
+_LATER_FIELDS = scene_keys("later")
+#: the keys a bin model (``scene.bin_models``) may set, besides its ``weight``
+BIN_MODEL_KEYS = scene_keys("bin_model")
+SceneConfig.PART_LENGTHS = scene_keys("part")
+SceneConfig.RIG_LENGTHS = scene_keys("rig")
 
 def _number(value: Any) -> bool:
     """A finite int or float (not a boolean)."""
