@@ -32,11 +32,16 @@ from opnet.settings_schema import (
     METADATA,
     OVERRIDE,
     TRAINING,
+    MISSING,
     Box,
     SettingError,
-    check_settings,
+    checked_fields as _checked,
+    nest as _nest,
+    plain as _plain,
     read_settings,
     refuse_foreign,
+    require as _require,
+    spelled as _spelled,
 )
 
 #: the checkpoint entry that holds :meth:`RunSettings.to_dict`
@@ -56,69 +61,11 @@ CAMERA_KEYS = YAML_CAMERA_KEYS
 REFINE_NAMES = ("icp", "search", "search_fast")
 
 
-class _Missing:
-    def __repr__(self) -> str:
-        return "<missing>"
-
-
-MISSING = _Missing()
-
-
-def _spelled(names: Sequence[str], keys: Mapping[str, str]) -> dict[str, str]:
-    return {name: keys[name] for name in names if name in keys}
-
-
-def _nest(values: Mapping[str, Any], keys: Mapping[str, str]) -> dict[str, Any]:
-    """The settings ``values`` (by name) as the nested mapping ``keys`` spells (``decoding.averaging.eps``)."""
-    tree: dict[str, Any] = {}
-    for name, value in values.items():
-        *parents, leaf = keys[name].split(".")
-        node = tree
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = value
-    return tree
-
-
-def _require(tree: Any, keys: Sequence[str], source: str) -> None:
-    """Every key of ``keys`` (dotted) is in ``tree``; a missing one is a :class:`SettingError` naming it."""
-    for key in keys:
-        node = tree
-        for part in key.split("."):
-            if not isinstance(node, Mapping) or part not in node:
-                raise SettingError(key, MISSING, "missing; the entry is written whole", source)
-            node = node[part]
-
-
 def check_format(value: Any, source: str = "") -> None:
     """``value`` is the layout :data:`FORMAT` of a checkpoint's entry and an ONNX export's metadata; a
     :class:`SettingError` naming ``format`` otherwise."""
     if value != FORMAT or isinstance(value, bool):
         raise SettingError("format", value, f"expected {FORMAT} (written by another opnet version)", source)
-
-
-def _plain(value: Any, key: str, source: str) -> Any:
-    """``value`` as JSON-able data (mappings with text keys, lists, text, numbers, booleans, None)."""
-    if value is None or isinstance(value, str | bool):
-        return value
-    if isinstance(value, int | float):
-        if isinstance(value, float) and not math.isfinite(value):
-            raise SettingError(key, value, "expected a finite number", source)
-        return value
-    if isinstance(value, Mapping):
-        if not all(isinstance(k, str) for k in value):
-            raise SettingError(key, value, "expected a mapping with text keys", source)
-        return {k: _plain(v, f"{key}.{k}", source) for k, v in value.items()}
-    if isinstance(value, Sequence) and not isinstance(value, bytes):
-        return [_plain(v, f"{key}.{i}", source) for i, v in enumerate(value)]
-    raise SettingError(key, value, "expected plain data (text, numbers, lists, mappings)", source)
-
-
-def _checked(instance: Any, values: Mapping[str, Any], fields: Mapping[str, str]) -> None:
-    """Set the frozen ``instance``'s fields to the schema's typed ``values`` (by schema name)."""
-    typed = check_settings(values, METADATA)
-    for name, field in fields.items():
-        object.__setattr__(instance, field, typed[name])
 
 
 @dataclass(frozen=True)

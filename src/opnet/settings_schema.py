@@ -347,3 +347,65 @@ def refuse_foreign(config: Any, foreign: Mapping[str, str], own: Mapping[str, st
         name = next((n for n, k in foreign.items() if k == key), None)
         where = own[name] if name in own else ", ".join(f"{s}.*" for s in sorted(own_sections))
         raise SettingError(key, value, f"not a setting of {reader}, which takes it as {where}", source)
+
+
+# ---------------------------------------------------------------------- helpers of the typed settings
+
+
+class _Missing:
+    def __repr__(self) -> str:
+        return "<missing>"
+
+
+MISSING = _Missing()
+
+
+def spelled(names: Sequence[str], keys: Mapping[str, str]) -> dict[str, str]:
+    """The spellings ``keys`` gives of ``names`` (those it has)."""
+    return {name: keys[name] for name in names if name in keys}
+
+
+def nest(values: Mapping[str, Any], keys: Mapping[str, str]) -> dict[str, Any]:
+    """The settings ``values`` (by name) as the nested mapping ``keys`` spells (``decoding.averaging.eps``)."""
+    tree: dict[str, Any] = {}
+    for name, value in values.items():
+        *parents, leaf = keys[name].split(".")
+        node = tree
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
+
+
+def require(tree: Any, keys: Sequence[str], source: str) -> None:
+    """Every key of ``keys`` (dotted) is in ``tree``; a missing one is a :class:`SettingError` naming it."""
+    for key in keys:
+        node = tree
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                raise SettingError(key, MISSING, "missing; the entry is written whole", source)
+            node = node[part]
+
+
+def plain(value: Any, key: str, source: str) -> Any:
+    """``value`` as JSON-able data (mappings with text keys, lists, text, numbers, booleans, None)."""
+    if value is None or isinstance(value, str | bool):
+        return value
+    if isinstance(value, int | float):
+        if isinstance(value, float) and not math.isfinite(value):
+            raise SettingError(key, value, "expected a finite number", source)
+        return value
+    if isinstance(value, Mapping):
+        if not all(isinstance(k, str) for k in value):
+            raise SettingError(key, value, "expected a mapping with text keys", source)
+        return {k: plain(v, f"{key}.{k}", source) for k, v in value.items()}
+    if isinstance(value, Sequence) and not isinstance(value, bytes):
+        return [plain(v, f"{key}.{i}", source) for i, v in enumerate(value)]
+    raise SettingError(key, value, "expected plain data (text, numbers, lists, mappings)", source)
+
+
+def checked_fields(instance: Any, values: Mapping[str, Any], fields: Mapping[str, str]) -> None:
+    """Set the frozen ``instance``'s fields to the schema's typed ``values`` (by schema name)."""
+    typed = check_settings(values, METADATA)
+    for name, field in fields.items():
+        object.__setattr__(instance, field, typed[name])
