@@ -53,7 +53,7 @@ def bench(
     gen = torch.Generator().manual_seed(0)
     gt = random_scene_batch(obj, camera, batch, (20, 30), gen)
     output = realistic_output(param, param.encode(gt, camera), args.noise, args.presence_sigma, gen)
-    present = int((param.split_slots(output)[:, :, 0] > param.threshold).sum())
+    present = int((param.split_slots(output)[:, :, param.layout.presence] > param.threshold).sum())
     param.decode(output, camera)  # warm-up
     wall, cpu = [], []
     for _ in range(repeats):

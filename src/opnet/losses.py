@@ -153,18 +153,20 @@ class MultiTaskLoss(nn.Module):
             )
         out = parameterization.split_slots(output)  # (B, L, C, S, S)
         tgt = parameterization.split_slots(target)
+        lay = parameterization.layout
         batch = output.shape[0]
-        p, v = tgt[:, :, 0], tgt[:, :, 1]  # (B, L, S, S)
+        p, v = tgt[:, :, lay.presence], tgt[:, :, lay.visibility]  # (B, L, S, S)
         terms = {
             "presence": self.lambda_p
-            * (parameterization.presence_weight(target) * (out[:, :, 0] - p) ** 2),
-            "visibility": self.lambda_v * p * (out[:, :, 1] - v) ** 2,
+            * (parameterization.presence_weight(target) * (out[:, :, lay.presence] - p) ** 2),
+            "visibility": self.lambda_v * p * (out[:, :, lay.visibility] - v) ** 2,
         }
         if self.is_paper:
             pose_weight = parameterization.pose_weight(v) * p
-            terms["position"] = pose_weight * ((out[:, :, 2:5] - tgt[:, :, 2:5]) ** 2).sum(2)
+            position, rotation = lay.position, lay.rotation
+            terms["position"] = pose_weight * ((out[:, :, position] - tgt[:, :, position]) ** 2).sum(2)
             terms["orientation"] = (
-                self.lambda_ori * pose_weight * ((out[:, :, 5:] - tgt[:, :, 5:]) ** 2).sum(2)
+                self.lambda_ori * pose_weight * ((out[:, :, rotation] - tgt[:, :, rotation]) ** 2).sum(2)
             )
         else:
             terms.update(self._pose_terms(out, tgt, parameterization, cameras))
@@ -180,33 +182,35 @@ class MultiTaskLoss(nn.Module):
         cameras: Camera | Sequence[Camera] | None,
     ) -> dict[str, torch.Tensor]:
         """Position and orientation terms (P,) of the occupied cells/slots only."""
-        b, slot, row, col = torch.nonzero(tgt[:, :, 0] > 0, as_tuple=True)
+        lay = parameterization.layout
+        b, slot, row, col = torch.nonzero(tgt[:, :, lay.presence] > 0, as_tuple=True)
         o = out.permute(0, 1, 3, 4, 2)[b, slot, row, col]  # (P, C)
         t = tgt.permute(0, 1, 3, 4, 2)[b, slot, row, col]
-        weight = self.lambda_pose * parameterization.pose_weight(t[:, 1])  # (P,)
+        weight = self.lambda_pose * parameterization.pose_weight(t[:, lay.visibility])  # (P,)
+        o_pos, t_pos, o_rot, t_rot = o[:, lay.position], t[:, lay.position], o[:, lay.rotation], t[:, lay.rotation]
         delta = parameterization.obj.delta
         if self.position == "metric":
             if cameras is None:
                 raise ValueError("loss.position=metric needs the cameras of the batch")
             cams = CameraBatch.of(cameras, out.shape[0], out.device).take(b)
             cells = (slot, row, col)
-            t_hat = parameterization.decode_translations(o[:, 2:5], cells, cams)
-            t_gt = parameterization.decode_translations(t[:, 2:5], cells, cams)
+            t_hat = parameterization.decode_translations(o_pos, cells, cams)
+            t_gt = parameterization.decode_translations(t_pos, cells, cams)
             position = (((t_hat - t_gt) / delta) ** 2).sum(-1).to(o.dtype)
         else:
             axes = o.new_tensor([self.lambda_xy, self.lambda_xy, self.lambda_z])
-            position = (((o[:, 2:5] - t[:, 2:5]) ** 2) * axes).sum(-1)
+            position = (((o_pos - t_pos) ** 2) * axes).sum(-1)
         rotation = parameterization.rotation
         if self.orientation == "sym_rotation":
             orientation = symmetric_rotation_error(
-                rotation.decode(o[:, 5:]), rotation.decode(t[:, 5:]).detach(), parameterization
+                rotation.decode(o_rot), rotation.decode(t_rot).detach(), parameterization
             )
         elif self.orientation == "sym_channel_l2":
             group = torch.as_tensor(parameterization.obj.pose_space.group, device=o.device)
-            targets = rotation.equivalent_channels(rotation.decode(t[:, 5:].double()), group).to(o.dtype)
-            orientation = ((o[:, None, 5:] - targets.detach()) ** 2).sum(-1).amin(-1)  # (P,)
+            targets = rotation.equivalent_channels(rotation.decode(t_rot.double()), group).to(o.dtype)
+            orientation = ((o_rot[:, None] - targets.detach()) ** 2).sum(-1).amin(-1)  # (P,)
         else:
-            orientation = ((o[:, 5:] - t[:, 5:]) ** 2).sum(-1)
+            orientation = ((o_rot - t_rot) ** 2).sum(-1)
         if self.robust == "charbonnier":
             position = 2 * (torch.sqrt(1 + position) - 1)
             orientation = 2 * (torch.sqrt(1 + orientation) - 1)

@@ -16,9 +16,10 @@ from omegaconf import OmegaConf
 
 from opnet.cli.build import build_components
 from opnet.paths import REPO_ROOT, config_dir
+from param_checks import parameterization_names
 
 CONF = config_dir()
-PARAMETERIZATIONS = sorted(p.stem for p in (CONF / "parameterization").glob("*.yaml"))
+PARAMETERIZATIONS = parameterization_names()
 BUILTIN_OBJECTS = ["bracket", "zbracket", "shaft", "pin"]
 
 
@@ -27,8 +28,8 @@ def _compose(name: str, overrides: list[str]) -> OmegaConf:
         return compose(config_name=name, overrides=overrides, return_hydra_config=False)
 
 
-def test_all_six_parameterizations_are_configured() -> None:
-    assert set(PARAMETERIZATIONS) == {"vanilla", "eve", "ap", "z", "mp", "si"}
+def test_the_papers_six_parameterizations_are_configured() -> None:
+    assert set(PARAMETERIZATIONS) >= {"vanilla", "eve", "ap", "z", "mp", "si"}  # and any added since
 
 
 @pytest.mark.parametrize("parameterization", PARAMETERIZATIONS)

@@ -21,10 +21,11 @@ from opnet.cli import eval as eval_cli
 from opnet.cli import predict as predict_cli
 from opnet.cli import train as train_cli
 from opnet.objects import builtin_object
-from opnet.paths import REPO_ROOT, config_dir
+from opnet.paths import REPO_ROOT
 from conftest import compose_cfg, small_builtin_dataset, tiny_train_cfg
+from param_checks import parameterization_names
 
-PARAMETERIZATIONS = sorted(p.stem for p in (config_dir() / "parameterization").glob("*.yaml"))
+PARAMETERIZATIONS = parameterization_names()
 
 
 _cfg = compose_cfg

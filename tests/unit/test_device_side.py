@@ -14,7 +14,6 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -22,8 +21,7 @@ from omegaconf import OmegaConf
 from scipy.spatial import cKDTree
 from sklearn.cluster import DBSCAN
 
-from opnet.analysis.toy_scenes import random_scene_batch
-from opnet.cli.build import build_components, load_checkpoint
+from opnet.cli.build import load_checkpoint
 from opnet.cli.predict import predict_image
 from opnet.data import preprocess_torch
 from opnet.data.preprocess import network_camera, to_network_input
@@ -33,11 +31,17 @@ from opnet.datasets.ipa import IPADataset
 from opnet.geometry import Camera
 from opnet.geometry.camera import with_clip
 from opnet.geometry.pose_numpy import pose_distance
-from opnet.metrics.records import HypothesisSet
 from opnet.objects import builtin_object
 from opnet.parameterizations.averaging_torch import dbscan_graph, neighbour_pairs
 from opnet.paths import REPO_ROOT, config_dir
 from opnet.settings_schema import CANVAS_FITS
+from param_checks import (
+    assert_graph_capturable,
+    assert_same_hypotheses,
+    noisy_outputs,
+    parameterization_names,
+    tiny_system,
+)
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 ZBRACKET = builtin_object("zbracket")
@@ -64,30 +68,6 @@ def pile(tmp_path_factory: pytest.TempPathFactory) -> list:
     records = [dataset[i] for i in range(len(dataset))]
     assert min(np.isnan(r.depth).mean() for r in records[1:]) > 0.1  # the sensor model left holes to fill
     return records
-
-
-def _system(overrides: list[str]) -> L.LightningModule:
-    """A train config's system (tiny network, random weights with non-trivial batch norm statistics)."""
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=["model=tiny", "object=zbracket", *overrides])
-    torch.manual_seed(0)
-    system = build_components(cfg).system
-    for m in system.modules():
-        if isinstance(m, torch.nn.BatchNorm2d):
-            m.running_mean.uniform_(-0.2, 0.2)
-            m.running_var.uniform_(0.5, 1.5)
-    return system.eval()
-
-
-def assert_same_hypotheses(host: list[HypothesisSet], device: list[HypothesisSet], atol: float = 1e-9) -> None:
-    assert [len(h) for h in device] == [len(h) for h in host]
-    for a, b in zip(host, device, strict=True):
-        np.testing.assert_allclose(b.R, a.R, atol=atol, rtol=0)
-        np.testing.assert_allclose(b.t, a.t, atol=atol, rtol=0)
-        np.testing.assert_allclose(b.score, a.score, atol=atol, rtol=0)
-        assert (a.visibility is None) == (b.visibility is None)
-        if a.visibility is not None:
-            np.testing.assert_allclose(b.visibility, a.visibility, atol=atol, rtol=0)
 
 
 # ---- preprocessing -----------------------------------------------------------------------------
@@ -179,26 +159,13 @@ def _with_averaging(param: object, averaging: bool | dict) -> object:
     return param
 
 
-def _noisy_outputs(param: object, camera: Camera, batch: int, seed: int) -> torch.Tensor:
-    """Encoded random piles with noise and low-confidence cells above the threshold; image 1 holds
-    one hypothesis, image 2 none (the averaging's special cases)."""
-    gen = torch.Generator().manual_seed(seed)
-    perfect = param.encode(random_scene_batch(param.obj, camera, batch, (5, 30), gen), camera)
-    out = (perfect + 0.02 * torch.rand(perfect.shape, generator=gen)).clamp(0, 1)
-    presence = out[:, :: param.channels_per_slot]
-    presence[torch.rand(presence.shape, generator=gen) < 0.1] = 0.3
-    presence[1:3] = 0.0
-    presence[1, 0, 5, 7] = 0.9
-    return out
-
-
 @pytest.mark.parametrize("averaging", AVERAGINGS, ids=["none", "tuned", "eps0.5", "min3-mean", "min2-noise"])
-@pytest.mark.parametrize("name", ["vanilla", "eve", "ap", "z", "mp", "si"])
+@pytest.mark.parametrize("name", parameterization_names())
 @pytest.mark.parametrize("obj", ["zbracket", "pin"])  # a finite group; a revolution object (mean axis)
 def test_device_averaging_equals_the_host_on_random_outputs(obj: str, name: str, averaging: bool | dict) -> None:
     param = _with_averaging(_parameterization(name, builtin_object(obj)), averaging)
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = _noisy_outputs(param, camera, 6, seed=len(name))
+    out = noisy_outputs(param, camera, 6, seed=len(name))
     host = param.decode(out, camera)
     device = param.decode(out, camera, device_side=True)
     assert_same_hypotheses(host, device)
@@ -212,7 +179,7 @@ def test_device_averaging_equals_the_host_on_random_outputs(obj: str, name: str,
 def test_device_averaging_equals_the_host_on_a_tiny_networks_outputs(pile: list) -> None:
     """Real network outputs (a tiny network's on the rendered pile, the threshold at the median
     presence: hypotheses in half the cells), decoded with the tuned averaging and with noise dropped."""
-    system = _system(["parameterization=eve", "decoding=tuned"])
+    system = tiny_system(["parameterization=eve", "decoding=tuned"])
     batch = collate([make_sample(r, 128, fit="image") for r in pile])
     with torch.no_grad():
         out = system(batch.images)
@@ -265,7 +232,7 @@ def test_the_grid_finds_the_k_d_trees_pairs(name: str) -> None:
     obj = builtin_object(name)
     param = _with_averaging(_parameterization("eve", obj), {"eps": 3.0})
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = _noisy_outputs(param, camera, 4, seed=7)
+    out = noisy_outputs(param, camera, 4, seed=7)
     b, R, t, _, _ = param.decode_cells(out, camera)
     i, j = neighbour_pairs(param.averaging, b, R, t, 4)
     ours = {(int(x), int(y)) for x, y in zip(i, j, strict=True) if x < y}
@@ -283,7 +250,7 @@ def test_the_grid_finds_the_k_d_trees_pairs(name: str) -> None:
 
 # ---- where the system decodes ------------------------------------------------------------------
 def test_the_system_decodes_where_the_setting_says(pile: list, monkeypatch: pytest.MonkeyPatch) -> None:
-    system = _system(["parameterization=vanilla"])
+    system = tiny_system(["parameterization=vanilla"])
     assert system.device_side is False  # auto on the CPU: the host is faster there
     seen: list[bool] = []
     decode = type(system.parameterization).decode
@@ -308,7 +275,7 @@ def test_the_system_decodes_where_the_setting_says(pile: list, monkeypatch: pyte
 
 def test_predict_image_gives_the_same_poses_either_way(pile: list) -> None:
     """predict.py's preprocessing, network and decoding: on the device (here the CPU) as on the host."""
-    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
+    system = tiny_system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
     results = []
     for side in (False, True):
         system.configure_inference({"device_side": side})
@@ -328,38 +295,12 @@ def test_on_cuda_the_preprocessing_and_averaging_equal_the_host(pile: list) -> N
                                    atol=1e-5, rtol=0)
     param = _with_averaging(_parameterization("eve"), {"eps": 1.5, "cluster_score": "sum"})
     net_cam = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = _noisy_outputs(param, net_cam, 6, seed=1)
+    out = noisy_outputs(param, net_cam, 6, seed=1)
     assert_same_hypotheses(param.decode(out, net_cam), param.decode(out.cuda(), net_cam, device_side=True))
 
 
 # ---- the graphed pipeline: every shape fixed ---------------------------------------------------
-class HostTraffic(torch.overrides.TorchFunctionMode):
-    """Records what a CUDA-graph capture cannot hold: data copied between the host and the device
-    (new tensors from host data, ``.to`` / ``copy_`` across devices, values read back)."""
-
-    READ_BACK = frozenset((torch.Tensor.cpu, torch.Tensor.item, torch.Tensor.tolist, torch.Tensor.numpy,
-                           torch.Tensor.__bool__))
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.seen: list[str] = []
-
-    def __torch_function__(self, func, types, args=(), kwargs=None):
-        kwargs = kwargs or {}
-        result = func(*args, **kwargs)
-        if func in (torch.tensor, torch.from_numpy) or (func in (torch.as_tensor, torch.asarray)
-                                                         and not isinstance(args[0], torch.Tensor)):
-            self.seen.append(f"{func.__name__} of host data")
-        elif func in self.READ_BACK:
-            self.seen.append(f"Tensor.{func.__name__}")
-        elif func is torch.Tensor.to and isinstance(result, torch.Tensor) and result.device != args[0].device:
-            self.seen.append(f"Tensor.to from {args[0].device} to {result.device}")
-        elif func is torch.Tensor.copy_ and args[1].device != args[0].device:
-            self.seen.append(f"Tensor.copy_ from {args[1].device} to {args[0].device}")
-        return result
-
-
-DENSE_NAMES = ["vanilla", "eve", "ap", "mp", "si"]  # z (64 x 64 cells) below, with two settings
+DENSE_NAMES = [n for n in parameterization_names() if n != "z"]  # z (16 x 16 x 16 cells) below, with two settings
 
 
 @pytest.mark.parametrize("averaging", AVERAGINGS, ids=["none", "tuned", "eps0.5", "min3-mean", "min2-noise"])
@@ -372,7 +313,7 @@ def test_dense_decoding_equals_the_host_on_random_outputs(obj: str, name: str, a
 
     param = _with_averaging(_parameterization(name, builtin_object(obj)), averaging)
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = _noisy_outputs(param, camera, 6, seed=len(name))
+    out = noisy_outputs(param, camera, 6, seed=len(name))
     dense = DenseDecoding(param, camera, 6, "cpu")
     host = param.decode(out, camera)
     assert_same_hypotheses(host, dense.decode(out))
@@ -386,7 +327,7 @@ def test_dense_decoding_of_z_equals_the_host(averaging: dict) -> None:
 
     param = _with_averaging(_parameterization("z"), averaging)
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = _noisy_outputs(param, camera, 3, seed=1)
+    out = noisy_outputs(param, camera, 3, seed=1)
     assert_same_hypotheses(param.decode(out, camera), DenseDecoding(param, camera, 3, "cpu").decode(out))
 
 
@@ -398,7 +339,7 @@ def test_a_clustering_that_has_not_settled_is_decoded_by_the_parameterization() 
 
     param = _with_averaging(_parameterization("eve"), {"eps": 1.5, "cluster_score": "sum"})
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = _noisy_outputs(param, camera, 4, seed=2)
+    out = noisy_outputs(param, camera, 4, seed=2)
     dense = DenseDecoding(param, camera, 4, "cpu")
     dense.rounds = 0
     settled = dense(out)[1]
@@ -441,7 +382,7 @@ def test_the_graphed_pipeline_equals_predict_image(pile: list) -> None:
     hypotheses; bad input is refused as predict.py refuses it."""
     from opnet.inference import GraphedPipeline, InferenceSettings
 
-    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
+    system = tiny_system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
     system.configure_inference({"device_side": False})
     camera = pile[0].camera
     pipeline = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image")
@@ -462,33 +403,9 @@ def test_the_graphed_pipeline_equals_predict_image(pile: list) -> None:
 @pytest.mark.parametrize("formulation", ["ours", "paper"])  # 6-D orientation; Euler angles
 @pytest.mark.parametrize("name", ["vanilla", "eve", "si"])
 def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape(name: str, formulation: str) -> None:
-    """What a CUDA graph captures, checked without one: on the meta device (which holds shapes,
-    no values) the preprocessing and the decoding run, so no shape depends on the data (``nonzero``
-    and reading a value fail there), and once warm they copy nothing between host and device. (The
-    network is a stand-in of the output's shape: its head turns autocast off, which the meta device
-    does not know; its forward alone has been replayed as a CUDA graph since it was written.)"""
-    from opnet.inference import GraphedPipeline, InferenceSettings
-    from opnet.parameterizations.dense_decoding import WIDTH
-
-    system = _system([f"parameterization={name}", "decoding=tuned", f"formulation={formulation}"])
-    param = system.parameterization
-    camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)
-    pipeline = GraphedPipeline(system.backbone, InferenceSettings(), param, camera, 128)
-    pipeline.decoding = type(pipeline.decoding)(param, pipeline.net_camera, 1, "meta")
-    shape = (param.out_channels, param.grid_size, param.grid_size)
-    pipeline.forward = lambda x: torch.nn.functional.interpolate(x, size=shape[1:]).expand(-1, shape[0], -1, -1)
-    depth = torch.empty(1, 236, 300, device="meta")
-    pipeline.compute(depth)  # warm: the resize tables and the group's tensors are made on the device
-    with HostTraffic() as traffic:
-        result, output = pipeline.compute(depth)
-    assert traffic.seen == []
-    assert result.device.type == "meta" and result.shape == (pipeline.decoding.cells * WIDTH + 3,)
-    # the controls: the host's decoding and the torch averaging read values back
-    with pytest.raises(NotImplementedError), HostTraffic():
-        param.decode(output, [pipeline.net_camera])
-    with HostTraffic() as traffic:
-        param.decode(torch.rand(1, *shape), [pipeline.net_camera])
-    assert traffic.seen
+    """:func:`param_checks.assert_graph_capturable`: no shape depends on the data, nothing crosses
+    between host and device once warm."""
+    assert_graph_capturable(tiny_system([f"parameterization={name}", "decoding=tuned", f"formulation={formulation}"]))
 
 
 def test_the_compiled_pipeline_equals_the_plain_one(pile: list) -> None:
@@ -496,7 +413,7 @@ def test_the_compiled_pipeline_equals_the_plain_one(pile: list) -> None:
     the same hypotheses; a setting that is no boolean is refused naming the key."""
     from opnet.inference import GraphedPipeline, InferenceSettings
 
-    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
+    system = tiny_system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
     camera = pile[0].camera
     plain = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image")
     fused = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image",
@@ -514,7 +431,7 @@ def test_the_system_keeps_a_few_whole_image_graphs(monkeypatch: pytest.MonkeyPat
     from opnet.system import MAX_GRAPHED_CAMERAS
 
     monkeypatch.setattr(InferenceSettings, "graphed", lambda self, device: True)  # as on a GPU
-    system = _system(["parameterization=eve", "decoding=tuned"])
+    system = tiny_system(["parameterization=eve", "decoding=tuned"])
     system.configure_inference({"device_side": True})
     cameras = [Camera.from_fov(50.0, 300 + k, 236, 0.6, 1.2) for k in range(MAX_GRAPHED_CAMERAS + 2)]
     made = [system.graphed_pipeline(c, 128, "pad") for c in cameras]
@@ -523,7 +440,7 @@ def test_the_system_keeps_a_few_whole_image_graphs(monkeypatch: pytest.MonkeyPat
 
 
 def test_the_system_graphs_whole_images_only_on_a_gpu() -> None:
-    system = _system(["parameterization=eve", "decoding=tuned"])
+    system = tiny_system(["parameterization=eve", "decoding=tuned"])
     camera = Camera.from_fov(50.0, 300, 236, 0.6, 1.2)
     assert system.graphed_pipeline(camera, 128, "pad") is None  # not configured
     system.configure_inference({"device_side": True, "cuda_graph": True})
@@ -542,7 +459,7 @@ def test_on_cuda_the_graph_replays_the_pipeline(pile: list, precision: str) -> N
     """The captured graph gives what the same pipeline gives without a graph, image after image."""
     from opnet.inference import GraphedPipeline, InferenceSettings
 
-    system = _system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"]).cuda()
+    system = tiny_system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"]).cuda()
     settings = InferenceSettings(precision, True)
     camera = pile[0].camera
     graphed = GraphedPipeline(system.backbone, settings, system.parameterization, camera, 128, "image")

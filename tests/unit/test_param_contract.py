@@ -17,9 +17,10 @@ from opnet.parameterizations import GroundTruthBatch, Parameterization, VanillaP
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import SixDCodec
 from opnet.paths import config_dir
+from param_checks import assert_round_trip, parameterization_names
 
 CAMERA = Camera.from_fov(60.0, 128, 128, 0.5, 1.5)
-CONFIGS = sorted((config_dir() / "parameterization").glob("*.yaml"))
+CONFIGS = [config_dir() / "parameterization" / f"{name}.yaml" for name in parameterization_names()]
 ROTATIONS = sorted((config_dir() / "rotation").glob("*.yaml"))
 OBJECTS = ("bracket", "zbracket", "shaft", "pin")
 _OBJECT_CACHE: dict[str, object] = {}
@@ -45,26 +46,6 @@ def scenes(
     )
 
 
-def pose_errors(
-    param: Parameterization,
-    R_gt: np.ndarray,
-    t_gt: np.ndarray,
-    R_hat: np.ndarray,
-    t_hat: np.ndarray,
-):
-    """Translation (m) and rotation (rad, up to symmetry; axis angle for revolution objects) errors.
-
-    Angles from chord lengths (2 asin(chord / 2)), which stay accurate near zero, unlike acos.
-    """
-    space = param.obj.pose_space
-    R_eq = space.closest_equivalent(torch.from_numpy(R_hat), torch.from_numpy(R_gt)).numpy()
-    if space.revolution:
-        chord = np.linalg.norm(R_eq[:, :, 2] - R_hat[:, :, 2], axis=-1)
-    else:
-        chord = np.linalg.norm(R_eq - R_hat, axis=(1, 2)) / np.sqrt(2)
-    return np.linalg.norm(t_hat - t_gt, axis=1), 2 * np.arcsin(np.clip(chord / 2, 0, 1))
-
-
 def test_every_config_is_covered():
     assert {c.stem for c in CONFIGS} >= {"vanilla", "eve", "ap", "z", "mp", "si"}
 
@@ -73,25 +54,7 @@ def test_every_config_is_covered():
 @pytest.mark.parametrize("name", OBJECTS)
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
 def test_perfect_output_recovers_every_assigned_instance(config: Path, name: str, rotation: Path):
-    param = make(config, name, rotation)
-    gt = scenes(name, batch_size=3, seed=1)
-    target = param.encode(gt, CAMERA)
-    assert target.shape == (3, param.out_channels, param.grid_size, param.grid_size)
-    assert target.dtype == torch.float32 and target.min() >= 0 and target.max() <= 1
-    assigned = param.assigned(gt, CAMERA)
-    assert 0.5 * len(gt) < int(assigned.sum()) <= len(gt)
-    hyps = param.decode(target, CAMERA)
-    assert len(hyps) == 3
-    for b, h in enumerate(hyps):
-        sel = ((gt.batch_index == b) & assigned).numpy()
-        R_gt, t_gt = gt.R_cam_obj.double().numpy()[sel], gt.t_cam_obj.double().numpy()[sel]
-        assert len(h) == len(t_gt), "one hypothesis per represented instance"
-        nearest = np.linalg.norm(t_gt[:, None] - h.t[None], axis=-1).argmin(1)
-        assert len(set(nearest.tolist())) == len(t_gt)
-        dt, dr = pose_errors(param, R_gt, t_gt, h.R[nearest], h.t[nearest])
-        assert dt.max() < 1e-4 and dr.max() < 1e-4
-        np.testing.assert_allclose(h.score, 1.0)
-        np.testing.assert_allclose(h.visibility[nearest], gt.visibility.numpy()[sel], atol=1e-6)
+    assert_round_trip(make(config, name, rotation), scenes(name, batch_size=3, seed=1), CAMERA)
 
 
 @pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)

@@ -167,8 +167,7 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     presence_prior = cfg.get("presence_prior_logit")
     if presence_prior is not None and hasattr(backbone, "set_head_bias"):
         # start every slot's presence near the share of occupied cells (stabilizes early training)
-        slot_channels = [s * parameterization.channels_per_slot for s in range(parameterization.slots)]
-        backbone.set_head_bias(slot_channels, float(presence_prior))
+        backbone.set_head_bias(parameterization.presence_channels(), float(presence_prior))
     with config_group("loss"):
         loss: MultiTaskLoss = instantiate(cfg.loss)
     optim = plain(cfg.get("optim", {})) or {}

@@ -127,7 +127,7 @@ class APParameterization(MultiCellPosition, Parameterization):
             )
         self.points = torch.from_numpy(pts)  # (P, 3) float64, object frame
 
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         M, P = len(gt), len(self.points)
         pts = self.points.to(gt.R_cam_obj.device)
         world = (

@@ -7,6 +7,15 @@ instance the parameterization represents (:meth:`Parameterization.assigned`) up 
 
 Channel layout (slot-major): ``channel = slot * channels_per_slot + c`` with c indexing
 ``[p, v, x, y, z, φ1, φ2, (φ3)]``; slots are the depth slabs of Z, the pose slots of MP, else one.
+:class:`ChannelLayout` (``Parameterization.layout``) says where each quantity lies: code that
+reads or writes a channel goes through it, never through a literal index.
+
+A new parameterization subclasses :class:`Parameterization` and implements two hooks,
+:meth:`Parameterization.candidates` (which cells an instance fills, with which position channels)
+and :meth:`Parameterization.decode_position` (those position channels back to pixels and depth;
+the mixins of :mod:`opnet.parameterizations.positions` implement it for the two usual encodings).
+Optional overrides: :meth:`Parameterization.presence_mask`, :meth:`Parameterization.presence_weight`,
+``pose_weighting``, ``needs_segmentation``. docs/extending.md walks through it.
 """
 
 from __future__ import annotations
@@ -40,6 +49,42 @@ from opnet.settings_schema import OVERRIDE, TRAINING, check_settings, read_setti
 
 POSE_WEIGHTINGS = ("cubic", "linear")
 POSE_CHANNEL_NAMES = ("p", "v", "x", "y", "z")
+
+
+@dataclass(frozen=True)
+class ChannelLayout:
+    """Where each quantity lies among the ``channels`` of one slot: ``[p, v, x, y, z, rotation...]``.
+
+    Index the channel axis of one slot with these: ``grid5[:, :, layout.presence]`` of a
+    :meth:`Parameterization.split_slots` view is the (B, L, S, S) presence, ``feat[:, layout.position]``
+    of gathered feature vectors (N, channels) their (N, 3) position channels.
+
+    Attributes:
+        presence: index of p, the slot holds an object.
+        visibility: index of v, the object's visible fraction.
+        position: slice of the three position channels x, y, z.
+        rotation: slice of the rotation codec's channels.
+        channels: channels per slot; every one belongs to exactly one of the above.
+    """
+
+    presence: int
+    visibility: int
+    position: slice
+    rotation: slice
+    channels: int
+
+    def __post_init__(self) -> None:
+        every = range(self.channels)
+        used = [self.presence, self.visibility, *every[self.position], *every[self.rotation]]
+        if sorted(used) != list(every) or len(every[self.position]) != 3:
+            raise ValueError(f"{self}: each of the {self.channels} channels must belong to exactly one quantity, "
+                             "three of them to the position")
+
+    @classmethod
+    def for_rotation(cls, rotation_channels: int) -> ChannelLayout:
+        """The layout of a slot whose rotation codec writes ``rotation_channels`` channels."""
+        head = len(POSE_CHANNEL_NAMES)
+        return cls(0, 1, slice(2, head), slice(head, head + rotation_channels), head + rotation_channels)
 
 
 @dataclass
@@ -174,8 +219,10 @@ class Parameterization(abc.ABC):
 
     Attributes:
         grid_size, slots, channels_per_slot (8, or 7 for revolution objects), out_channels,
-        pose_weighting ("cubic": λ3 = 8 v³, "linear": λ3 = v), needs_segmentation, rotation (the
-        orientation codec).
+        layout (:class:`ChannelLayout` of one slot), pose_weighting ("cubic": λ3 = 8 v³, "linear":
+        λ3 = v), needs_segmentation, rotation (the orientation codec).
+
+    A subclass implements :meth:`candidates` and :meth:`decode_position` (module docstring).
     """
 
     pose_weighting: str = "cubic"
@@ -215,7 +262,8 @@ class Parameterization(abc.ABC):
                 f"rotation codec {self.rotation.name!r} was built for another symmetry than "
                 f"object {obj.name!r}'s ({obj.symmetry.kind})"
             )
-        self.channels_per_slot = 5 + self.rotation.num_channels
+        # a subclass may replace it after this __init__ with another order of the same channels
+        self.layout = ChannelLayout.for_rotation(self.rotation.num_channels)
         self.averaging = (
             PoseAveraging(obj.pose_space, averaging_eps, averaging_min_samples, averaging_score)
             if averaging
@@ -224,15 +272,31 @@ class Parameterization(abc.ABC):
 
     # ---- layout ------------------------------------------------------------------------------
     @property
+    def channels_per_slot(self) -> int:
+        return self.layout.channels
+
+    @property
     def out_channels(self) -> int:
         return self.slots * self.channels_per_slot
 
     def channel_layout(self) -> list[str]:
         """Name of every output channel, e.g. "p", "phi2" (one slot) or "p[1]" (several slots)."""
-        names = POSE_CHANNEL_NAMES + tuple(self.rotation.channel_names)
+        lay, names = self.layout, [""] * self.layout.channels
+        names[lay.presence], names[lay.visibility] = POSE_CHANNEL_NAMES[:2]
+        names[lay.position], names[lay.rotation] = POSE_CHANNEL_NAMES[2:], self.rotation.channel_names
         if self.slots == 1:
             return list(names)
         return [f"{name}[{slot}]" for slot in range(self.slots) for name in names]
+
+    @property
+    def name(self) -> str:
+        """The config name: ``conf/parameterization/<name>.yaml`` of class ``<Name>Parameterization``
+        (``VanillaParameterization`` -> ``vanilla``); recorded in exports."""
+        return type(self).__name__.removesuffix("Parameterization").lower()
+
+    def presence_channels(self) -> list[int]:
+        """The flat output channel of each slot's presence (slot-major)."""
+        return [slot * self.channels_per_slot + self.layout.presence for slot in range(self.slots)]
 
     def split_slots(self, tensor: torch.Tensor) -> torch.Tensor:
         """(B, out_channels, S, S) -> (B, slots, channels_per_slot, S, S) view."""
@@ -256,12 +320,12 @@ class Parameterization(abc.ABC):
             (B, out_channels, S, S) float32 in [0, 1]; cells without an object are all zero.
         """
         winners = self._assign(gt, camera)
-        angles = self.rotation.encode(gt.R_cam_obj[winners.index])  # (W, rotation channels)
-        ones = torch.ones_like(winners.priority)[:, None]
-        values = torch.cat(
-            (ones, gt.visibility[winners.index, None].double(), winners.position, angles), 1
-        )
-        S, L, C = self.grid_size, self.slots, self.channels_per_slot
+        S, L, C, lay = self.grid_size, self.slots, self.channels_per_slot, self.layout
+        values = torch.zeros(len(winners.index), C, dtype=torch.float64, device=gt.t_cam_obj.device)
+        values[:, lay.presence] = 1.0
+        values[:, lay.visibility] = gt.visibility[winners.index].double()
+        values[:, lay.position] = winners.position
+        values[:, lay.rotation] = self.rotation.encode(gt.R_cam_obj[winners.index])
         target = torch.zeros(
             gt.batch_size * L * S * S, C, dtype=torch.float32, device=gt.t_cam_obj.device
         )
@@ -299,14 +363,25 @@ class Parameterization(abc.ABC):
     def _assign(self, gt: GroundTruthBatch, camera: Camera | Sequence[Camera]) -> Candidates:
         cams = CameraBatch.of(camera, gt.batch_size, gt.t_cam_obj.device)
         proj = project_origins(gt.t_cam_obj, gt.batch_index, cams)
-        candidates = self._candidates(gt, proj)
+        candidates = self.candidates(gt, proj)
         if self.min_target_visibility > 0:  # parts hidden this deeply are no target: nothing shows them
             candidates = candidates.select(gt.visibility[candidates.index] >= self.min_target_visibility)
         return resolve(candidates)
 
     @abc.abstractmethod
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
-        """The (instance, cell) pairs this variant would fill, with priorities and positions."""
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+        """The (instance, cell) pairs this variant would fill (hook of every parameterization).
+
+        Args:
+            gt: the batch's ground truth (M instances).
+            proj: their origins projected by their image's camera (:func:`project_origins`).
+        Returns:
+            ``Candidates(index, cell, priority, position)``: for each of K proposals the instance
+            (K,) long, its flat cell in the (B, slots, S, S) grid (:func:`~opnet.parameterizations.assignment.flat_cell`),
+            a priority (K,) float64 (the highest wins a cell contested by several instances;
+            :data:`~opnet.parameterizations.assignment.ORIGIN_PRIORITY` marks an origin cell)
+            and the (K, 3) float64 position channels in [0, 1] that :meth:`decode_position` reads back.
+        """
 
     # ---- decoding ----------------------------------------------------------------------------
     def decode(
@@ -344,17 +419,33 @@ class Parameterization(abc.ABC):
         index (N,) long (sorted), R (N, 3, 3), t (N, 3) metres, score (N,), visibility (N,) float64."""
         grid5 = self.split_slots(output.detach())  # (B, L, C, S, S)
         B = grid5.shape[0]
-        present = self._present(grid5[:, :, 0])
-        if self.min_visibility > 0:  # heavily occluded parts need not be found and are poorly posed
-            present = present & (grid5[:, :, 1] >= self.min_visibility)
-        b, slot, row, col = present.nonzero(as_tuple=True)
+        b, slot, row, col = self.cells_to_decode(grid5).nonzero(as_tuple=True)
         feat = grid5.permute(0, 1, 3, 4, 2)[b, slot, row, col].to(torch.float64)  # (N, C)
         cams = CameraBatch.of(camera, B, output.device).take(b)
-        t = self.decode_translations(feat[:, 2:5], (slot, row, col), cams)
-        R = self.rotation.decode(feat[:, 5:])
-        p_hat, v_hat = feat[:, 0], feat[:, 1]
-        score = {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[self.score]
+        t, R = self.decode_poses(feat, (slot, row, col), cams)
+        score, v_hat = self.hypothesis_scores(feat)
         return b, R, t, score, v_hat
+
+    def cells_to_decode(self, grid5: torch.Tensor) -> torch.Tensor:
+        """(B, slots, C, S, S) output -> (B, slots, S, S) bool: :meth:`presence_mask`, and the
+        predicted visibility at least ``min_visibility``."""
+        present = self.presence_mask(grid5[:, :, self.layout.presence])
+        if self.min_visibility > 0:  # heavily occluded parts need not be found and are poorly posed
+            present = present & (grid5[:, :, self.layout.visibility] >= self.min_visibility)
+        return present
+
+    def decode_poses(
+        self, feat: torch.Tensor, cells: CellIndex, cams: CameraBatch
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The poses of feature vectors (N, C) float64 of cells (slot, row, col) seen by ``cams``:
+        t (N, 3) metres, camera frame, and R (N, 3, 3)."""
+        t = self.decode_translations(feat[:, self.layout.position], cells, cams)
+        return t, self.rotation.decode(feat[:, self.layout.rotation])
+
+    def hypothesis_scores(self, feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Score (N,) (``score``: p̂, p̂ v̂ or v̂) and predicted visibility (N,) of feature vectors (N, C)."""
+        p_hat, v_hat = feat[:, self.layout.presence], feat[:, self.layout.visibility]
+        return {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[self.score], v_hat
 
     def _decode_on_device(self, b: torch.Tensor, R: torch.Tensor, t: torch.Tensor, score: torch.Tensor,
                           v_hat: torch.Tensor, B: int) -> list[HypothesisSet]:  # fmt: skip
@@ -394,8 +485,9 @@ class Parameterization(abc.ABC):
             new.averaging = dataclasses.replace(self.averaging or PoseAveraging(self.obj.pose_space), **changes)
         return new
 
-    def _present(self, presence: torch.Tensor) -> torch.Tensor:
-        """(B, slots, S, S) presence channel -> bool mask of the cells/slots to decode."""
+    def presence_mask(self, presence: torch.Tensor) -> torch.Tensor:
+        """(B, slots, S, S) presence channel -> bool mask of the cells/slots to decode (above the
+        threshold; a parameterization whose slots depend on each other overrides it, as MP does)."""
         return presence > self.threshold
 
     def decode_translations(
@@ -410,15 +502,18 @@ class Parameterization(abc.ABC):
         Returns:
             (N, 3) float64 metres, camera frame.
         """
-        u, v, z_norm = self._decode_position(position, cells, cams)
+        u, v, z_norm = self.decode_position(position, cells, cams)
         return cams.backproject(u, v, cams.denormalize_depth(z_norm))
 
     @abc.abstractmethod
-    def _decode_position(
+    def decode_position(
         self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
     ) -> DecodedPosition:
         """Position channels (N, 3) of cells (slot, row, col) -> u, v (N,) pixels, normalized
-        depth (N,)."""
+        depth (N,) (hook of every parameterization: the inverse of the positions :meth:`candidates`
+        writes; differentiable, the loss and the exported graph run it; inherit it from
+        :class:`~opnet.parameterizations.positions.CellRelativePosition` or
+        :class:`~opnet.parameterizations.positions.MultiCellPosition` where one fits)."""
 
     def decode_rotations(self, output: torch.Tensor) -> torch.Tensor:
         """Per-cell rotations decoded from the angle channels (differentiable, for the loss).
@@ -428,7 +523,7 @@ class Parameterization(abc.ABC):
         Returns:
             (B, slots, S, S, 3, 3) rotations, camera frame (spin-free for revolution objects).
         """
-        angles = self.split_slots(output)[:, :, 5:].permute(0, 1, 3, 4, 2)  # (B, L, S, S, A)
+        angles = self.split_slots(output)[:, :, self.layout.rotation].permute(0, 1, 3, 4, 2)  # (B, L, S, S, A)
         return self.rotation.decode(angles)
 
     # ---- loss weights ------------------------------------------------------------------------
@@ -438,4 +533,4 @@ class Parameterization(abc.ABC):
 
     def presence_weight(self, target: torch.Tensor) -> torch.Tensor:
         """(B, slots, S, S) weight of the presence term per cell/slot (ones by default)."""
-        return torch.ones_like(self.split_slots(target)[:, :, 0])
+        return torch.ones_like(self.split_slots(target)[:, :, self.layout.presence])

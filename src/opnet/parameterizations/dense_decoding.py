@@ -134,15 +134,10 @@ class DenseDecoding:
         param = self.param
         B, N = self.batch, self.cells
         grid5 = param.split_slots(output.detach())
-        present = param._present(grid5[:, :, 0])
-        if param.min_visibility > 0:
-            present = present & (grid5[:, :, 1] >= param.min_visibility)
-        present = present.reshape(B, N)
+        present = param.cells_to_decode(grid5).reshape(B, N)
         feat = grid5.permute(0, 1, 3, 4, 2).reshape(B * N, -1).to(torch.float64)
-        t = param.decode_translations(feat[:, 2:5], (self.slot, self.row, self.col), self.cams)
-        R = param.rotation.decode(feat[:, 5:])
-        p_hat, v_hat = feat[:, 0], feat[:, 1]
-        score = {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[param.score]
+        t, R = param.decode_poses(feat, (self.slot, self.row, self.col), self.cams)
+        score, v_hat = param.hypothesis_scores(feat)
         R, t, score, v_hat = R.reshape(B, N, 3, 3), t.reshape(B, N, 3), score.reshape(B, N), v_hat.reshape(B, N)
         if self.averaging is None:
             ones = present.to(torch.float64)

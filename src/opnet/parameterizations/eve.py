@@ -47,7 +47,7 @@ class EVEParameterization(MultiCellPosition, Parameterization):
         super().__init__(obj, grid, averaging=averaging, **kwargs)
         self.border = float(border)
 
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         cells = proj.cells(self.grid_size)
         steps = torch.tensor([-1, 0, 1], device=cells.row.device)
         # allowed moves per axis: (M, 3) for steps -1, 0, +1

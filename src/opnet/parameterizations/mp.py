@@ -41,7 +41,7 @@ class MPParameterization(CellRelativePosition, Parameterization):
         super().__init__(obj, grid, slots=slots, **kwargs)
         self.conditional_presence_loss = bool(conditional_presence_loss)
 
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         cells = proj.cells(self.grid_size)
         idx = torch.nonzero(cells.inside & proj.in_range)[:, 0]
         base_cell = flat_cell(
@@ -56,13 +56,14 @@ class MPParameterization(CellRelativePosition, Parameterization):
         position = torch.stack((cells.x, cells.y, proj.z_norm), -1)[idx]  # (K, 3)
         return Candidates(idx, cell, gt.visibility[idx].double(), position)
 
-    def _present(self, presence: torch.Tensor) -> torch.Tensor:
+    def presence_mask(self, presence: torch.Tensor) -> torch.Tensor:
         """Slot l+1 counts only where slots 1..l are present: (B, P, S, S) -> bool."""
         return torch.cummin((presence > self.threshold).to(torch.uint8), dim=1).values.bool()
 
     def presence_weight(self, target: torch.Tensor) -> torch.Tensor:
         """(B, P, S, S): ones, or (conditional_presence_loss) the GT presence of the slot before."""
-        weight = torch.ones_like(self.split_slots(target)[:, :, 0])
+        presence = self.split_slots(target)[:, :, self.layout.presence]
+        weight = torch.ones_like(presence)
         if self.conditional_presence_loss:
-            weight[:, 1:] = self.split_slots(target)[:, :-1, 0]
+            weight[:, 1:] = presence[:, :-1]
         return weight

@@ -207,7 +207,7 @@ class CellRelativePosition:
 
     grid_size: int
 
-    def _decode_position(
+    def decode_position(
         self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
     ) -> DecodedPosition:
         """Position channels (N, 3) of cells -> u, v (N,) pixels, normalized depth (N,)."""
@@ -286,7 +286,7 @@ class MultiCellPosition:
         ok = proj.in_range[index] & in_unit_interval(x, y)
         return torch.stack((x, y, proj.z_norm[index]), -1), ok
 
-    def _decode_position(
+    def decode_position(
         self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
     ) -> DecodedPosition:
         """Position channels (N, 3) -> u (N,), v (N,) pixels, normalized depth (N,)."""

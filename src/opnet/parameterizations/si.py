@@ -47,7 +47,7 @@ class SIParameterization(MultiCellPosition, Parameterization):
         self._set_position_mode(position)
         super().__init__(obj, grid, averaging=averaging, **kwargs)
 
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         if gt.segmentation is None:
             raise ValueError(
                 "si: GroundTruthBatch.segmentation is None; the SI parameterization needs "

@@ -31,7 +31,7 @@ class VanillaParameterization(CellRelativePosition, Parameterization):
     def __init__(self, obj: ObjectModel, grid: int = 16, **kwargs: Any) -> None:
         super().__init__(obj, grid, **kwargs)
 
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         cells = proj.cells(self.grid_size)
         idx = torch.nonzero(cells.inside & proj.in_range)[:, 0]
         cell = flat_cell(

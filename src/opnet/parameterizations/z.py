@@ -39,7 +39,7 @@ class ZParameterization(Parameterization):
     ) -> None:
         super().__init__(obj, grid, slots=depth_slabs, **kwargs)
 
-    def _candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
+    def candidates(self, gt: GroundTruthBatch, proj: ObjectProjection) -> Candidates:
         cells = proj.cells(self.grid_size)
         idx = torch.nonzero(cells.inside & proj.in_range)[:, 0]
         z_slabs = proj.z_norm[idx] * self.slots
@@ -52,7 +52,7 @@ class ZParameterization(Parameterization):
         position = torch.stack((cells.x[idx], cells.y[idx], z_slabs - slab), -1)  # (K, 3)
         return Candidates(idx, cell, gt.visibility[idx].double(), position)
 
-    def _decode_position(
+    def decode_position(
         self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch
     ) -> DecodedPosition:
         slot, row, col = cells

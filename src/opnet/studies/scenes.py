@@ -99,7 +99,7 @@ def noisy_setup(name: str, model_name: str, obj: object, net_cam: Camera, device
     gt = random_scene_batch(obj, net_cam, 1, 25, torch.Generator().manual_seed(0))
     perfect = param.encode(gt, net_cam)
     noisy = (perfect + 0.01 * torch.rand_like(perfect)).clamp(0, 1)
-    presence = noisy[:, :: param.channels_per_slot]
+    presence = param.split_slots(noisy)[:, :, param.layout.presence]  # a view: writes reach noisy
     presence[torch.rand_like(presence) < 0.15] = 0.2  # low-confidence cells above tau
     return param, model, noisy
 

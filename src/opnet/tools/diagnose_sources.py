@@ -83,10 +83,9 @@ def cell_hypotheses(param: Any, out: torch.Tensor, cams: list[Any], cell: torch.
     b, slot, row, col = cell // (L * S * S), (cell // (S * S)) % L, (cell // S) % S, cell % S
     feat = param.split_slots(out).permute(0, 1, 3, 4, 2)[b, slot, row, col].double()
     batch_cams = CameraBatch.of(cams, out.shape[0], out.device).take(b)
-    t = param.decode_translations(feat[:, 2:5], (slot, row, col), batch_cams)
-    R = param.rotation.decode(feat[:, 5:])
-    score = {"p": feat[:, 0], "p*v": feat[:, 0] * feat[:, 1], "v": feat[:, 1]}[param.score]
-    return {"p": feat[:, 0], "score": score, "t": t, "R": R}
+    t, R = param.decode_poses(feat, (slot, row, col), batch_cams)
+    score, _ = param.hypothesis_scores(feat)
+    return {"p": feat[:, param.layout.presence], "score": score, "t": t, "R": R}
 
 
 def shows_instance(gt: Any, index: torch.Tensor, cell: torch.Tensor, grid: int, slots: int) -> np.ndarray:
@@ -122,7 +121,7 @@ def cell_table(rec: dict[str, Any]) -> list[dict[str, Any]]:
         cols["r_deg"].append(rotation_errors_deg(hyp["R"].numpy(), R_gt.numpy(), space))
         cols["within"].append((space.distance(hyp["R"], hyp["t"], R_gt, t_gt) <= delta).numpy())
         cols["shows"].append(shows_instance(gt, index, bt["cell"], param.grid_size, param.slots))
-        presence = param.split_slots(bt["out"])[:, :, 0].reshape(-1)
+        presence = param.split_slots(bt["out"])[:, :, param.layout.presence].reshape(-1)
         targeted = torch.zeros_like(presence, dtype=torch.bool)
         targeted[bt["cell"]] = True
         fired = (presence > param.threshold) & ~targeted
@@ -166,9 +165,10 @@ def decode_variants(rec: dict[str, Any]) -> list[dict[str, Any]]:
             out = bt["out"]
             if drop_origin is not None:  # silence the target cells of one source
                 grid5 = param.split_slots(out).clone()  # (B, L, C, S, S)
-                presence = grid5[:, :, 0].reshape(-1)
+                p = param.layout.presence
+                presence = grid5[:, :, p].reshape(-1)
                 presence[bt["cell"][bt["origin"] == drop_origin]] = 0.0
-                grid5[:, :, 0] = presence.reshape(grid5[:, :, 0].shape)
+                grid5[:, :, p] = presence.reshape(grid5[:, :, p].shape)
                 out = grid5.reshape(out.shape)
             for h, g, scene in zip(decoder.decode(out, bt["cams"]), bt["gt_sets"], bt["names"], strict=True):
                 scenes[scene] = (g, h)
