@@ -45,7 +45,7 @@ def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]
     from opnet.data.preprocess import to_network_input
     from opnet.data.roi import crop_image
     from opnet.geometry.camera import with_clip, working_clip
-    from opnet.geometry.icp import Refiner, refine_config
+    from opnet.refine import Refiner, refine_config
 
     system, _ = load_checkpoint(ckpt)
     system.configure_inference(None)

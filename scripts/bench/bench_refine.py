@@ -4,7 +4,7 @@ The network runs once over the split (its hypotheses and the scenes' depth image
 ``--cache``, so further variants skip it); each variant of ``conf/refine/search.yaml`` (``--variant
 LABEL:icp.KEY=VALUE,search.KEY=VALUE``, or another group of ``conf/refine/``: ``--refine NAME``) then
 refines every frame, timed per frame and per stage
-(:data:`opnet.geometry.icp.STAGES`). Printed: AP (Brégier, max occlusion 0.5), found share,
+(:data:`opnet.refine.STAGES`). Printed: AP (Brégier, max occlusion 0.5), found share,
 milliseconds per frame (mean, median, worst) and by stage, and the wall time's CPU share (a
 loaded machine shows there). Target for the plate frames: at most 300 ms per frame on 2 cores.
 
@@ -33,8 +33,8 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
-from opnet.geometry.icp import STAGES, Refiner, settings_from_config
 from opnet.paths import REPO_ROOT
+from opnet.refine import STAGES, Refiner, settings_from_config
 from opnet.studies.refinement import key_values, refine_variant, score_refined
 from opnet.studies.results import cpu_model
 

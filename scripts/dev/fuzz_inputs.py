@@ -1131,7 +1131,7 @@ def input_cases(ws: Path, extra: dict[str, Path]) -> list[Case]:
     from opnet.datasets.camera_file import read_camera_file
     from opnet.datasets.depth_inputs import given_camera, load_depth_image
     from opnet.geometry.camera import Camera
-    from opnet.geometry.icp import settings_from_config
+    from opnet.refine import settings_from_config
 
     folder = ws / "cases" / "inputs"
     folder.mkdir(parents=True, exist_ok=True)

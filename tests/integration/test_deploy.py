@@ -19,28 +19,23 @@ from opnet.cli import export as export_cli
 from opnet.cli.build import build_components, load_checkpoint
 from opnet.data.preprocess import to_network_input
 from opnet.datasets.ipa import IPADataset
-from opnet.deploy.export import export_onnx, max_abs_difference, reference_outputs
-from opnet.geometry.icp import ICPSettings
+from opnet.deploy.export import export_onnx
 from opnet.geometry.pose_numpy import closest_equivalent, pose_distance
 from opnet.objects import builtin_object
 from opnet.paths import REPO_ROOT
+from param_checks import assert_export_matches, parameterization_names
+from opnet.refine import ICPSettings
 
 pytest.importorskip("onnxruntime")
 from opnet.deploy.runtime import OnnxPoseEstimator  # noqa: E402
 
 
-@pytest.mark.parametrize("param", ["vanilla", "eve", "ap", "z", "mp", "si"])
+@pytest.mark.parametrize("param", parameterization_names())
 def test_every_parameterization_exports_and_matches_pytorch(param: str, tmp_path: Path) -> None:
     cfg = compose_cfg("train", ["model=tiny", "object=zbracket", f"parameterization={param}"])
     system = build_components(cfg).system.eval()
-    out = tmp_path / f"{param}.onnx"
-    meta = export_onnx(system, cfg, Path("none.ckpt"), out)
+    meta = assert_export_matches(system, cfg, tmp_path / f"{param}.onnx")
     assert meta["parameterization"] == param
-    est = OnnxPoseEstimator(out)
-    images, cams = export_cli.synthetic_inputs(meta["input"]["size"], n=3)
-    diff = max_abs_difference(est.run(images, cams), reference_outputs(system, images, cams))
-    assert diff["presence"] < 1e-5 and diff["visibility"] < 1e-5, diff
-    assert diff["translation"] < 1e-5, diff  # metres
 
 
 def _export_with_hypotheses(checkpoint: Path, out: Path) -> tuple[object, Path]:
@@ -199,7 +194,7 @@ def test_deploy_command_line_without_torch(checkpoint: Path, tiny_dataset: Path,
 
 def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpoint: Path, tiny_dataset: Path,
                                                                          tmp_path: Path) -> None:
-    from opnet.geometry.icp import Refiner
+    from opnet.refine import Refiner
 
     system, onnx_path = _export_with_hypotheses(checkpoint, tmp_path / "model.onnx")
     settings = ICPSettings(budget_ms=None)
@@ -222,7 +217,7 @@ def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpo
                           "--icp-budget-ms", "5"], capture_output=True, text=True, cwd=REPO_ROOT)
     assert bad.returncode == 2 and bad.stderr.strip() == "error: --icp-budget-ms is a setting of --icp, --search or --search-fast, none is given"
     # the depth-agreement search: the runtime refines and re-scores as eval.py's refine=search does
-    from opnet.geometry.search import SearchSettings
+    from opnet.refine import SearchSettings
 
     searching = ICPSettings(budget_ms=None, search=SearchSettings(turn_step_deg=30.0, shift=0.04))
     expected, status = Refiner.for_object(system.parameterization.obj, searching)(h0, record.depth, record.camera)

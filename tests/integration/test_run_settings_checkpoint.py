@@ -140,7 +140,7 @@ def test_the_export_carries_the_recorded_refinement_and_the_runtime_runs_it(chec
     pytest.importorskip("onnxruntime")
     from opnet.deploy.__main__ import main as deploy_main
     from opnet.deploy.runtime import OnnxPoseEstimator, recorded_refinement
-    from opnet.geometry.icp import refine_config, settings_from_config
+    from opnet.refine import refine_config, settings_from_config
 
     ckpt = read_checkpoint(checkpoint)
     ckpt[CHECKPOINT_KEY]["refine"] = "search_fast"

@@ -1,4 +1,4 @@
-"""Point-to-plane ICP (opnet.geometry.icp) against depth images rendered by the real renderer: it
+"""Point-to-plane ICP (opnet.refine) against depth images rendered by the real renderer: it
 improves perturbed poses, keeps a symmetric part's pose on the twin it started from, and skips or
 rejects what it cannot refine."""
 
@@ -9,17 +9,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from opnet.geometry.camera import Camera
-from opnet.geometry.icp import (
-    ICPSettings,
-    ModelCloud,
-    SceneCloud,
-    _rotation,
-    refine_hypotheses,
-    refine_pose,
-    rotation_change_deg,
-)
-from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.geometry.pose_numpy import PoseSpaceArrays, rotation_change_deg
 from opnet.objects import builtin_object
+from opnet.refine import ICPSettings, ModelCloud, SceneCloud, refine_hypotheses, refine_pose
+from opnet.refine.icp import _rotation
 from opnet.synthesis.layout import homogeneous
 from opnet.synthesis.rendering import SceneRenderer
 

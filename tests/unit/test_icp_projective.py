@@ -1,4 +1,4 @@
-"""Projective ICP and the batched search (opnet.geometry.icp, opnet.geometry.search) against depth images
+"""Projective ICP and the batched search (opnet.refine.associations, opnet.refine.search) against depth images
 rendered by the real renderer: projective correspondences bring perturbed poses back like nearest-point
 ones, a batch gives each pose what it would get alone, and the image-window neighbourhood is the ball a
 k-d tree returns."""
@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 from test_icp import CAM, T_GT, _perturbed, _setup, assert_brought_back
 
-from opnet.geometry.icp import (
+from opnet.refine import (
     ICPSettings,
     SceneCloud,
+    SearchSettings,
     refine_pose,
     refine_poses_nearest,
     refine_poses_projective,
 )
-from opnet.geometry.search import SearchSettings, model_axis, search_pose, search_poses
+from opnet.refine.search import model_axis, search_pose, search_poses
 
 
 @pytest.mark.parametrize("name", ["bracket", "shaft", "zbracket"])

@@ -243,7 +243,7 @@ def test_a_recorded_refinement_is_its_group_as_hydra_composes_it(name: str) -> N
     from conftest import compose_cfg
     from omegaconf import OmegaConf
 
-    from opnet.geometry.icp import model_refinement, refine_config, settings_from_config
+    from opnet.refine import model_refinement, refine_config, settings_from_config
 
     composed = OmegaConf.to_container(compose_cfg("eval", ["ckpt=x", f"refine={name}"]).refine, resolve=True)
     assert refine_config(name) == composed

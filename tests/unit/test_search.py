@@ -1,4 +1,4 @@
-"""The depth-agreement search (opnet.geometry.search) against depth rendered by the real renderer: a
+"""The depth-agreement search (opnet.refine.search) against depth rendered by the real renderer: a
 flat T-plate turned half a revolution about its normal and slid along its plane -- a pose ICP keeps,
 since its surface fits the plane -- is brought back by the search, which ranks it by its agreement;
 the search never leaves a right pose; bad settings are one clear error."""
@@ -12,19 +12,21 @@ import pytest
 import trimesh
 
 from opnet.geometry.camera import Camera
-from opnet.geometry.icp import (
+from opnet.geometry.pose_numpy import PoseSpaceArrays
+from opnet.objects.model import ObjectModel
+from opnet.refine import (
     ICPSettings,
     ModelCloud,
     SceneCloud,
-    _rotation,
+    SearchSettings,
     model_refinement,
     refine_hypotheses,
     refine_pose,
     settings_from_config,
 )
-from opnet.geometry.pose_numpy import PoseSpaceArrays
-from opnet.geometry.search import SearchSettings, agreement, model_axis, pose_agreement, search_pose
-from opnet.objects.model import ObjectModel
+from opnet.refine.agreement import agreement, pose_agreement
+from opnet.refine.icp import _rotation
+from opnet.refine.search import model_axis, search_pose
 from opnet.synthesis.layout import homogeneous
 from opnet.synthesis.rendering import SceneRenderer
 
@@ -155,8 +157,8 @@ def test_search_config_reads_into_settings() -> None:
 
 
 def test_searches_that_end_on_one_pose_leave_one_hypothesis(plate_scene) -> None:
-    from opnet.geometry.icp import refine_image
     from opnet.metrics.records import HypothesisSet
+    from opnet.refine import refine_image
 
     obj, R_gt, depth, model, space = plate_scene
     poses = [_turned(R_gt, 180.0, (5.0, 5.0)), _turned(R_gt, 20.0, (-6.0, 0.0)), _turned(R_gt, 90.0, (0.0, 7.0))]
@@ -170,16 +172,6 @@ def test_searches_that_end_on_one_pose_leave_one_hypothesis(plate_scene) -> None
     assert status == ["searched"] * 3 and len(kept.t) == 3  # suppress 0 and merge 0: every hypothesis kept
 
 
-def test_the_runtimes_search_settings_are_the_configs() -> None:
-    from omegaconf import OmegaConf
-
-    from opnet.geometry.icp import search_settings
-    from opnet.paths import REPO_ROOT
-
-    conf = settings_from_config(OmegaConf.load(REPO_ROOT / "conf" / "refine" / "search.yaml"))
-    assert conf == search_settings(budget_ms=None)
-
-
 @pytest.mark.parametrize(("coarse", "fine"), [(1, "grid"), (3, "grid"), (3, "local")])
 def test_the_whole_grid_and_coarse_to_fine_find_the_same_pose(plate_scene, coarse: int, fine: str) -> None:
     obj, R_gt, depth, model, _ = plate_scene
@@ -191,7 +183,7 @@ def test_the_whole_grid_and_coarse_to_fine_find_the_same_pose(plate_scene, coars
 
 
 def test_hypotheses_near_a_better_ones_origin_are_merged_before_the_search() -> None:
-    from opnet.geometry.icp import _merged
+    from opnet.refine.pipeline import _merged
 
     t = np.array([[0.0, 0.0, 1.0], [0.005, 0.0, 1.0], [0.05, 0.0, 1.0], [0.004, 0.006, 1.0]])
     score = np.array([0.2, 0.9, 0.5, 0.1])
@@ -230,7 +222,7 @@ def test_every_refine_option_composes_to_settings_and_search_fast_is_search_with
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         for path in sorted((REPO_ROOT / "conf" / "refine").glob("*.yaml")):
             group = compose(config_name="eval", overrides=[f"refine={path.stem}"]).refine
-            # refine=model: the checkpoint's own (opnet.geometry.icp.model_refinement), none for one recording none
+            # refine=model: the checkpoint's own (opnet.refine.model_refinement), none for one recording none
             settings[path.stem] = settings_from_config(model_refinement(group, None)[0])
     assert {"none", "icp", "search", "search_fast", "model"} <= set(settings) and settings["none"] is None
     assert settings["model"] is None
@@ -238,15 +230,12 @@ def test_every_refine_option_composes_to_settings_and_search_fast_is_search_with
     changed = {f.name for f in dataclasses.fields(full) if getattr(full, f.name) != getattr(fast, f.name)}
     assert changed == {"association", "polish_association", "iterations", "min_gain"}
     assert (fast.association, fast.polish_association) == ("projective", "nearest") and fast.search == full.search
-    from opnet.geometry.icp import search_settings
-
-    assert fast == search_settings(fast=True) and full == search_settings()  # the runtime's, which reads no config
 
 
 @pytest.mark.parametrize("threads", [2, 3])
 def test_threads_share_an_images_hypotheses_and_change_no_result(plate_scene, threads: int) -> None:
-    from opnet.geometry.icp import refine_image
     from opnet.metrics.records import HypothesisSet
+    from opnet.refine import refine_image
 
     _, R_gt, depth, model, space = plate_scene
     poses = [_turned(R_gt, a, s) for a, s in ((180.0, (5.0, 5.0)), (20.0, (-6.0, 0.0)), (90.0, (0.0, 7.0)),

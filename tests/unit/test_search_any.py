@@ -9,19 +9,13 @@ import pytest
 import trimesh
 
 from opnet.geometry.camera import Camera
-from opnet.geometry.icp import ICPSettings, ModelCloud, _rotation, refine_image
 from opnet.geometry.pose_numpy import PoseSpaceArrays, pose_distance
-from opnet.geometry.search import (
-    SearchSettings,
-    ambiguity_turns,
-    is_flat,
-    resolve_mode,
-    search_any,
-    search_any_many,
-)
 from opnet.metrics.records import HypothesisSet
 from opnet.objects.library import builtin_object
 from opnet.objects.model import ObjectModel
+from opnet.refine import ICPSettings, ModelCloud, SearchSettings, refine_image
+from opnet.refine.icp import _rotation
+from opnet.refine.search import ambiguity_turns, is_flat, resolve_mode, search_any, search_any_many
 from opnet.synthesis.layout import homogeneous
 from opnet.synthesis.rendering import SceneRenderer
 

@@ -36,8 +36,8 @@ from omegaconf import OmegaConf
 from opnet.cli.build import build_datamodule, load_checkpoint
 from opnet.cli.eval import refine_scenes, with_decoding_overrides
 from opnet.evaluation import predict_scenes
-from opnet.geometry.icp import ICPSettings, settings_from_config
 from opnet.paths import REPO_ROOT
+from opnet.refine import ICPSettings, settings_from_config
 from opnet.studies.refinement import key_values, refine_variant, score_refined
 
 

@@ -21,7 +21,10 @@ from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
 from opnet.evaluation import OnScenes, Scenes, evaluate, scoring
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
-from opnet.geometry.icp import (
+from opnet.metrics.breakdown import error_breakdown
+from opnet.metrics.diagnostics import orientation_misses
+from opnet.metrics.records import GroundTruthSet, HypothesisSet
+from opnet.refine import (
     STAGES,
     STATUSES,
     ICPSettings,
@@ -29,9 +32,6 @@ from opnet.geometry.icp import (
     model_refinement,
     settings_from_config,
 )
-from opnet.metrics.breakdown import error_breakdown
-from opnet.metrics.diagnostics import orientation_misses
-from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.run_settings import InputSettings
 from opnet.settings_schema import SettingError
 from opnet.system import OPNetSystem
@@ -47,7 +47,7 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
     result writers, the AP, the diagnostics and the turns of the orientation misses as its evaluators).
 
     Args:
-        icp: refine every hypothesis against its scene's depth image (:mod:`opnet.geometry.icp`);
+        icp: refine every hypothesis against its scene's depth image (:mod:`opnet.refine`);
             None: the network's poses as decoded.
     Returns the summary dict (ap, map, f1, recall_at_p50, recall_at_p99, per_scene, ...).
     """

@@ -60,8 +60,8 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import write_bytes_atomic
 from opnet.geometry.camera import describe_clip, with_clip, working_clip
-from opnet.geometry.icp import Refiner
 from opnet.metrics.records import HypothesisSet
+from opnet.refine import Refiner
 from opnet.system import OPNetSystem
 from opnet.visualize import draw_models
 

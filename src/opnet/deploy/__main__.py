@@ -36,7 +36,7 @@ from opnet.datasets.depth_inputs import (
 )
 from opnet.fileio.atomic import DiskFullError
 from opnet.geometry.camera import describe_clip, parse_clip
-from opnet.geometry.icp import ICPSettings
+from opnet.refine import ICPSettings
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -64,14 +64,16 @@ class DenseDecodingNetwork(torch.nn.Module):
         feat = out.reshape(B, L, C, S, S).permute(0, 1, 3, 4, 2).reshape(B * N, C).to(torch.float64)
         cams = CameraBatch(camera.to(torch.float64)[:, None, :].expand(B, N, 8).reshape(B * N, 8))
         cells = (self.slot.repeat(B), self.row.repeat(B), self.col.repeat(B))
-        t = self.param.decode_translations(feat[:, 2:5], cells, cams)
-        R = self.param.rotation.decode(feat[:, 5:])
-        return feat[:, 0].reshape(B, N), feat[:, 1].reshape(B, N), t.reshape(B, N, 3), R.reshape(B, N, 3, 3)
+        t, R = self.param.decode_poses(feat, cells, cams)
+        lay = self.param.layout
+        return (feat[:, lay.presence].reshape(B, N), feat[:, lay.visibility].reshape(B, N), t.reshape(B, N, 3),
+                R.reshape(B, N, 3, 3))
 
 
 def parameterization_name(param: Parameterization) -> str:
-    """The config name of a parameterization class (``VanillaParameterization`` -> ``vanilla``)."""
-    return type(param).__name__.removesuffix("Parameterization").lower()
+    """The config name of a parameterization (:attr:`Parameterization.name`: ``VanillaParameterization``
+    -> ``vanilla``)."""
+    return param.name
 
 
 def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
@@ -115,9 +117,9 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
 
 
 def icp_model_metadata(obj: Any) -> dict[str, Any] | None:
-    """The points ICP fits (:class:`opnet.geometry.icp.ModelCloud`, default count), so that the
+    """The points ICP fits (:class:`opnet.refine.ModelCloud`, default count), so that the
     runtime refines without the mesh; None for an object without a mesh."""
-    from opnet.geometry.icp import ICPSettings, ModelCloud
+    from opnet.refine import ICPSettings, ModelCloud
 
     if obj.mesh is None:
         return None

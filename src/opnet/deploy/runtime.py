@@ -30,10 +30,10 @@ from opnet.deploy.metadata import validate_metadata
 from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera, with_clip, working_clip
 from opnet.geometry.frames import BASE_POSE_KEY
-from opnet.geometry.icp import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.parameterizations.averaging import PoseAveraging
+from opnet.refine import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.run_settings import DecodingSettings, InputSettings
 
 METADATA_KEY = "opnet"

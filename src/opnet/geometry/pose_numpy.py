@@ -5,10 +5,13 @@ test checks both agree to 1e-12), for the averaging that runs on numpy hypothesi
 training's evaluation and in the torch-free ONNX deployment (:mod:`opnet.deploy`).
 Every function takes a ``space`` with the attributes of ``PoseSpace``: ``Lambda`` (3, 3),
 ``group`` (K, 3, 3), ``delta``, ``revolution``, ``lam`` (a ``PoseSpace`` or :class:`PoseSpaceArrays`).
+Besides, the numpy rotations they and the refinement (:mod:`opnet.refine`) build on: quaternions,
+the projection onto SO(3), turns about axes (Rodrigues) and the 24 turns mapping the axes onto one another.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -122,3 +125,39 @@ def axis_rotation(axes: np.ndarray) -> np.ndarray:
         np.stack([sa * cb, ca, sa * sb], -1),
         np.stack([-sb, zero, cb], -1),
     ], -2)  # fmt: skip
+
+
+def turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Rotations (T, 3, 3) by ``angles`` (T,) radians about the unit ``axis`` (3,) (Rodrigues)."""
+    return rodrigues(axis, angles)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrices (..., 3, 3) of vectors (..., 3): ``skew(v) @ x == np.cross(v, x)``."""
+    v = np.asarray(v, np.float64)
+    K = np.zeros((*v.shape, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return K
+
+
+def rodrigues(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) by ``angles`` (...) radians about unit ``axes`` (..., 3), broadcast together."""
+    axes, angles = np.broadcast_arrays(np.asarray(axes, np.float64), np.asarray(angles, np.float64)[..., None])
+    K = skew(axes)
+    s, c = np.sin(angles[..., :1])[..., None], np.cos(angles[..., :1])[..., None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def axis_permutations() -> np.ndarray:
+    """The 24 rotations that map the coordinate axes onto one another (signed permutations, det +1),
+    the identity first."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            M = np.zeros((3, 3))
+            M[range(3), perm] = signs
+            if np.linalg.det(M) > 0:
+                out.append(M)
+    out.sort(key=lambda M: -np.trace(M))  # the identity (trace 3) first
+    return np.array(out)

@@ -35,7 +35,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from opnet.geometry.search import axis_permutations, turns
+from opnet.geometry.pose_numpy import axis_permutations, turns
 from opnet.objects.surface import surface_moments
 
 #: the turns that must all hold for a revolution axis (degrees, unrelated to one another and to 360/k)

@@ -26,12 +26,12 @@ def key_values(values: list[str], option: str) -> dict[str, Any]:
 
 
 def refine_variant(text: str, base: dict[str, Any], option: str) -> tuple[str, Any]:
-    """``LABEL:KEY=VALUE[,KEY=VALUE...]`` -> (label, :class:`opnet.geometry.icp.ICPSettings` of the refine
+    """``LABEL:KEY=VALUE[,KEY=VALUE...]`` -> (label, :class:`opnet.refine.ICPSettings` of the refine
     config ``base`` with ``icp.KEY`` / ``search.KEY`` overridden; a list value keeps its commas);
     ValueError naming ``option`` for a key ``base`` does not have or anything else malformed."""
     import yaml
 
-    from opnet.geometry.icp import settings_from_config
+    from opnet.refine import settings_from_config
 
     label, _, pairs = text.partition(":")
     conf = copy.deepcopy(base)

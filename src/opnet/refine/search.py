@@ -17,7 +17,7 @@ Per hypothesis (:func:`search_pose`):
    fraction of its points whose measured depth lies within ``tolerance`` (× diameter) of the
    model's, minus ``see_through_weight`` × the fraction the sensor measures *behind* the model
    (free space the part would fill); points the sensor misses or sees occluded count neither way;
-3. the best candidate is returned with its agreement (:class:`opnet.geometry.icp.Refiner` then
+3. the best candidate is returned with its agreement (:class:`opnet.refine.pipeline.Refiner` then
    polishes it by ICP, with ``score: agreement`` ranks the hypotheses by it, and drops those that
    ended within ``suppress`` × δ of a better one: duplicates).
 
@@ -37,108 +37,17 @@ move helps, ``local_rounds`` rounds).
 from __future__ import annotations
 
 import dataclasses
-import itertools
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-SCORES = ("agreement", "network", "product")
-AXES = ("auto", "x", "y", "z")
-MODES = ("auto", "turn", "flips")
+from opnet.geometry.pose_numpy import axis_permutations, rodrigues, turns
+from opnet.refine.agreement import _dtype, agreement_xyz, facing_xyz, score_poses
+from opnet.refine.settings import AXES, SearchSettings
+
 #: ``mode: auto`` searches turns about the normal of a part whose least principal spread is under this
 #: share of the next (a flat part), the ambiguity turns of any other
 FLAT_RATIO = 0.25
-
-
-@dataclass(frozen=True)
-class SearchSettings:
-    """Settings of the search; lengths in units of the object's diameter (module docstring).
-
-    Attributes:
-        axis: the model axis the part is turned about: auto (least spread of its points) | x | y | z.
-        turn_step_deg: step of the turns (all the way round).
-        shift: largest shift across the axis, each way.
-        shift_step: step of the shift grid.
-        tolerance: a measured depth within this of the model's agrees.
-        see_through_weight: weight of the points the sensor sees through (measured behind the model).
-        score: the refined hypothesis's score: agreement | network (the network's, unchanged) |
-            product (network × max(agreement, 0)).
-        suppress: after the search, a hypothesis within this many δ (the metric's threshold, pose
-            distance, symmetry-aware) of a better-scored one is dropped: searches from nearby
-            hypotheses end on the same pose, and the copy could only count as a false positive
-            (0: keep all).
-        coarse: 1 searches the whole grid; N > 1 first a grid N times coarser, then the fine grid
-            around its three best turns (about N² times fewer candidates).
-        fine: after the coarse grid (``coarse`` > 1): grid (the fine grid around its three best turns) | local
-            (a pattern search of turns and shifts from them, a few dozen poses instead of a thousand).
-        merge: before the refinement, a hypothesis whose origin lies within this many diameters of a
-            better-scored one's is dropped (status ``suppressed``): the search from the better one reaches
-            its pose (0: search from every hypothesis).
-        mode: turn (about ``axis``, with shifts: flat parts) | flips (the ambiguity turns and a local
-            search: any part) | auto (turn for a flat part, else flips).
-        keep: ``flips``: how many of the best ambiguity turns go on to the local search.
-        local_deg, local_shift (× diameter), local_rounds: ``flips``' local search (module docstring).
-    """
-
-    axis: str = "auto"
-    turn_step_deg: float = 5.0
-    shift: float = 0.1
-    shift_step: float = 0.02
-    tolerance: float = 0.04
-    see_through_weight: float = 1.0
-    score: str = "agreement"
-    suppress: float = 1.0
-    coarse: int = 3
-    merge: float = 0.1
-    fine: str = "local"
-    mode: str = "auto"
-    keep: int = 3
-    local_deg: float = 8.0
-    local_shift: float = 0.04
-    local_rounds: int = 4
-
-    def __post_init__(self) -> None:
-        if self.fine not in ("grid", "local"):
-            raise ValueError(f"search.fine must be grid or local, got {self.fine!r}")
-        if self.mode not in MODES:
-            raise ValueError(f"search.mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        for key in ("keep", "local_rounds"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 100:
-                raise ValueError(f"search.{key} must be an integer in 0..100, got {value!r}")
-        for key in ("local_deg", "local_shift"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or not 0 < value <= 90:
-                raise ValueError(f"search.{key} must be a positive number (at most 90), got {value!r}")
-        if self.axis not in AXES:
-            raise ValueError(f"search.axis must be one of {', '.join(AXES)}, got {self.axis!r}")
-        if self.score not in SCORES:
-            raise ValueError(f"search.score must be one of {', '.join(SCORES)}, got {self.score!r}")
-        for key in ("turn_step_deg", "shift_step", "tolerance"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value <= 0:
-                raise ValueError(f"search.{key} must be a positive number, got {value!r}")
-        for key in ("shift", "see_through_weight", "suppress", "merge"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
-                raise ValueError(f"search.{key} must be a number >= 0, got {value!r}")
-        if isinstance(self.coarse, bool) or not isinstance(self.coarse, int) or self.coarse < 1:
-            raise ValueError(f"search.coarse must be a positive integer, got {self.coarse!r}")
-        if self.turn_step_deg > 360:
-            raise ValueError(f"search.turn_step_deg must be at most 360, got {self.turn_step_deg!r}")
-        if self.shift / self.shift_step > 50:
-            raise ValueError(f"search: shift / shift_step = {self.shift / self.shift_step:g} makes a grid of more "
-                             "than 101 x 101 shifts; take a larger shift_step")  # fmt: skip
-
-    @classmethod
-    def from_config(cls, cfg: Any) -> SearchSettings:
-        """From a mapping (a config group); unknown keys are an error naming them."""
-        cfg = dict(cfg or {})
-        unknown = set(cfg) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"search: unknown keys {sorted(unknown)}; expected {', '.join(cls.__dataclass_fields__)}")
-        return cls(**cfg)
 
 
 def model_axis(points: np.ndarray, axis: str = "auto") -> np.ndarray:
@@ -149,88 +58,6 @@ def model_axis(points: np.ndarray, axis: str = "auto") -> np.ndarray:
     centred = points - points.mean(0)
     _, vectors = np.linalg.eigh(centred.T @ centred)
     return vectors[:, 0]
-
-
-def agreement(points: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: Any, tolerance: float,
-              see_through_weight: float) -> np.ndarray:  # fmt: skip
-    """Agreement of posed model points (..., K, 3) (camera frame, metres; ``valid`` (..., K) marks
-    those that count, e.g. facing the camera) with a z-depth image (H, W) (NaN: missing): per pose,
-    (points measured within ``tolerance`` - ``see_through_weight`` x points measured behind the model
-    by more) / valid points."""
-    return agreement_xyz(points[..., 0], points[..., 1], points[..., 2], valid, depth, camera, tolerance,
-                         see_through_weight)  # fmt: skip
-
-
-def agreement_xyz(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, depth: np.ndarray, camera: Any,
-                  tolerance: float, see_through_weight: float) -> np.ndarray:  # fmt: skip
-    """:func:`agreement` of points given by their coordinates x, y, z (..., K) each."""
-    inv = np.divide(1.0, z, out=np.zeros_like(z), where=z > 0)  # behind the camera: never inside
-    u = x * (camera.fx * inv) + (camera.cx + 0.5)  # the pixel is floor(u); u >= 0 makes the cast a floor
-    v = y * (camera.fy * inv) + (camera.cy + 0.5)
-    h, w = depth.shape
-    inside = valid & (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    index = np.where(inside, v, 0).astype(np.intp) * w + np.where(inside, u, 0).astype(np.intp)  # no cast of inf
-    r = depth.ravel()[index] - z
-    r[~inside] = np.nan
-    agree = np.count_nonzero(np.abs(r) <= tolerance, -1)  # NaN compares False: missing depth counts neither way
-    through = np.count_nonzero(r > tolerance, -1)
-    return (agree - see_through_weight * through) / np.maximum(np.count_nonzero(valid, -1), 1)
-
-
-def posed_xyz(R: np.ndarray, t: np.ndarray, model: Any, dtype: Any = np.float64,
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """All the model points at poses (N, 3, 3), (N, 3), camera frame: x, y, z (N, P) each of ``dtype`` (one
-    matrix product per coordinate), and which face the camera (N, P)."""
-    R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
-    points = model.points.T.astype(dtype)
-    x, y, z = (R[:, k].astype(dtype) @ points + t[:, k : k + 1].astype(dtype) for k in range(3))
-    # (R n) . (R p + t) = n . p + n . (R^T t): one (N, P) product, no turned normals
-    local_t = np.einsum("nji,nj->ni", R, t)
-    facing = local_t @ model.normals.T + np.sum(model.normals * model.points, 1) < 0
-    return x, y, z, facing
-
-
-def facing_xyz(R: np.ndarray, t: np.ndarray, model: Any, dtype: Any = np.float64,
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """The model points facing the camera at poses (N, 3, 3), (N, 3), packed: x, y, z (N, K) each of ``dtype``,
-    and which of them are real (N, K) (K: the most any pose has; the rest pad with point 0, masked out).
-    Agreement counts only these, at half the work of all the points."""
-    x, y, z, facing = posed_xyz(R, t, model, dtype)
-    count = facing.sum(1)
-    K = int(count.max(initial=0))
-    rows, cols = np.nonzero(facing)  # row-major: each pose's facing points in model order
-    slot = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
-    chosen = np.zeros((len(facing), K), np.intp)
-    chosen[rows, slot] = cols
-    return (*(np.take_along_axis(c, chosen, 1) for c in (x, y, z)), np.arange(K) < count[:, None])
-
-
-def _dtype(depth: np.ndarray) -> Any:
-    """The float type points are scored in against ``depth``: its own (float32 halves the memory traffic:
-    millimetre tolerances at metres lose nothing in it)."""
-    return depth.dtype if depth.dtype in (np.float32, np.float64) else np.float64
-
-
-def turns(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotations (T, 3, 3) by ``angles`` (T,) radians about the unit ``axis`` (3,) (Rodrigues)."""
-    return rodrigues(axis, angles)
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """The cross-product matrices (..., 3, 3) of vectors (..., 3): ``skew(v) @ x == np.cross(v, x)``."""
-    v = np.asarray(v, np.float64)
-    K = np.zeros((*v.shape, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return K
-
-
-def rodrigues(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotations (..., 3, 3) by ``angles`` (...) radians about unit ``axes`` (..., 3), broadcast together."""
-    axes, angles = np.broadcast_arrays(np.asarray(axes, np.float64), np.asarray(angles, np.float64)[..., None])
-    K = skew(axes)
-    s, c = np.sin(angles[..., :1])[..., None], np.cos(angles[..., :1])[..., None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
 def _offsets(step: float, reach: float) -> np.ndarray:
@@ -295,7 +122,7 @@ def search_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, ca
     (``fine: local``) by a pattern search from them.
 
     Args:
-        R (N, 3, 3), t (N, 3): the poses (camera frame, metres). model: a :class:`opnet.geometry.icp.ModelCloud`.
+        R (N, 3, 3), t (N, 3): the poses (camera frame, metres). model: a :class:`opnet.refine.clouds.ModelCloud`.
         depth: (H, W) z-depth (metres, NaN missing) seen by ``camera`` (fx, fy, cx, cy).
         axis: the model-frame axis to turn about (:func:`model_axis`).
     Returns:
@@ -390,20 +217,6 @@ def resolve_mode(settings: SearchSettings, points: np.ndarray) -> str:
     return "turn" if is_flat(points) else "flips"
 
 
-def axis_permutations() -> np.ndarray:
-    """The 24 rotations that map the coordinate axes onto one another (signed permutations, det +1),
-    the identity first."""
-    out = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1.0, -1.0), repeat=3):
-            M = np.zeros((3, 3))
-            M[range(3), perm] = signs
-            if np.linalg.det(M) > 0:
-                out.append(M)
-    out.sort(key=lambda M: -np.trace(M))  # the identity (trace 3) first
-    return np.array(out)
-
-
 def _equivalent(space: Any, A: np.ndarray, B: np.ndarray, tol_deg: float = 10.0) -> bool:
     """Two model-frame rotations are the same pose of the part (under its symmetry, within ``tol_deg``: the
     principal axes of sampled points lie a degree or two off a symmetry axis; the turns are 90 apart)."""
@@ -440,20 +253,6 @@ def _moves(step_rad: np.ndarray, step_m: np.ndarray) -> tuple[np.ndarray, np.nda
         v[:, 7 + 2 * k] = step_m[:, None] * axis
         v[:, 8 + 2 * k] = -step_m[:, None] * axis
     return R, v
-
-
-def score_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
-                settings: SearchSettings) -> np.ndarray:  # fmt: skip
-    """Agreement of poses (N, 3, 3), (N, 3) (their model points facing the camera), in one batch."""
-    x, y, z, facing = facing_xyz(R, t, model, _dtype(depth))
-    return agreement_xyz(x, y, z, facing, depth, camera, settings.tolerance * model.diameter,
-                         settings.see_through_weight)  # fmt: skip
-
-
-def facing_points(R: np.ndarray, t: np.ndarray, model: Any) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`facing_xyz` as points: (N, K, 3) and which of them are real (N, K)."""
-    x, y, z, valid = facing_xyz(R, t, model)
-    return np.stack((x, y, z), -1), valid
 
 
 def local_search(R: np.ndarray, t: np.ndarray, centre: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
@@ -536,34 +335,15 @@ def search_any_many(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray,
     return R_out, t_out, np.where(stay, here, best)
 
 
-def pose_agreement(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any,
-                   settings: SearchSettings) -> float:  # fmt: skip
-    """:func:`agreement` of one pose (its model points facing the camera)."""
-    return float(score_poses(np.asarray(R)[None], np.asarray(t)[None], model, depth, camera, settings)[0])
-
-
 __all__ = [
-    "AXES",
-    "MODES",
-    "SCORES",
-    "SearchSettings",
-    "agreement",
-    "agreement_xyz",
+    "FLAT_RATIO",
     "ambiguity_turns",
-    "axis_permutations",
-    "facing_points",
-    "facing_xyz",
     "is_flat",
     "local_search",
     "model_axis",
-    "pose_agreement",
-    "posed_xyz",
     "resolve_mode",
-    "rodrigues",
-    "score_poses",
     "search_any",
     "search_any_many",
     "search_pose",
     "search_poses",
-    "turns",
 ]
