@@ -14,7 +14,8 @@ import argparse
 
 import torch
 
-from opnet.models.stats import ModelStats, preset_stats
+from opnet.models.stats import ModelStats
+from opnet.studies.presets import preset_stats
 
 
 def format_table(rows: list[ModelStats]) -> str:

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from opnet.models.stats import load_model_preset
+from opnet.studies.presets import load_model_preset
 from opnet.paths import REPO_ROOT
 
 spec = importlib.util.spec_from_file_location("bench_infer", REPO_ROOT / "scripts" / "bench" / "bench_infer.py")

@@ -9,10 +9,9 @@ from opnet.models.stats import (
     count_parameters,
     forward_ms_per_image,
     gflops_per_image,
-    load_model_preset,
-    preset_stats,
     train_images_per_s,
 )
+from opnet.studies.presets import load_model_preset, preset_stats
 
 
 def test_flop_convention_is_two_per_multiply_add() -> None:
