@@ -1917,7 +1917,8 @@ def new_surface_cases(ws: Path, base: dict[str, Path], extra: dict[str, Path]) -
         ("data.root=" + str(c / "gone"), "gone"), ("data.root=" + str(c / "a_file"), "a_file"),
         ("data.roi=auto:1e-9", "roi"), ("data.roi=auto:0.001", "roi"), ("data.roi=auto:abc", "roi"),
         ("data.roi=[1,2]", "roi"), ("part_pixels=0", "part_pixels"), ("part_pixels=-5", "part_pixels"),
-        ("part_pixels=abc", "part_pixels"), ("seed=abc", "seed"), ("seed=1.5", "seed"), ("model.in_size=100", "in_size"),
+        ("part_pixels=abc", "part_pixels"), ("part_cells=0", "part_cells"), ("part_cells=abc", "part_cells"),
+        ("seed=abc", "seed"), ("seed=1.5", "seed"), ("model.in_size=100", "in_size"),
         ("data.test_fraction=1", "test_fraction"), ("data.val_fraction=0.95", "val_fraction"),
         ("data.num_workers=-1", "num_workers"), ("data.batch_size=2.5", "batch_size"),
     ):  # fmt: skip

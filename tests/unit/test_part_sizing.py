@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from opnet.cli.build import build_components
-from opnet.cli.sizing import sized_input, size_input_to_part
+from opnet.cli.sizing import size_input_to_part, size_to_part, sized_grid, sized_input
 from opnet.objects import builtin_object
 from opnet.studies import compose_train
 
@@ -36,13 +36,44 @@ def test_unset_leaves_the_config_as_it_is() -> None:
     assert size_input_to_part(cfg, 0.1) is None and cfg.data.input_size == 128
 
 
+def test_the_grid_follows_the_part_and_the_square() -> None:
+    # a 175 mm part in a 0.8 m square spans 3.5 cells of 16: 5.5 asked -> 32 (7 cells); never beyond the finest
+    assert sized_grid(5.5, 0.8, 0.175, 16, 32) == 32
+    assert sized_grid(3.0, 0.8, 0.175, 16, 32) == 16  # already spans 3.5: kept, never coarser
+    assert sized_grid(20.0, 0.8, 0.175, 16, 32) == 32  # the finest grid of the input
+    assert sized_grid(5.5, 0.4, 0.175, 8, 32) == 16  # 3.5 cells of 8 -> 7 of 16
+
+
+def test_part_cells_sizes_the_grid_and_the_network_is_built_for_it() -> None:
+    obj = builtin_object("bracket")
+    side = 3.0 * obj.diameter  # the part spans 16 / 3 cells of the configured 16
+    cfg = compose_train(["object=bracket", f"data.roi=auto:{side:g}", "model=small", "part_cells=8"])
+    lines = size_to_part(cfg, obj.diameter)
+    assert cfg.parameterization.grid == 32 and cfg.data.input_size == 128  # the input as configured
+    assert len(lines) == 1 and "of 32 cells (part_cells=8)" in lines[0]
+    assert build_components(cfg).system.parameterization.grid_size == 32
+
+
+def test_part_pixels_then_part_cells() -> None:
+    obj = builtin_object("bracket")
+    cfg = compose_train(["object=bracket", "data.roi=auto:0.4", "model=small", "part_pixels=45", "part_cells=20"])
+    lines = size_to_part(cfg, obj.diameter)
+    size = sized_input(45, 0.4, obj.diameter, 128)
+    assert cfg.data.input_size == size and cfg.parameterization.grid == size // 4  # the finest at stem stride 4
+    assert len(lines) == 2 and "the finest grid of this input" in lines[1]
+
+
 @pytest.mark.parametrize(("overrides", "message"), [
     (["part_pixels=45"], "needs data.roi=auto:S|sizes the input of a square of known side"),
     (["data.roi=auto:0.4", "part_pixels=0"], "expected the pixels the part's diameter should span"),
     (["data.roi=auto:0.4", "part_pixels=true"], "expected the pixels the part's diameter should span"),
+    (["part_cells=5"], "sizes the input of a square of known side"),
+    (["data.roi=auto:0.4", "part_cells=0"], "expected the output cells the part's diameter should span"),
+    (["data.roi=auto:0.4", "part_cells=abc"], "expected the output cells the part's diameter should span"),
 ])  # fmt: skip
 def test_bad_settings_are_one_line_naming_the_key(overrides: list[str], message: str) -> None:
     cfg = compose_train(["object=bracket", *overrides])
     with pytest.raises(ValueError, match=message) as e:
-        size_input_to_part(cfg, 0.1)
-    assert "\n" not in str(e.value) and "part_pixels" in str(e.value)
+        size_to_part(cfg, 0.1)
+    key = overrides[-1].split("=")[0]
+    assert "\n" not in str(e.value) and key in str(e.value)

@@ -1,6 +1,12 @@
-"""The network's input sized to the part (``part_pixels``): the input side, the network and its grid chosen so
-that the part's diameter D spans a given number of input pixels (results/flat_parts/README.md: what a flat
-part needs), before anything is built; the resolved sizes are what the run records (checkpoint, ONNX).
+"""The network sized to the part, before anything is built; the resolved sizes are what the run records
+(checkpoint, ONNX). Two settings (results/flat_parts/README.md: what a flat part needs):
+
+- ``part_pixels``: the input side, the network and its grid chosen so that the part's diameter D spans a given
+  number of input pixels;
+- ``part_cells``: the output grid chosen so that D spans at least this many of its cells (a finer grid over the
+  same input: the network keeps fewer of its halvings), never coarser than configured, at most one cell per
+  ``model.stem_stride`` pixels. A part spanning two or three cells is found as one hypothesis of a few cells that
+  also see its neighbours; spanning five or more, each of its cells sees mostly the part.
 
 Where the input is a square of known metric side, the bin finder's crop ``data.roi=auto:S`` (the cell recipe),
 the side is ``S``: ``input = 32 * ceil(part_pixels * S / D / 32)`` (at least ``model.in_size`` as configured,
@@ -27,23 +33,65 @@ def sized_input(part_pixels: float, side_m: float, diameter_m: float, smallest: 
     return int(min(MAX_SIZED_INPUT, max(smallest, SIZE_STEP * math.ceil(need / SIZE_STEP - 1e-9))))
 
 
+def sized_grid(part_cells: float, side_m: float, diameter_m: float, grid: int, finest: int) -> int:
+    """The output grid (cells a side) at which a part of ``diameter_m`` spans ``part_cells`` cells of a square of
+    ``side_m`` metres: ``grid`` doubled until it does, at most ``finest`` (the grid of one cell per stem stride)."""
+    while grid < finest and diameter_m / side_m * grid < part_cells - 1e-9:
+        grid *= 2
+    return min(grid, finest)
+
+
+def _square_side(cfg: DictConfig, key: str, value: Any) -> float:
+    """The metric side of the input square (``data.roi=auto:S``); ValueError naming ``key`` without one."""
+    from opnet.data.roi import auto_side, is_auto, parse_roi
+
+    roi = parse_roi((cfg.get("data") or {}).get("roi"))
+    side = auto_side(roi) if is_auto(roi) else None
+    if side is None:
+        raise ValueError(f"{key}={value}: sizes the input of a square of known side, the bin finder's crop "
+                         f"data.roi=auto:S (S metres); data.roi is {roi!r}: set data.roi=auto:S or {key}=null")
+    return side
+
+
+def size_to_part(cfg: DictConfig, diameter_m: float) -> list[str]:
+    """Apply ``part_pixels`` then ``part_cells`` to ``cfg``; the lines the console states (none where neither is
+    set). Raises ValueError naming the key where one cannot be applied."""
+    lines = [size_input_to_part(cfg, diameter_m), size_grid_to_part(cfg, diameter_m)]
+    return [line for line in lines if line]
+
+
+def size_grid_to_part(cfg: DictConfig, diameter_m: float) -> str | None:
+    """Apply ``part_cells`` to ``cfg`` (``parameterization.grid``); the line the console states, or None where it
+    is not set. Raises ValueError naming the key where it cannot be applied (not a number from 1 to 64; an input
+    that is not the bin finder's square)."""
+    cells: Any = cfg.get("part_cells")
+    if cells is None:
+        return None
+    if isinstance(cells, bool) or not isinstance(cells, (int, float)) or not 1 <= float(cells) <= 64:
+        raise ValueError(f"part_cells={cells!r}: expected the output cells the part's diameter should span at "
+                         "least, a number from 1 to 64 (null: the grid as configured)")
+    side = _square_side(cfg, "part_cells", cells)
+    in_size, grid = int(cfg.model.in_size), int(cfg.parameterization.grid)
+    finest = in_size // int(cfg.model.get("stem_stride", 2))
+    new_grid = sized_grid(float(cells), side, diameter_m, grid, finest)
+    with open_dict(cfg):
+        cfg.parameterization.grid = new_grid
+    reached = "" if diameter_m / side * new_grid >= float(cells) - 1e-9 else " (the finest grid of this input)"
+    return (f"grid sized to the part: D {diameter_m * 1000:.0f} mm over the {side:g} m square spans "
+            f"{diameter_m / side * new_grid:.1f} of {new_grid} cells (part_cells={cells:g}){reached}")
+
+
 def size_input_to_part(cfg: DictConfig, diameter_m: float) -> str | None:
     """Apply ``part_pixels`` to ``cfg`` (``data.input_size``, ``model.in_size``, ``parameterization.grid``); the
     line the console states, or None where it is not set. Raises ValueError naming the key where it cannot be
     applied (not a positive number; an input that is not the bin finder's square ``data.roi=auto:S``)."""
-    from opnet.data.roi import auto_side, is_auto, parse_roi
-
     pixels: Any = cfg.get("part_pixels")
     if pixels is None:
         return None
     if isinstance(pixels, bool) or not isinstance(pixels, (int, float)) or not 8 <= float(pixels) <= 512:
         raise ValueError(f"part_pixels={pixels!r}: expected the pixels the part's diameter should span at the "
                          "network's input, a number from 8 to 512 (null: the input as configured)")
-    roi = parse_roi((cfg.get("data") or {}).get("roi"))
-    side = auto_side(roi) if is_auto(roi) else None
-    if side is None:
-        raise ValueError(f"part_pixels={pixels}: sizes the input of a square of known side, the bin finder's crop "
-                         f"data.roi=auto:S (S metres); data.roi is {roi!r}: set data.roi=auto:S or part_pixels=null")
+    side = _square_side(cfg, "part_pixels", pixels)
     in_size, grid = int(cfg.model.in_size), int(cfg.parameterization.grid)
     size = sized_input(float(pixels), side, diameter_m, in_size)
     new_grid = max(1, grid * size // in_size)
@@ -55,4 +103,5 @@ def size_input_to_part(cfg: DictConfig, diameter_m: float) -> str | None:
             f"{diameter_m / side * size:.0f} of {size} pixels (part_pixels={pixels:g}), grid {new_grid}")
 
 
-__all__ = ["MAX_SIZED_INPUT", "SIZE_STEP", "size_input_to_part", "sized_input"]
+__all__ = ["MAX_SIZED_INPUT", "SIZE_STEP", "size_grid_to_part", "size_input_to_part", "size_to_part", "sized_grid",
+           "sized_input"]

@@ -78,11 +78,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
     check_scene_address(cfg)
-    if cfg.get("part_pixels") is not None:
-        from opnet.cli.sizing import size_input_to_part
+    if cfg.get("part_pixels") is not None or cfg.get("part_cells") is not None:
+        from opnet.cli.sizing import size_to_part
         from opnet.objects.config import object_from_config
 
-        log.info(size_input_to_part(cfg, object_from_config(plain(cfg.object)).diameter))
+        for line in size_to_part(cfg, object_from_config(plain(cfg.object)).diameter):
+            log.info(line)
     comps = build_components(cfg)
     datamodule = build_datamodule(cfg, comps.obj, train=True)
     trainer = build_trainer(cfg)
