@@ -251,25 +251,20 @@ def dense_rows(part: str, arm: str, seed: int, refine: bool) -> list[dict[str, A
 #: what the tables say, written from them (each number is in the CSV)
 NOTES = [
     "## Notes", "",
-    "- *Seeds*: the base recipe's two seeds differ by 0.03-0.04 AP as decoded on either split (val 0.103 and "
-    "0.059, held-out 0.065 and 0.099): one seed of another arm tells apart only a change larger than that.",
-    "- *Found*: the share of the parts to find that a decoded pose matches. The plate's network finds about one "
-    "in six, whatever the arm or seed; the misses are lateral (the nearest pose's origin is across the image, "
-    "median 16-18 mm with δ 17.4 mm) before they are spins (median 13-17°) or tilts.",
-    "- *Position* (`loss.lambda_xy=10`): the lateral error did not move, so the lateral misses are not the loss's "
-    "weighting; its AP lies within the base's seed spread on both splits.",
-    "- *Pixels* (`in256_st8`: a 256-pixel input with a stride-8 stem, the part spanning 40 pixels instead of 20, "
-    "same grid and work): on held-out cycles of the training piles' own generator (*AP in training*, rendered at "
-    "half the camera's resolution as the training piles are) it scored 0.129 (base 0.088 and 0.121), on the "
-    "full-resolution validation and held-out piles 0.067 and 0.071, within the base's spread and below its mean "
-    "on val. No gain measured; not kept, the cell recipe stays at 128 pixels (`part_pixels` sizes the input where "
-    "wanted). Untested here: training piles rendered at the camera's full resolution, which a finer input may need.",
+    "- *Grid* (kept; chosen on val): the plate's D spans 3.5 cells of the recipe's 16 over the 0.8 m crop, each cell "
+    "also seeing its neighbours; at `parameterization.grid=32` (7 cells, the same 128-pixel input) the plate is "
+    "found as decoded 0.362 on val (base 0.081 ± 0.031) and 0.305 on held-out (base 0.082 ± 0.024), found 47 % "
+    "(17 %), lateral p50 10 mm (16.5), spin p50 7° (13°). The cell recipe now sizes its grid to the part "
+    "(`part_cells: 5` in `experiment=cell`; `part_cells=null` gives the earlier grid). One seed so far.",
+    "- *Seeds*: the base recipe's two seeds differ by 0.03-0.04 AP as decoded on either split: one seed of another "
+    "arm tells apart only a change larger than that.",
+    "- *No gain* within the base's spread: the position loss weighted 10× (`lxy10`: the lateral error did not "
+    "move), and a 256-pixel input at the same 16 cells (`in256_st8`, the part 40 pixels instead of 20): pixels "
+    "per part are not what the plate lacked, cells per part are.",
     "- *Decoding*: pose averaging helps the plate a little (no averaging: 0.052 against 0.065 held-out, seed 0).",
-    "- *Refinement*: the recorded search (`search_fast`) lifts every arm and seed to 0.42-0.52; its time here is "
-    "the refinement's alone, measured with other jobs on the machine. The whole frame on a quiet machine "
-    "([frame_speed.md](frame_speed.md), `scripts/bench/bench_frame.py`, the shipped cell model on 15 held-out "
-    "frames): crop 28 ms, network 12, decoding 2, search 392, in all 434 ms mean, over the 300 ms target on these "
-    "piles (the real frames, fewer parts in view: 312 ms).",
+    "- *Refinement*: the recorded search (`search_fast`) lifts every arm to 0.42-0.54; its time here is the "
+    "refinement's alone with other jobs on the machine. The whole frame on a quiet machine: "
+    "[frame_speed.md](frame_speed.md) (`scripts/bench/bench_frame.py`).",
     "",
 ]
 
