@@ -38,6 +38,32 @@ def test_every_parameterization_exports_and_matches_pytorch(param: str, tmp_path
     assert meta["parameterization"] == param
 
 
+
+def test_the_runtime_reads_mps_slots_as_pytorch_does(tmp_path: Path) -> None:
+    """MP's slot l + 1 counts only where slots 1..l are present: the runtime's hypotheses are PyTorch's, not
+    every slot above the threshold (it read each slot alone before)."""
+    import torch
+
+    from opnet.cli import export as export_cli
+    from opnet.geometry.camera import Camera
+
+    cfg = compose_cfg("train", ["model=tiny", "object=zbracket", "parameterization=mp"])
+    system = build_components(cfg).system.eval()
+    meta = export_onnx(system, cfg, Path("none.ckpt"), tmp_path / "mp.onnx")
+    images, cams = export_cli.synthetic_inputs(meta["input"]["size"], n=1)
+    presence = OnnxPoseEstimator(tmp_path / "mp.onnx").run(images, cams)[0][0]
+    threshold = float(np.median(presence))  # about half the slots above it: some second slots without a first
+    est = OnnxPoseEstimator(tmp_path / "mp.onnx", icp=None, averaging=False)
+    est.threshold, est.min_visibility, est.score = threshold, 0.0, "p"
+    ours = est.decode(*(o[0] for o in est.run(images, cams)))
+    param = system.parameterization.with_decoding(threshold=threshold, min_visibility=0.0, score="p", averaging=False)
+    with torch.no_grad():
+        theirs = param.decode(system(torch.from_numpy(images)), [Camera(*cams[0][:4], int(cams[0][4]),
+                                                                        int(cams[0][5]), *cams[0][6:])])[0]
+    assert len(ours.t) < int((presence > threshold).sum())  # the rule removed some
+    assert len(ours.t) == len(theirs.t)
+    np.testing.assert_allclose(np.sort(ours.t, axis=0), np.sort(theirs.t, axis=0), atol=1e-5)
+
 def _export_with_hypotheses(checkpoint: Path, out: Path) -> tuple[object, Path]:
     """The tiny checkpoint (2 training steps: presence ~ 0.05 everywhere) exported with threshold 0
     and averaging on, so every cell is a hypothesis and DBSCAN has work to do."""
