@@ -22,6 +22,7 @@ from opnet.parameterizations.vanilla import VanillaParameterization
 from opnet.paths import REPO_ROOT
 from opnet.run_settings import (
     CHECKPOINT_KEY,
+    REFINE_NAMES,
     AveragingSettings,
     DecodingSettings,
     InputSettings,
@@ -255,3 +256,16 @@ def test_a_recorded_refinement_is_its_group_as_hydra_composes_it(name: str) -> N
     assert model_refinement(composed, "icp") == (composed, False)  # a refinement named on the command line wins
     with pytest.raises(ValueError, match="refine=model"):
         settings_from_config(default)  # never read without its checkpoint
+
+
+@pytest.mark.parametrize("name", REFINE_NAMES)
+def test_the_runtime_runs_every_recordable_refinement_as_its_config(name: str) -> None:
+    """Every name a checkpoint may record (REFINE_NAMES) has its case in the torch-free runtime, the settings
+    its YAML gives (icp: the runtime's 100 ms budget); a name without one is refused, never run as another."""
+    from opnet.deploy.runtime import recorded_refinement
+    from opnet.refine import refine_config, settings_from_config
+
+    expected = settings_from_config(refine_config(name))
+    assert recorded_refinement(name, budget_ms=expected.budget_ms) == expected
+    with pytest.raises(ValueError, match="refinement 'polish'"):
+        recorded_refinement("polish")

@@ -49,7 +49,10 @@ def recorded_refinement(name: str | None, budget_ms: float | None = None) -> ICP
         return None
     if name == "icp":
         return ICPSettings(budget_ms=100.0 if budget_ms is None else budget_ms)
-    return search_settings(budget_ms, fast=name == "search_fast")
+    if name in ("search", "search_fast"):
+        return search_settings(budget_ms, fast=name == "search_fast")
+    raise ValueError(f"refinement {name!r}: the runtime runs icp, search or search_fast (a new recorded "
+                     "refinement needs its case in opnet.deploy.runtime.recorded_refinement)")
 
 
 #: the parameterizations whose slot l + 1 is read only where slots 1..l are present (the cells' order of the graph's
