@@ -53,6 +53,17 @@ def _square_side(cfg: DictConfig, key: str, value: Any) -> float:
     return side
 
 
+def _sizing_setting(cfg: DictConfig, key: str, lo: float, hi: float, expected: str) -> tuple[Any, float]:
+    """(value of ``key``, side of the input square), or (None, 0.0) where ``key`` is not set; ValueError naming
+    ``key`` where its value is not a number in [lo, hi] or the input is not the bin finder's square."""
+    value: Any = cfg.get(key)
+    if value is None:
+        return None, 0.0
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= float(value) <= hi:
+        raise ValueError(f"{key}={value!r}: expected {expected}")
+    return value, _square_side(cfg, key, value)
+
+
 def size_to_part(cfg: DictConfig, diameter_m: float) -> list[str]:
     """Apply ``part_pixels`` then ``part_cells`` to ``cfg``; the lines the console states (none where neither is
     set). Raises ValueError naming the key where one cannot be applied."""
@@ -64,13 +75,10 @@ def size_grid_to_part(cfg: DictConfig, diameter_m: float) -> str | None:
     """Apply ``part_cells`` to ``cfg`` (``parameterization.grid``); the line the console states, or None where it
     is not set. Raises ValueError naming the key where it cannot be applied (not a number from 1 to 64; an input
     that is not the bin finder's square)."""
-    cells: Any = cfg.get("part_cells")
+    cells, side = _sizing_setting(cfg, "part_cells", 1, 64, "the output cells the part's diameter should span at "
+                                  "least, a number from 1 to 64 (null: the grid as configured)")
     if cells is None:
         return None
-    if isinstance(cells, bool) or not isinstance(cells, (int, float)) or not 1 <= float(cells) <= 64:
-        raise ValueError(f"part_cells={cells!r}: expected the output cells the part's diameter should span at "
-                         "least, a number from 1 to 64 (null: the grid as configured)")
-    side = _square_side(cfg, "part_cells", cells)
     in_size, grid = int(cfg.model.in_size), int(cfg.parameterization.grid)
     finest = in_size // int(cfg.model.get("stem_stride", 2))
     new_grid = sized_grid(float(cells), side, diameter_m, grid, finest)
@@ -85,13 +93,10 @@ def size_input_to_part(cfg: DictConfig, diameter_m: float) -> str | None:
     """Apply ``part_pixels`` to ``cfg`` (``data.input_size``, ``model.in_size``, ``parameterization.grid``); the
     line the console states, or None where it is not set. Raises ValueError naming the key where it cannot be
     applied (not a positive number; an input that is not the bin finder's square ``data.roi=auto:S``)."""
-    pixels: Any = cfg.get("part_pixels")
+    pixels, side = _sizing_setting(cfg, "part_pixels", 8, 512, "the pixels the part's diameter should span at the "
+                                   "network's input, a number from 8 to 512 (null: the input as configured)")
     if pixels is None:
         return None
-    if isinstance(pixels, bool) or not isinstance(pixels, (int, float)) or not 8 <= float(pixels) <= 512:
-        raise ValueError(f"part_pixels={pixels!r}: expected the pixels the part's diameter should span at the "
-                         "network's input, a number from 8 to 512 (null: the input as configured)")
-    side = _square_side(cfg, "part_pixels", pixels)
     in_size, grid = int(cfg.model.in_size), int(cfg.parameterization.grid)
     size = sized_input(float(pixels), side, diameter_m, in_size)
     new_grid = max(1, grid * size // in_size)
