@@ -62,6 +62,34 @@ def cell_model(checkpoint: Path, tmp_path_factory: pytest.TempPathFactory) -> tu
     return ckpt, model
 
 
+@pytest.fixture(scope="module")
+def exact_cell_model(cell_model: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """``cell_model`` whose network's output is its head's bias alone (the head's weights zero; the bias drawn
+    per channel): both runtimes compute that output exactly, so what follows the network (decoding, the move to
+    the base frame) is all that can part their poses."""
+    folder = tmp_path_factory.mktemp("exact_cell_model")
+    raw = torch.load(cell_model[0], map_location="cpu", weights_only=True)
+    weight, bias = "backbone.head.2.weight", "backbone.head.2.bias"
+    raw["state_dict"][weight] = torch.zeros_like(raw["state_dict"][weight])
+    raw["state_dict"][bias] = torch.randn(raw["state_dict"][bias].shape, generator=torch.Generator().manual_seed(0))
+    ckpt = folder / "exact.ckpt"
+    torch.save(raw, ckpt)
+    system, cfg = load_checkpoint(ckpt)
+    model = folder / "exact.onnx"
+    export_onnx(system, cfg, ckpt, model)
+    return ckpt, model
+
+
+def _images(dataset: Path, tmp_path: Path, cycle: str, n: int) -> Path:
+    """A folder of the first ``n`` depth PNGs of ``cycle`` of ``dataset``, its parameter.json above them."""
+    images = tmp_path / "images"
+    images.mkdir()
+    (images / "parameter.json").write_bytes((dataset / "parameter.json").read_bytes())
+    for png in sorted((dataset / "p_depth" / cycle).glob("*.png"))[:n]:
+        (images / png.name).write_bytes(png.read_bytes())
+    return images
+
+
 def _run_both(ckpt: Path, model: Path, images: Path, out: Path, camera: Path | None) -> tuple[dict, dict]:
     """predict.py and the ONNX runtime on ``images`` (no refinement); their pose files by name."""
     given = [] if camera is None else [f"camera.file={camera}"]
@@ -83,11 +111,7 @@ def _by_score(poses: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_predict_and_the_onnx_runtime_write_the_same_base_frame_poses(cell_model: tuple[Path, Path], tiny_dataset: Path,
                                                                       tmp_path: Path, source: str) -> None:
     ckpt, model = cell_model
-    images = tmp_path / "images"  # a few depth PNGs of the tiny dataset, their parameter.json above them
-    images.mkdir()
-    (images / "parameter.json").write_bytes((tiny_dataset / "parameter.json").read_bytes())
-    for png in sorted((tiny_dataset / "p_depth" / "cycle_0001").glob("*.png"))[:2]:
-        (images / png.name).write_bytes(png.read_bytes())
+    images = _images(tiny_dataset, tmp_path, "cycle_0001", 2)
     camera = None
     expected = T_CELL
     if source == "camera file":  # a camera YAML of T_base_cam alone: the intrinsics stay parameter.json's
@@ -116,6 +140,20 @@ def test_predict_and_the_onnx_runtime_write_the_same_base_frame_poses(cell_model
         assert np.abs(R_a - R_b - expected[:3, :3] @ (Rc_a - Rc_b)).max() < 1e-6
         assert np.abs((t_a - t_b) - (tc_a - tc_b) @ expected[:3, :3].T).max() < 1e-6
     assert OnnxPoseEstimator(model).T_base_cam is not None
+
+
+def test_with_the_same_network_output_both_runtimes_write_the_same_base_frame_poses_to_1e6(
+        exact_cell_model: tuple[Path, Path], tiny_dataset: Path, tmp_path: Path) -> None:
+    ckpt, model = exact_cell_model
+    by_torch, by_onnx = _run_both(ckpt, model, _images(tiny_dataset, tmp_path, "cycle_0002", 1), tmp_path, None)
+    (name,) = by_torch
+    doc, other = by_torch[name], by_onnx[name]
+    R_a, t_a, s_a = _by_score(doc["poses_base"])
+    R_b, t_b, s_b = _by_score(other["poses_base"])
+    assert len(s_a) > 1 and len(s_a) == len(s_b) and np.abs(s_a - s_b).max() < 1e-6
+    assert np.abs(R_a - R_b).max() < 1e-6 and np.abs(t_a - t_b).max() < 1e-6  # metres
+    R_want, t_want = camera_to_base(*_by_score(doc["poses"])[:2], T_CELL)
+    assert np.abs(R_a - R_want).max() < 1e-12 and np.abs(t_a - t_want).max() < 1e-12
 
 
 def test_predict_without_a_base_pose_writes_camera_poses_only(checkpoint: Path, tiny_dataset: Path, tmp_path: Path) -> None:
