@@ -24,7 +24,7 @@ from opnet.synthesis.writer import read_bin_model
 # a fixed camera looking straight down on a level bin that does not move: a bin's size and clearance
 # show at known pixels and depths
 HEIGHT = 0.5
-FIXED = {"resolution": 128, "camera_height": HEIGHT, "clip_end": 1.0, "camera_jitter_m": 0.0, "camera_jitter_deg": 0.0,
+FIXED = {"resolution": 128, "camera_height": HEIGHT, "clip": [None, 1.0], "camera_jitter_m": 0.0, "camera_jitter_deg": 0.0,
          "bin_jitter_m": 0.0, "bin_jitter_deg": 0.0, "collision": "convex_hull", "bin_wall_height": 0.03}
 MODELS = [
     {"bin_inner": 0.10},

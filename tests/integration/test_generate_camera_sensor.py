@@ -61,7 +61,7 @@ def test_bad_camera_file_stops_generation_before_anything_is_written(tmp_path: P
 
 def test_outside_clip_clamp_writes_what_a_real_frame_shows_beyond_the_working_volume(tmp_path: Path) -> None:
     # the file's clip planes end above the bin floor: the floor and the ground lie beyond the far plane
-    near_far = ("scene.camera_file_clip=true", "scene.camera_height=0.5")
+    near_far = ("scene.clip=camera", "scene.camera_height=0.5")
     cam = tmp_path / "camera.yaml"
     cam.write_text(CAMERA_YAML.replace("clip_start: 0.3", "clip_start: 0.35").replace("clip_end: 2.0", "clip_end: 0.49"))
     runs = {}

@@ -87,7 +87,7 @@ def cell_rows(run: Callable[..., subprocess.CompletedProcess], ws: Path) -> None
     camera = ws / "cell_camera.yaml"
     camera.write_text("fx: 300\nfy: 300\ncx: 159.5\ncy: 119.5\nwidth: 320\nheight: 240\nclip_start: 0.5\nclip_end: 3.0\n")
     frames = ws / "cell_frames"
-    scene = SceneConfig(camera_file=str(camera), camera_file_clip=True, camera_height=1.2, camera_tilt_deg=15.0,
+    scene = SceneConfig(camera_file=str(camera), clip="camera", camera_height=1.2, camera_tilt_deg=15.0,
                         camera_azimuth_deg=40.0, bin_inner=0.3, bin_inner_y=0.45, bin_wall_height=0.12,
                         bin_wall_thickness=0.004, camera_jitter_m=0.0, camera_jitter_deg=0.0, outside_clip="clamp")
     # in a child process: this runs in a lane's thread, and the renderer's EGL context belongs to the thread

@@ -154,12 +154,12 @@ def test_the_cell_experiment_composes_into_moving_bin_scenes_and_a_bin_finder_ro
     camera.write_text("fx: 600\nfy: 600\ncx: 319.5\ncy: 239.5\nwidth: 640\nheight: 480\nclip_start: 1.2\nclip_end: 1.8\n")
     cfg = compose_cfg("train", ["experiment=cell", "object=zbracket", f"scene.camera_file={camera}",
                                 "scene.camera_height=1.5", "scene.camera_tilt_deg=0", "scene.camera_azimuth_deg=0",
-                                "scene.clip_start=1.2", "scene.clip_end=1.8", "scene.bin_area=[-0.2,-0.2,0.2,0.2]",
+                                "scene.clip=[1.2,1.8]", "scene.bin_area=[-0.2,-0.2,0.2,0.2]",
                                 "scene.bin_inner=0.3", "scene.bin_inner_y=0.4", "scene.bin_wall_height=0.1",
                                 "scene.bin_wall_thickness=0.005", "scene.bin_clearance=0", "data.roi=auto:0.6"])  # fmt: skip
     scene = SceneConfig.from_dict(dict(cfg.data.generate.scene))
     assert scene.bin_area == (-0.2, -0.2, 0.2, 0.2) and scene.yaw_range_deg == (-180.0, 180.0)
-    assert scene.camera_file_clip and scene.outside_clip == "clamp"
+    assert scene.clip == (1.2, 1.8) and scene.outside_clip == "clamp"
     assert parse_roi(cfg.data.roi) == "auto:0.6"
     rig = make_rig(builtin_object("zbracket"), 10, 2, scene)  # the area is in the camera's view
     assert (rig.camera.clip_start, rig.camera.clip_end) == (1.2, 1.8)

@@ -106,7 +106,7 @@ def test_off_centre_camera_still_sees_the_whole_bin(tmp_path: Path) -> None:
     centre = cam.project((T_cam_world[:3, :3] @ np.zeros(3) + T_cam_world[:3, 3])[None])[0]
     assert np.allclose(centre, [(cam.width - 1) / 2, (cam.height - 1) / 2], atol=1.0)
     assert cam.clip_start < p[:, 2].min() and p[:, 2].max() < cam.clip_end  # derived clip planes
-    with_file_clip = make_rig(builtin_object("shaft"), 15, 1, SceneConfig(camera_file=str(cam_file), camera_file_clip=True))
+    with_file_clip = make_rig(builtin_object("shaft"), 15, 1, SceneConfig(camera_file=str(cam_file), clip="camera"))
     assert (with_file_clip.camera.clip_start, with_file_clip.camera.clip_end) == (0.76295, 0.929367)
 
 
@@ -114,7 +114,8 @@ def test_scene_settings_of_before_keep_their_generation_record() -> None:
     """Datasets made before camera files existed keep matching their generation.json."""
     assert "camera_file" not in SceneConfig().to_dict()
     assert SceneConfig(camera_file="x.yaml").to_dict()["camera_file"] == "x.yaml"
-    assert SceneConfig.from_dict(SceneConfig(camera_file_clip=True).to_dict()).camera_file_clip is True
+    recorded = SceneConfig(camera_file="x.yaml", clip="camera").to_dict()
+    assert recorded["camera_file_clip"] is True and SceneConfig.from_dict(recorded).clip == ("camera", "camera")
 
 
 @pytest.mark.parametrize("name", ["scene_camera.json", "scene_camera.yaml"])

@@ -89,7 +89,7 @@ def test_make_rig_renders_the_file_at_half_its_pixels_from_the_same_pose(tmp_pat
     assert (c.clip_start, c.clip_end) == pytest.approx((full.camera.clip_start, full.camera.clip_end), rel=1e-9)
     assert np.allclose(half.T_world_cam, full.T_world_cam, atol=1e-9)
     assert half.params.camera() == c  # what parameter.json says
-    clipped = make_rig(obj, 3, 1, SceneConfig(camera_file=str(cam), camera_file_clip=True, camera_height=1.0,
+    clipped = make_rig(obj, 3, 1, SceneConfig(camera_file=str(cam), clip="camera", camera_height=1.0,
                                               camera_scale=0.5))  # fmt: skip
     assert (clipped.camera.clip_start, clipped.camera.clip_end) == (0.3, 2.0)
 

@@ -30,7 +30,7 @@ def pile(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     base = tmp_path_factory.mktemp("cell_cli")
     camera = base / "camera.yaml"
     camera.write_text(CAMERA_YAML)
-    scene = SceneConfig(camera_file=str(camera), camera_file_clip=True, camera_height=1.2, camera_tilt_deg=15.0,
+    scene = SceneConfig(camera_file=str(camera), clip="camera", camera_height=1.2, camera_tilt_deg=15.0,
                         camera_azimuth_deg=40.0, bin_inner=0.3, bin_inner_y=0.45, bin_wall_height=0.12,
                         bin_wall_thickness=0.004, bin_clearance=0.2, camera_jitter_m=0.0, camera_jitter_deg=0.0,
                         outside_clip="clamp")
@@ -73,7 +73,7 @@ def test_the_cell_file_holds_every_measured_key_and_train_reads_them(pile, tmp_p
     assert Path(cfg.data.root).name.startswith(f"cell_{cfg.cell.tag}_zbracket") and cfg.cell.tag.startswith("mine_")
     scene = SceneConfig.from_dict(json.loads(json.dumps(dict(cfg.data.generate.scene), default=list)))
     rig = make_rig(builtin_object("zbracket"), 10, 1, scene)  # the generator takes the cell as it is
-    assert (rig.camera.clip_start, rig.camera.clip_end) == (doc["scene"]["clip_start"], doc["scene"]["clip_end"])
+    assert (rig.camera.clip_start, rig.camera.clip_end) == tuple(doc["scene"]["clip"])
     # a re-measured value is another cell: another data folder
     tag = cfg.cell.tag
     cfg.scene.camera_height = 1.25
@@ -89,7 +89,7 @@ def test_without_a_cell_file_each_measured_key_is_mandatory() -> None:
         state_cell(cfg)
     cfg = compose_cfg("train", ["experiment=cell", "object=zbracket", "scene.camera_file=c.yaml",
                                 "scene.camera_height=1.5", "scene.camera_tilt_deg=0", "scene.camera_azimuth_deg=0"])
-    with pytest.raises(ValueError, match=r"scene\.clip_start is not set"):
+    with pytest.raises(ValueError, match=r"scene\.clip is not set"):
         state_cell(cfg)
 
 

@@ -37,7 +37,7 @@ def _generate(root: Path, camera: Path, tilt: float, azimuth: float, clearance: 
     from opnet.synthesis.config import SceneConfig
     from opnet.synthesis.generate import generate_dataset
 
-    scene = SceneConfig(camera_file=str(camera), camera_file_clip=True, camera_height=HEIGHT, camera_tilt_deg=tilt,
+    scene = SceneConfig(camera_file=str(camera), clip="camera", camera_height=HEIGHT, camera_tilt_deg=tilt,
                         camera_azimuth_deg=azimuth, bin_inner=INNER[0], bin_inner_y=INNER[1], bin_wall_height=WALL,
                         bin_wall_thickness=THICKNESS, bin_clearance=clearance, camera_jitter_m=0.0,
                         camera_jitter_deg=0.0, bin_area=(x, y, x, y), bin_yaw_deg=(yaw, yaw), outside_clip="clamp")

@@ -68,7 +68,7 @@ def test_a_bad_reference_size_is_one_line_naming_the_key(value: float) -> None:
 def _dense(rig_d: float | None = 0.2) -> SceneConfig:
     from opnet.paths import REPO_ROOT
 
-    return SceneConfig(camera_file=str(REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"), camera_file_clip=True,
+    return SceneConfig(camera_file=str(REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"), clip="camera",
                        camera_height=1.5, camera_jitter_m=0.03, bin_jitter_m=0.03, rig_d=rig_d)
 
 

@@ -152,7 +152,8 @@ def test_random_rotations_are_uniform_enough() -> None:
 @pytest.mark.parametrize(
     ("values", "match"),
     [({"resolution": 4}, "resolution"), ({"collision": "mesh"}, "collision"), ({"fov_deg": 0}, "fov_deg"),
-     ({"clip_start": 2.0, "clip_end": 1.0}, "clip_end"), ({"settle_checks": 0}, "settle_checks"),
+     ({"clip": [2.0, 1.0]}, "near below far"), ({"clip": "auto"}, "clip"), ({"clip": [0.5, 1.0, 2.0]}, "clip"),
+     ({"clip": [0.5, "camera"]}, "without scene.camera_file"), ({"clip": [None, "camera"]}, "one of each"), ({"settle_checks": 0}, "settle_checks"),
      ({"bin_inner": -1.0}, "bin_inner"), ({"height": 511}, "height"),
      ({"bin_max_fill": 0.0}, "^scene config: bin_max_fill=0.0, expected null or a fraction"),
      ({"bin_max_fill": 1.5}, "bin_max_fill"),

@@ -97,7 +97,7 @@ def camera_file(scale: float, out: Path) -> Path:
 
 def generate(camera: Path, out: Path, cycles: int, views: int, seed: int, scale: float, logs: Path,
              **scene: Any) -> None:  # fmt: skip
-    settings = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
+    settings = {"camera_file": str(camera), "clip": "camera", "views": views, **CAMERA_POSE, **BASKET,
                 **scene}  # fmt: skip
     from opnet.synthesis.sensor import SensorModel
 
@@ -358,7 +358,7 @@ def cell_overrides(cycles: int, views: int, scale: float, steps: int) -> list[st
     models = ",".join(f"{{bin_hole_size:{size},bin_hole_pitch:{pitch}}}" for size, pitch in HOLES)
     basket = ("bin_inner", "bin_inner_y", "bin_wall_height", "bin_wall_thickness", "bin_clearance")
     return ["experiment=cell", "object=ipd_plate", "sensor=photoneo", f"scene.camera_file={FRAMES / 'camera_photoneo.yaml'}",
-            f"scene.camera_scale={scale:g}", f"scene.clip_start={CLIP[0]}", f"scene.clip_end={CLIP[1]}",
+            f"scene.camera_scale={scale:g}", f"scene.clip=[{CLIP[0]},{CLIP[1]}]",
             *(f"scene.{k}={v}" for k, v in CAMERA_POSE.items()), f"scene.bin_area=[{','.join(map(str, AREA))}]",
             *(f"scene.{k}={BASKET[k]}" for k in basket), f"scene.bin_models=[{models}]", f"data.roi=auto:{roi_side():g}",
             f"data.generate.cycles={cycles}", f"scene.views={views}", f"trainer.max_steps={steps}",

@@ -98,7 +98,7 @@ def roi_camera(roi: list[int], clip: list[float], out: Path) -> Path:
 
 def generate(camera: Path, out: Path, cycles: int, drops: int, views: int, seed: int, logs: Path,
              clutter: int = 0, holes: tuple[float, float] | None = None) -> None:  # fmt: skip
-    scene = {"camera_file": str(camera), "camera_file_clip": "true", "views": views, **CAMERA_POSE, **BASKET,
+    scene = {"camera_file": str(camera), "clip": "camera", "views": views, **CAMERA_POSE, **BASKET,
              **({"clutter": clutter} if clutter else {}),
              **({"bin_hole_size": holes[0], "bin_hole_pitch": holes[1]} if holes else {})}
     run_logged([sys.executable, "generate.py", "object=ipd_plate", "sensor=photoneo", f"cycles={cycles}", f"drops={drops}",

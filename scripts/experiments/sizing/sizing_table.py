@@ -10,7 +10,7 @@ scene, 75 drops, the Siléane bunny camera 1.5 m above the floor with its clip p
 the bunny, scaled to the part by D / the bunny's D, ``scene.rig_d``; 8 views per pile), only fewer
 cycles and one worker. ``dense_fixed`` is the dense recipe as it was before it sized its rig (1.5 m
 for every part); ``dense_sized`` the dense recipe with the camera height and clip planes derived
-from the bin (``scene.camera_height=null scene.camera_file_clip=false``: the same intrinsics). Parts other than the configured ones are built-in meshes written to STL and
+from the bin (``scene.camera_height=null scene.clip=null``: the same intrinsics). Parts other than the configured ones are built-in meshes written to STL and
 scaled (``object.mesh_scale``) so that D, as opnet measures it (the object's diameter), is the
 size named. Per dataset: D, the bin (inner side, wall height), drops, camera height, clip planes,
 D in pixels on the floor (written image; at the 128-pixel network input), seconds per pile
@@ -51,7 +51,7 @@ PARTS: dict[str, tuple[str | None, float | None, list[str]]] = {
     "shaft450": ("shaft", 450.0, []),
 }
 
-DENSE = ["scene=bulk", "scene.camera_file=conf/cameras/sileane_bunny.yaml", "scene.camera_file_clip=true",
+DENSE = ["scene=bulk", "scene.camera_file=conf/cameras/sileane_bunny.yaml", "scene.clip=camera",
          "scene.camera_height=1.5", "scene.views=8", "scene.camera_jitter_m=0.03", "scene.camera_jitter_deg=3.0",
          "scene.bin_jitter_m=0.03", "scene.bin_jitter_deg=15.0", "drops=75"]
 #: the part diameter experiment=dense sizes its rig for (the bunny's)
@@ -61,7 +61,7 @@ RECIPES: dict[str, tuple[list[str], int]] = {
     "quickstart": (["scene=train", "drops=10"], 3),
     "dense": ([*DENSE, f"scene.rig_d={DENSE_RIG_D}"], 8),
     "dense_fixed": (DENSE, 8),
-    "dense_sized": ([*DENSE, "scene.camera_height=null", "scene.camera_file_clip=false"], 8),
+    "dense_sized": ([*DENSE, "scene.camera_height=null", "scene.clip=null"], 8),
 }
 #: the scene's absolute lengths (wall thickness 10 mm, jitters 5-30 mm, drop gap 10 mm) cut by hand to a
 #: small part's size, as measured before the generator scaled them itself (scene.small_part_d; 0 here: these

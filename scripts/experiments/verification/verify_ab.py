@@ -27,7 +27,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 from opnet.paths import REPO_ROOT
 from opnet.studies import run_logged
 
-DENSE_SCENE = {"camera_file": str(REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"), "camera_file_clip": "true",
+DENSE_SCENE = {"camera_file": str(REPO_ROOT / "conf" / "cameras" / "sileane_bunny.yaml"), "clip": "camera",
                "camera_height": 1.5, "views": 2, "camera_jitter_m": 0.03, "camera_jitter_deg": 3.0,
                "bin_jitter_m": 0.03, "bin_jitter_deg": 15.0}  # fmt: skip
 PLATE_TEST = REPO_ROOT / "outputs" / "data" / "cells" / "test_trained_c12"

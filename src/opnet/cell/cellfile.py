@@ -15,7 +15,7 @@ from opnet.paths import shared_dir
 #: the keys of the cell ``experiment=cell`` takes from the cell file (or the command line); each is
 #: mandatory there
 MEASURED_KEYS = ("scene.camera_file", "scene.camera_height", "scene.camera_tilt_deg", "scene.camera_azimuth_deg",
-                 "scene.clip_start", "scene.clip_end", "scene.bin_area", "scene.bin_inner", "scene.bin_inner_y",
+                 "scene.clip", "scene.bin_area", "scene.bin_inner", "scene.bin_inner_y",
                  "scene.bin_wall_height", "scene.bin_wall_thickness", "scene.bin_clearance", "data.roi")
 
 
@@ -95,7 +95,7 @@ def cell_yaml(cell: Cell, name: str, camera_file: Path, frames: str, sensor: str
     lines += ["scene:", f"  camera_file: {config_path(camera_file)}",
               f"  camera_height: {_num(cell.camera_height)}", f"  camera_tilt_deg: {_num(cell.tilt_deg, 2)}",
               f"  camera_azimuth_deg: {_num(cell.azimuth_deg, 2)}",
-              f"  clip_start: {_num(cell.clip[0], 3)}", f"  clip_end: {_num(cell.clip[1], 3)}",
+              f"  clip: [{_num(cell.clip[0], 3)}, {_num(cell.clip[1], 3)}]",
               f"  bin_area: [{area}]", f"  bin_inner: {_num(s[0], 3)}", f"  bin_inner_y: {_num(s[1], 3)}",
               f"  bin_wall_height: {_num(cell.wall_height, 3)}", f"  bin_wall_thickness: {_num(cell.thickness, 3)}",
               f"  bin_clearance: {_num(cell.clearance, 3)}",

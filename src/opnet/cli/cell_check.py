@@ -133,11 +133,18 @@ def run_check(cfg: Any, cell: str, frames: list[Any], camera: Any, work: Path, p
               drops: int | None = None) -> dict[str, Any]:
     """Measure the real frames, generate the piles and the empty bin, and compare (the numbers and the
     arrays the table and the picture need)."""
+    from omegaconf import OmegaConf
+
     from opnet.cell import check, rig
     from opnet.cell.estimate import measure_cell
     from opnet.synthesis.sensor import SensorModel, sensor_rng
+    from opnet.synthesis.working_volume import parse_clip
 
-    clip = (float(cfg.scene.clip_start), float(cfg.scene.clip_end))
+    value = cfg.scene.clip
+    clip = parse_clip(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value, float("inf"))
+    if not all(isinstance(plane, float) for plane in clip):
+        raise ValueError(f"scene.clip={clip!r}: the check needs the cell's working volume in metres, "
+                         "[near, far] (the cell file's)")
     real = [check.frame_stats(f.name, f.depth, camera, clip) for f in frames]
     found = [(f, s) for f, s in zip(frames, real, strict=True) if s.view is not None]
     if not found:

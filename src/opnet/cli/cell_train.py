@@ -19,6 +19,13 @@ def _given_on_command_line(key: str) -> bool:
     return any(o.lstrip("+").split("=", 1)[0] == key for o in overrides)
 
 
+def _planes(clip: Any) -> str:
+    """``scene.clip`` as the console states it: ``near-far m`` where it gives metres."""
+    if isinstance(clip, list | tuple) and len(clip) == 2:
+        return f"{clip[0]}-{clip[1]} m"
+    return f"{clip}"
+
+
 def state_cell(cfg: Any) -> list[str]:
     """For ``experiment=cell`` (a config with a ``cell`` node): every measured key resolved (the first one
     missing is a ValueError naming it and where to get it), a sensor preset chosen by the cell file or the
@@ -51,7 +58,7 @@ def state_cell(cfg: Any) -> list[str]:
     s = {k.split(".", 1)[1]: v for k, v in values.items()}
     lines = [f"cell {name or '(from the command line)'}: camera {s['camera_file']} at {s['camera_height']} m over the bin "
              f"floor, tilt {s['camera_tilt_deg']} deg, azimuth {s['camera_azimuth_deg']} deg; working volume "
-             f"{s['clip_start']}-{s['clip_end']} m, area {s['bin_area']} m",
+             f"{_planes(s['clip'])}, area {s['bin_area']} m",
              f"  bin {s['bin_inner']} x {s['bin_inner_y']} m, walls {s['bin_wall_height']} m (thickness "
              f"{s['bin_wall_thickness']} m), {s['bin_clearance']} m over the ground; crop {s['roi']}; sensor {sensor}; "
              f"data {cfg.data.root}"]

@@ -24,7 +24,7 @@ def scene_overrides(camera_file: str | None, camera_height: float | None, sets: 
 
     out: dict[str, object] = {}
     if camera_file:
-        out.update(camera_file=str(Path(camera_file).resolve()), camera_file_clip=True)
+        out.update(camera_file=str(Path(camera_file).resolve()), clip="camera")
     if camera_height is not None:
         out["camera_height"] = camera_height
     for item in sets:

@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 from opnet.synthesis.fields import SETTING_GROUPS, _setting, from_known_keys  # noqa: F401 (SETTING_GROUPS: re-exported)
+from opnet.synthesis.working_volume import CAMERA, from_recorded, metres, parse_clip, to_recorded
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 #: the smallest perforation of a generated bin (metres) and the largest length of a scene setting (metres)
@@ -41,8 +42,10 @@ class SceneConfig:
             height at which the whole bin rim fits into the image with ``view_margin`` to spare.
         view_margin: relative margin around the bin rim when ``camera_height`` is automatic;
             negative values cut the rim off (parts at the walls partly out of view).
-        clip_start, clip_end: clip planes in metres (the depth code spans them); None = derived from
-            the camera height, the bin and the object diameter.
+        clip: the working volume, the one setting of the clip planes (the depth code spans them):
+            null (derived from the camera height, the bin and the object diameter), ``camera`` (the
+            camera file's) or ``[near, far]`` metres (:mod:`opnet.synthesis.working_volume`);
+            ``clip_start`` / ``clip_end`` / ``camera_file_clip`` read it.
         camera_tilt_deg: the camera's optical axis this many degrees off vertical (0 = straight
             down, the default; real cells often look 15-30 degrees off), turned about the bin
             floor's centre so that the camera keeps looking at it from ``camera_height``.
@@ -101,7 +104,7 @@ class SceneConfig:
             crosses, which is what the network sees of a real sensor's frame (its far ground and
             near clutter are measured, and the input clamps them to 0 or 1). Use "clamp" whenever
             the clip planes cut through the scene: a real rig's working volume
-            (``camera_file_clip``) above a floor or a raised basket's ground.
+            (``clip: camera``) above a floor or a raised basket's ground.
 
     Physics:
         physics: the engine, "mujoco" (default) or "pybullet" (the datasets made before MuJoCo;
@@ -142,7 +145,7 @@ class SceneConfig:
             every larger part are unaffected.
         sized_for_d: set by :meth:`for_part` (the D the settings were scaled for), None as configured.
         rig_d: the part diameter (metres) the camera rig is set up for: ``camera_height``, the clip
-            planes (given, or the camera file's with ``camera_file_clip``) and the jitters
+            planes (given, or the camera file's with ``clip: camera``) and the jitters
             (``camera_jitter_m``, ``bin_jitter_m``) are scaled by D / ``rig_d`` for a part of
             diameter D (:meth:`for_part`), so that every part is framed as the rig frames a part of
             ``rig_d``: the bin follows D already, and the whole scene scales with it (the image is the
@@ -153,8 +156,6 @@ class SceneConfig:
         camera_file: a Siléane ``camera_params.txt``, an IPA ``parameter.json`` or a YAML with
             ``fx fy cx cy width height clip_start clip_end``: the intrinsics and image size of the
             generated images (non-square pixels and any principal point on the image).
-        camera_file_clip: use the file's clip planes (a real rig at a known ``camera_height``);
-            default: derived from the bin like for the built-in camera.
         camera_scale: render at this many times the file's pixels (a number in (0, 4]; 1 = as
             the file says): the same field of view and pose, the sensor model's pixel-unit
             settings scaled with it (``SensorModel.scaled``), both as written to the dataset. 0.5
@@ -182,8 +183,7 @@ class SceneConfig:
     fov_deg: float = _setting(50.0, "camera")
     camera_height: float | None = _setting(None, "cell", rig=True)
     view_margin: float = _setting(0.08, "camera")
-    clip_start: float | None = _setting(None, "cell", rig=True)
-    clip_end: float | None = _setting(None, "cell", rig=True)
+    clip: Any = _setting(None, "cell", rig=True)
     camera_tilt_deg: float = _setting(0.0, "cell", later=True)
     camera_azimuth_deg: float = _setting(0.0, "cell", later=True)
     camera_jitter_m: float = _setting(0.005, "randomization", rig=True, part=True)
@@ -218,7 +218,6 @@ class SceneConfig:
     solo_cache_mm: float = _setting(0.3, "rendering")
     solo_cache_deg: float = _setting(0.3, "rendering")
     camera_file: str | None = _setting(None, "cell", later=True)
-    camera_file_clip: bool = _setting(False, "cell", later=True)
     views: int = _setting(1, "camera", later=True)
     physics: str = _setting("mujoco", "physics")
     coacd_threshold: float = _setting(0.1, "physics", later=True)
@@ -259,11 +258,12 @@ class SceneConfig:
             need(value is None or (0 < value <= self.resolution and (self.resolution - value) % 2 == 0), key,
                  "None or a size <= resolution with (resolution - size) even (a centred crop)")
         need(0.0 < self.fov_deg < 170.0, "fov_deg", "degrees in (0, 170)")
-        for key in ("camera_height", "clip_start", "clip_end", "bin_inner", "bin_wall_height", "bin_inner_y"):
+        for key in ("camera_height", "bin_inner", "bin_wall_height", "bin_inner_y"):
             value = getattr(self, key)
             need(value is None or (math.isfinite(value) and value > 0), key, "None or a positive number of metres")
-        if self.clip_start is not None and self.clip_end is not None:
-            need(self.clip_start < self.clip_end, "clip_end", f"> clip_start={self.clip_start}")
+        object.__setattr__(self, "clip", parse_clip(self.clip, MAX_SCENE_M))
+        need(CAMERA not in self.clip or self.camera_file is not None, "clip",
+             "null or metres without scene.camera_file (camera: the file's planes)")
         need(self.collision in COLLISION_MODES, "collision", f"one of {COLLISION_MODES}")
         need(self.physics in PHYSICS_ENGINES, "physics", f"one of {PHYSICS_ENGINES} (the physics engine)")
         # a negative margin brings the camera closer than the rim: parts at the walls leave the view,
@@ -289,7 +289,6 @@ class SceneConfig:
                                             and not isinstance(self.bin_max_fill, bool) and 0 < self.bin_max_fill <= 1),
              "bin_max_fill", "null or a fraction in (0, 1] of the volume inside the walls")
         need(self.max_cycle_restarts >= 0, "max_cycle_restarts", "an integer >= 0")
-        need(isinstance(self.camera_file_clip, bool), "camera_file_clip", "true or false")
         need(0 < self.camera_scale <= 4, "camera_scale", "a number in (0, 4] (x the pixels of scene.camera_file)")
         need(self.camera_scale == 1 or self.camera_file is not None, "camera_scale",
              "1 without scene.camera_file (it scales the pixels of the file's camera)")
@@ -306,7 +305,7 @@ class SceneConfig:
              f"0 (solid) or at least {MIN_HOLE_M} m (a perforation a camera resolves)")
         need(self.bin_hole_size == 0 or self.bin_hole_pitch >= 2 * MIN_HOLE_M, "bin_hole_pitch",
              f"at least {2 * MIN_HOLE_M} m")
-        for key in ("camera_height", "clip_start", "clip_end", "bin_inner", "bin_inner_y", "bin_wall_height",
+        for key in ("camera_height", "bin_inner", "bin_inner_y", "bin_wall_height",
                     "bin_clearance", "bin_wall_thickness"):  # fmt: skip
             value = getattr(self, key)
             need(value is None or value <= MAX_SCENE_M, key, f"at most {MAX_SCENE_M:g} metres (a bin-picking cell)")
@@ -377,7 +376,7 @@ class SceneConfig:
         returned as they are: the same scene whoever sizes it first):
 
         - with ``rig_d``: :data:`RIG_LENGTHS` (and the camera file's clip planes with
-          ``camera_file_clip``, written as ``clip_start`` / ``clip_end``) scaled by
+          ``clip: camera``, written as metres) scaled by
           ``diameter / rig_d``; ``rig_d`` is then spent (None in the result);
         - :data:`PART_LENGTHS` not scaled by the rig, by ``diameter / small_part_d`` where that is
           below 1.
@@ -391,13 +390,15 @@ class SceneConfig:
             changes["rig_d"] = None
         if rig != 1.0:
             values = {k: getattr(self, k) for k in self.RIG_LENGTHS}
-            if self.camera_file and self.camera_file_clip and not (self.clip_start and self.clip_end):
+            if CAMERA in self.clip:
                 from opnet.datasets.camera_file import read_camera_file
 
                 given = read_camera_file(self.camera_file)
-                values["clip_start"] = values["clip_start"] or given.clip_start
-                values["clip_end"] = values["clip_end"] or given.clip_end
-            changes.update({k: v * rig for k, v in values.items() if v is not None})
+                values["clip"] = [given.clip_start if self.clip[0] == CAMERA else self.clip[0],
+                                  given.clip_end if self.clip[1] == CAMERA else self.clip[1]]
+            changes.update({k: v * rig for k, v in values.items() if v is not None and k != "clip"})
+            if values["clip"] != (None, None):
+                changes["clip"] = [None if v is None else v * rig for v in values["clip"]]
         if 0 < diameter < self.small_part_d:
             factor = diameter / self.small_part_d
             changes.update({k: getattr(self, k) * factor for k in self.PART_LENGTHS if k not in changes})
@@ -423,19 +424,37 @@ class SceneConfig:
         return self.bin_yaw_deg or (-self.bin_jitter_deg, self.bin_jitter_deg)
 
     @property
+    def clip_start(self) -> float | None:
+        """The near plane's metres where ``clip`` gives them (None: derived, or the camera file's)."""
+        return metres(self.clip[0])
+
+    @property
+    def clip_end(self) -> float | None:
+        """The far plane's metres where ``clip`` gives them."""
+        return metres(self.clip[1])
+
+    @property
+    def camera_file_clip(self) -> bool:
+        """Whether the planes ``clip`` does not give in metres are the camera file's."""
+        return CAMERA in self.clip
+
+    @property
     def image_size(self) -> tuple[int, int]:
         """(width, height) of the written image, pixels."""
         return (self.width or self.resolution, self.height or self.resolution)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> SceneConfig:
-        """Build from a mapping (a Hydra ``scene`` node or a plain dict); unknown keys are errors."""
-        return from_known_keys(cls, values, "scene config")
+        """Build from a mapping (a Hydra ``scene`` node, a plain dict or a dataset's recorded ``scene``, whose
+        ``clip_start`` / ``clip_end`` / ``camera_file_clip`` are read into ``clip``); unknown keys are errors."""
+        return from_known_keys(cls, from_recorded(values or {}, "scene config"), "scene config")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (the inverse of :meth:`from_dict`); fields added after datasets
         existed are left out at their defaults, so those datasets' ``generation.json`` still match."""
-        out = dataclasses.asdict(self)
+        out: dict[str, Any] = {}
+        for key, value in dataclasses.asdict(self).items():  # the working volume as every dataset records it
+            out.update(to_recorded(self.clip) if key == "clip" else {key: value})
         for key in ("bin_area", "bin_yaw_deg"):
             out[key] = None if out[key] is None else list(out[key])
         out["bin_models"] = None if self.bin_models is None else [dict(m) for m in self.bin_models]

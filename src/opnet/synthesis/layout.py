@@ -19,7 +19,7 @@ Automatic sizes (every one can be set in :class:`SceneConfig`):
 - a camera from a file (``camera_file``: its intrinsics and image size, any principal point; at
   ``camera_scale`` x its pixels, the same field of view): the camera moves sideways so that the
   image centre, not the optical axis, looks at the bin centre; its clip planes are used with
-  ``camera_file_clip``, else derived as below;
+  ``clip: camera``, else derived as below;
 - clip planes: ``clip_start`` one diameter above the wall tops (parts rarely pile higher than the
   walls; closer points are written as missing depth), ``clip_end`` past the ground plane at the
   image corners under the worst camera tilt;

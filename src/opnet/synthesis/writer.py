@@ -29,10 +29,11 @@ from opnet.datasets.ipa_params import IPAParameters, write_parameters
 from opnet.fileio.atomic import disk_full_named, write_text_atomic, write_text_if_changed
 from opnet.objects.library import BUILTINS, builtin_object
 from opnet.objects.model import ObjectModel
-from opnet.synthesis.config import SceneConfig
+from opnet.synthesis.config import MAX_SCENE_M, SceneConfig
 from opnet.synthesis.layout import totes
 from opnet.synthesis.preview import write_preview
 from opnet.synthesis.sensor import SensorModel
+from opnet.synthesis.working_volume import normal_recorded
 
 if TYPE_CHECKING:  # the generator (pybullet, pyrender) is not needed to read or check a dataset
     from opnet.synthesis.cycle import CycleResult
@@ -98,6 +99,7 @@ def _differing(existing: Mapping[str, Any], expected: Mapping[str, Any]) -> list
     for key in sorted(set(expected) | set(existing)):
         a, b = existing.get(key), expected.get(key)
         if key == "scene" and isinstance(a, dict) and isinstance(b, dict):
+            a = normal_recorded(a, MAX_SCENE_M)  # a working volume recorded before clip was one setting
             a, b = {"physics": "pybullet", **a}, {"physics": "pybullet", **b}
             out += [f"{key}.{k}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
         elif a != b:
