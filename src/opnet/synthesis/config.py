@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from opnet.geometry.camera import MAX_IMAGE_SIDE
-from opnet.synthesis.fields import SETTING_GROUPS, _setting, from_known_keys  # noqa: F401 (SETTING_GROUPS: re-exported)
+from opnet.synthesis.fields import SETTING_GROUPS, _number, _numbers, _setting, from_known_keys  # noqa: F401 (SETTING_GROUPS: re-exported)
 from opnet.synthesis.working_volume import CAMERA, from_recorded, metres, parse_clip, to_recorded
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
@@ -480,20 +480,3 @@ _LATER_FIELDS = scene_keys("later")
 BIN_MODEL_KEYS = scene_keys("bin_model")
 SceneConfig.PART_LENGTHS = scene_keys("part")
 SceneConfig.RIG_LENGTHS = scene_keys("rig")
-
-def _number(value: Any) -> bool:
-    """A finite int or float (not a boolean)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _numbers(value: Any, n: int) -> tuple[float, ...] | None:
-    """``value`` as a tuple of ``n`` floats when it is a sequence of ``n`` finite numbers, else None."""
-    if value is None or isinstance(value, (str, bytes)):
-        return None
-    try:
-        items = list(value)
-    except TypeError:
-        return None
-    if len(items) != n or not all(_number(v) for v in items):
-        return None
-    return tuple(float(v) for v in items)

@@ -4,6 +4,7 @@ building a dataclass from a mapping whose unknown keys are an error (:func:`from
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -45,4 +46,22 @@ def from_known_keys(cls: type, values: Mapping[str, Any] | None, section: str) -
     return cls(**values)
 
 
-__all__ = ["SETTING_GROUPS", "_setting", "from_known_keys"]
+def _number(value: Any) -> bool:
+    """A finite int or float (not a boolean)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _numbers(value: Any, n: int) -> tuple[float, ...] | None:
+    """``value`` as a tuple of ``n`` floats when it is a sequence of ``n`` finite numbers, else None."""
+    if value is None or isinstance(value, (str, bytes)):
+        return None
+    try:
+        items = list(value)
+    except TypeError:
+        return None
+    if len(items) != n or not all(_number(v) for v in items):
+        return None
+    return tuple(float(v) for v in items)
+
+
+__all__ = ["SETTING_GROUPS", "_number", "_numbers", "_setting", "from_known_keys"]

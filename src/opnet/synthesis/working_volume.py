@@ -15,9 +15,10 @@ settings.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
+
+from opnet.synthesis.fields import _number
 
 CAMERA = "camera"
 #: the keys a dataset's ``generation.json`` records the working volume with
@@ -47,7 +48,7 @@ def parse_clip(value: Any, max_m: float) -> tuple[Plane, Plane]:
     for entry in value:
         if entry is None or entry == CAMERA:
             planes.append(entry)
-        elif isinstance(entry, int | float) and not isinstance(entry, bool) and math.isfinite(entry) and entry > 0:
+        elif _number(entry) and entry > 0:
             if entry > max_m:
                 raise bad(f": at most {max_m:g} metres (a bin-picking cell)")
             planes.append(float(entry))
