@@ -35,7 +35,7 @@ def _bin_frame_poses(record, R_cam_bin: np.ndarray, t_cam_bin: np.ndarray) -> np
 @pytest.fixture(scope="module")
 def two_views(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("views") / "v2"
-    scene = SceneConfig(**{**SCENE.to_dict(), "views": 2})
+    scene = SceneConfig.from_dict({**SCENE.to_dict(), "views": 2})
     report = generate_dataset(builtin_object("bracket"), out, cycles=6, drops=DROPS, seed=3, scene=scene,
                               progress=False, previews=0)
     assert (report.cycles_generated, report.piles_simulated, report.scenes_written) == (6, 3, 6 * (DROPS + 1))
@@ -76,7 +76,7 @@ def test_views_resume_to_the_same_bytes(two_views: Path, tmp_path: Path) -> None
     copy = tmp_path / "copy"
     shutil.copytree(two_views, copy)
     (copy / "gt" / "cycle_0003" / f"{DROPS:03d}.csv").unlink()  # view 1 of pile 1 incomplete
-    scene = SceneConfig(**{**SCENE.to_dict(), "views": 2})
+    scene = SceneConfig.from_dict({**SCENE.to_dict(), "views": 2})
     report = generate_dataset(builtin_object("bracket"), copy, cycles=6, drops=DROPS, seed=3, scene=scene,
                               progress=False, previews=0)
     assert (report.cycles_generated, report.cycles_skipped, report.piles_simulated) == (1, 5, 1)
@@ -110,12 +110,12 @@ def test_views_read_back_as_sileane_ground_truth(two_views: Path, tmp_path: Path
                                         ("camera_jitter_deg", 60.0)])
 def test_bad_views_and_jitter_name_the_key(key: str, value: object) -> None:
     with pytest.raises(ValueError, match=f"{key}="):
-        SceneConfig(**{**SCENE.to_dict(), key: value})
+        SceneConfig.from_dict({**SCENE.to_dict(), key: value})
 
 
 @pytest.mark.parametrize("key, value", [("camera_jitter_m", 5.0), ("camera_jitter_deg", 30.0)])
 def test_impossible_camera_jitter_names_the_key(key: str, value: float) -> None:
-    scene = SceneConfig(**{**SCENE.to_dict(), key: value})
+    scene = SceneConfig.from_dict({**SCENE.to_dict(), key: value})
     with pytest.raises(ValueError, match=f"{key}="):
         make_rig(builtin_object("bracket"), DROPS, 1, scene)
 
