@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 from opnet.geometry.camera import MAX_IMAGE_SIDE
 from opnet.synthesis.fields import SETTING_GROUPS, _number, _numbers, _setting, from_known_keys  # noqa: F401 (SETTING_GROUPS: re-exported)
-from opnet.synthesis.working_volume import CAMERA, from_recorded, metres, parse_clip, to_recorded
+from opnet.synthesis.working_volume import CAMERA, camera_planes, from_recorded, metres, parse_clip, to_recorded
 
 COLLISION_MODES = ("auto", "convex_hull", "vhacd")
 #: the smallest perforation of a generated bin (metres) and the largest length of a scene setting (metres)
@@ -45,7 +45,7 @@ class SceneConfig:
         clip: the working volume, the one setting of the clip planes (the depth code spans them):
             null (derived from the camera height, the bin and the object diameter), ``camera`` (the
             camera file's) or ``[near, far]`` metres (:mod:`opnet.synthesis.working_volume`);
-            ``clip_start`` / ``clip_end`` / ``camera_file_clip`` read it.
+            ``clip_start`` / ``clip_end`` give its metres.
         camera_tilt_deg: the camera's optical axis this many degrees off vertical (0 = straight
             down, the default; real cells often look 15-30 degrees off), turned about the bin
             floor's centre so that the camera keeps looking at it from ``camera_height``.
@@ -393,11 +393,9 @@ class SceneConfig:
             if CAMERA in self.clip:
                 from opnet.datasets.camera_file import read_camera_file
 
-                given = read_camera_file(self.camera_file)
-                values["clip"] = [given.clip_start if self.clip[0] == CAMERA else self.clip[0],
-                                  given.clip_end if self.clip[1] == CAMERA else self.clip[1]]
+                values["clip"] = camera_planes(self.clip, read_camera_file(self.camera_file))
             changes.update({k: v * rig for k, v in values.items() if v is not None and k != "clip"})
-            if values["clip"] != (None, None):
+            if any(v is not None for v in values["clip"]):
                 changes["clip"] = [None if v is None else v * rig for v in values["clip"]]
         if 0 < diameter < self.small_part_d:
             factor = diameter / self.small_part_d
@@ -432,11 +430,6 @@ class SceneConfig:
     def clip_end(self) -> float | None:
         """The far plane's metres where ``clip`` gives them."""
         return metres(self.clip[1])
-
-    @property
-    def camera_file_clip(self) -> bool:
-        """Whether the planes ``clip`` does not give in metres are the camera file's."""
-        return CAMERA in self.clip
 
     @property
     def image_size(self) -> tuple[int, int]:

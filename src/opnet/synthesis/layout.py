@@ -43,6 +43,7 @@ from opnet.geometry.camera import MAX_CLIP_END_M, Camera
 from opnet.objects.model import ObjectModel
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.tilt import homogeneous, inverse_pose, rotation_about, tilted, tilted_clip
+from opnet.synthesis.working_volume import camera_planes
 
 __all__ = ["R_WORLD_CAM_DOWN", "BinGeometry", "CycleLayout", "Rig", "bin_fill", "bin_geometry", "hull_volume",
            "homogeneous", "inverse_pose", "make_rig", "random_rotation", "rotation_about", "sample_layout", "tilted",
@@ -223,12 +224,11 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     _check_jitter(cfg, h, wall, math.degrees(math.atan(tan_half_image)))
     tilt = math.tan(math.radians(cfg.camera_jitter_deg))
     # a tilted bin's rim rises up to outer x sin(tilt)
-    clip_start = cfg.clip_start or min(
+    near, far = camera_planes(cfg.clip, given)  # metres where given or the camera file's; None: derived below
+    clip_start = near or min(
         max(h - b.wall_height - D - cfg.camera_jitter_m - b.outer * math.sin(math.radians(cfg.bin_tilt_deg)), 0.1 * h)
         for b in bins)
-    clip_end = cfg.clip_end or max((h + b.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m for b in bins)
-    if given is not None and cfg.camera_file_clip:
-        clip_start, clip_end = cfg.clip_start or given.clip_start, cfg.clip_end or given.clip_end
+    clip_end = far or max((h + b.thickness) * (1.0 + tilt * corner_tan) * 1.02 + cfg.camera_jitter_m for b in bins)
     if clip_start >= clip_end:
         raise ValueError(f"scene config: clip_start={clip_start} must be below clip_end={clip_end}")
 
@@ -262,10 +262,10 @@ def make_rig(obj: ObjectModel, drops: int, cycles: int, cfg: SceneConfig) -> Rig
     camera = params.camera()
     if cfg.camera_tilt_deg > 0:
         T_world_cam = tilted(T_world_cam, cfg.camera_tilt_deg, cfg.camera_azimuth_deg)
-        if not (cfg.clip_start and cfg.clip_end) and not (given is not None and cfg.camera_file_clip):
+        if near is None or far is None:  # a derived plane: derived again for the tilted camera
             clips = [tilted_clip(camera, T_world_cam, b, D, cfg) for b in bins]
-            near, far = min(c[0] for c in clips), max(c[1] for c in clips)
-            params = dataclasses.replace(params, clip_start=float(cfg.clip_start or near), clip_end=float(cfg.clip_end or far))
+            params = dataclasses.replace(params, clip_start=float(near or min(c[0] for c in clips)),
+                                         clip_end=float(far or max(c[1] for c in clips)))
             camera = params.camera()
     rig = Rig(bin_geom, params, camera, T_world_cam, radius, bins)
     check_camera_range(rig, cfg)

@@ -67,6 +67,12 @@ def metres(plane: Plane) -> float | None:
     return plane if isinstance(plane, float) else None
 
 
+def camera_planes(clip: tuple[Plane, Plane], camera: Any) -> tuple[float | None, float | None]:
+    """``clip`` with each :data:`CAMERA` entry replaced by ``camera``'s plane (``clip_start`` / ``clip_end``): metres
+    where the planes are given or the camera's, None where derived. ``camera`` may be None without such entries."""
+    return (camera.clip_start if clip[0] == CAMERA else clip[0], camera.clip_end if clip[1] == CAMERA else clip[1])
+
+
 def to_recorded(clip: tuple[Plane, Plane]) -> dict[str, Any]:
     """The keys a dataset records ``clip`` with (``camera_file_clip`` only when true, as every dataset made
     before it existed left it out)."""
@@ -104,5 +110,5 @@ def normal_recorded(scene: Mapping[str, Any], max_m: float) -> dict[str, Any]:
     return {**{k: v for k, v in scene.items() if k not in RECORDED_KEYS}, **to_recorded(clip)}
 
 
-__all__ = ["CAMERA", "RECORDED_KEYS", "from_recorded", "metres", "normal_recorded", "parse_clip",
+__all__ = ["CAMERA", "RECORDED_KEYS", "camera_planes", "from_recorded", "metres", "normal_recorded", "parse_clip",
            "to_recorded"]
