@@ -6,7 +6,8 @@
 Per frame, as ``predict.py`` runs it (the checkpoint's framing, region of interest and clip planes; its recorded
 refinement unless ``--refine`` says otherwise): *crop* (the bin finder's region of interest and the input's
 preprocessing: crop, resize, fill), *network* (the fused fp32 forward), *decode* (hypotheses from the grid),
-*refine* (the refinement), *total*. Prints a table of the mean, median and worst milliseconds per stage (the
+*refine* (the refinement; its own stages below it: *scene* the depth image's point cloud, *icp*, *search*,
+*polish*, *rank*), *total*. Prints a table of the mean, median and worst milliseconds per stage (the
 frames are read before the clock starts; the first frame warms up and is not counted).
 """
 
@@ -26,7 +27,11 @@ import cv2
 import numpy as np
 import torch
 
+from opnet.refine.pipeline import STAGES as REFINE_STAGES
+
 STAGES = ("crop", "network", "decode", "refine", "total")
+#: the refinement's own stages, rows of their own under *refine*
+REFINE_ROWS = tuple(f"refine: {s}" for s in REFINE_STAGES)
 
 
 def frames(root: Path, count: int) -> list:
@@ -55,7 +60,7 @@ def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
     framing = system.settings.input
     clip = working_clip(None, framing.trained_clip)
-    times: dict[str, list[float]] = {s: [] for s in STAGES}
+    times: dict[str, list[float]] = {s: [] for s in (*STAGES, *REFINE_ROWS)}
     for k, record in enumerate(records):
         camera = with_clip(record.camera, clip) if clip is not None else record.camera
         t0 = time.perf_counter()
@@ -66,19 +71,22 @@ def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]
         t2 = time.perf_counter()
         hyps = system.decode(output, [net_cam])[0]
         t3 = time.perf_counter()
+        inside: dict[str, float] = {}
         if refiner is not None:
-            hyps = refiner(hyps, record.depth, camera)[0]
+            hyps = refiner(hyps, record.depth, camera, inside)[0]
         t4 = time.perf_counter()
         if k == 0:
             continue  # warm-up
         for stage, ms in zip(STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0), strict=True):
             times[stage].append(1000 * ms)
+        for row, stage in zip(REFINE_ROWS, REFINE_STAGES, strict=True):
+            times[row].append(1000 * inside.get(stage, 0.0))
     return {s: np.asarray(v) for s, v in times.items()}
 
 
 def table(times: dict[str, np.ndarray]) -> list[str]:
     lines = ["| stage | mean ms | median ms | worst ms |", "|---|---|---|---|"]
-    for s in STAGES:
+    for s in (*STAGES[:4], *(r for r in REFINE_ROWS if times[r].any()), STAGES[4]):
         v = times[s]
         lines.append(f"| {s} | {v.mean():.0f} | {np.median(v):.0f} | {v.max():.0f} |")
     return lines

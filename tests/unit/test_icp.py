@@ -84,6 +84,22 @@ def test_no_depth_near_the_hypothesis_is_a_skip_with_the_pose_kept() -> None:
     assert refine_pose(R_gt, T_GT, model, empty, space).status == "no_depth"
 
 
+def test_the_scene_cloud_holds_only_measured_points_with_their_normals() -> None:
+    """A missing pixel is no point of the cloud, though its neighbours could give it a normal (and its four
+    neighbours have none); the strided grid is the image's every k-th pixel."""
+    yy, xx = np.mgrid[0:64, 0:64]
+    depth = 0.8 + 0.001 * xx + 0.0005 * yy  # a tilted plane
+    depth[20, 30] = np.nan
+    depth[40, 10] = 0.0
+    full = SceneCloud.from_depth(depth, CAM.fx, CAM.fy, 31.5, 31.5)
+    assert np.isfinite(full.points).all() and np.isfinite(full.normals).all()
+    assert len(full.points) == 62 * 62 - 2 * 5  # the border has no normal; a missing pixel: 1 point, 4 normals
+    assert (full.normals[:, 2] < 0).all()  # facing the camera
+    strided = SceneCloud.from_depth(depth, CAM.fx, CAM.fy, 31.5, 31.5, 2)
+    grid = strided._grid
+    assert np.array_equal(grid.xyz[..., 2], np.where(depth > 0, depth, np.nan)[::2, ::2], equal_nan=True)
+
+
 def test_hypotheses_are_refined_best_first_within_the_budget() -> None:
     _, R_gt, scene, model, space = _setup("bracket")
     rng = np.random.default_rng(5)

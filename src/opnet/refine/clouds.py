@@ -74,29 +74,34 @@ class SceneCloud:
     @classmethod
     def from_depth(cls, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int = 1) -> SceneCloud:
         """From a z-depth image (H, W) in metres (NaN or <= 0: missing) and its intrinsics."""
-        depth = np.asarray(depth, np.float64)
+        depth = np.asarray(depth)
         if depth.ndim != 2:
             raise ValueError(f"icp: depth must be an (H, W) image, got shape {depth.shape}")
-        # the strided grid first: its points, and normals from its own neighbours
+        # the strided grid first: its points, and normals from its own neighbours (only the grid's pixels are
+        # converted: a megapixel frame at stride 4 is a sixteenth of the work)
         u = np.arange(0, depth.shape[1], stride, dtype=np.float64)
         v = np.arange(0, depth.shape[0], stride, dtype=np.float64)
-        d = depth[::stride, ::stride]
+        d = depth[::stride, ::stride].astype(np.float64)
         z = np.where(np.isfinite(d) & (d > 0), d, np.nan)
-        xyz = np.stack((z * ((u - cx) / fx), z * ((v - cy) / fy)[:, None], z), -1)
-        # normals from the neighbouring pixels (central differences; the border has none)
+        x, y = z * ((u - cx) / fx), z * ((v - cy) / fy)[:, None]
+        xyz = np.stack((x, y, z), -1)
+        # normals from the neighbouring pixels (central differences; the border has none), coordinate by
+        # coordinate on whole planes (several times faster than on the last axis of (h, w, 3) arrays)
         n = np.full_like(xyz, np.nan)
+        ok = np.zeros(z.shape, bool)  # the point, and a normal from both neighbours each way
         if xyz.shape[0] > 2 and xyz.shape[1] > 2:
-            a = xyz[1:-1, 2:] - xyz[1:-1, :-2]  # along u
-            b = xyz[2:, 1:-1] - xyz[:-2, 1:-1]  # along v
-            c = n[1:-1, 1:-1]
-            c[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-            c[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-            c[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-            norm = np.sqrt(np.sum(c * c, -1, keepdims=True))
-            c /= np.where(norm > 0, norm, np.nan)
-            c *= np.where(np.sum(c * xyz[1:-1, 1:-1], -1, keepdims=True) > 0, -1.0, 1.0)  # facing the camera
-        ok = np.isfinite(n).all(-1)  # a finite normal needs the point and both neighbours each way
-        return cls(xyz[ok], n[ok], _Grid(xyz, n, ok, u, v, fx, fy, cx, cy, stride))
+            a = [c[1:-1, 2:] - c[1:-1, :-2] for c in (x, y, z)]  # along u
+            b = [c[2:, 1:-1] - c[:-2, 1:-1] for c in (x, y, z)]  # along v
+            c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+            norm = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+            scale = np.where(norm > 0, norm, np.nan)  # finite: so is every coordinate of the normal
+            facing = (c[0] / scale) * x[1:-1, 1:-1] + (c[1] / scale) * y[1:-1, 1:-1] + (c[2] / scale) * z[1:-1, 1:-1]
+            scale = np.where(facing > 0, -scale, scale)  # facing the camera
+            for k in range(3):
+                n[1:-1, 1:-1, k] = c[k] / scale
+            ok[1:-1, 1:-1] = np.isfinite(scale) & np.isfinite(z[1:-1, 1:-1])
+        kept = np.flatnonzero(ok)  # rows of the flattened grids: faster than a mask over (h, w, 3)
+        return cls(xyz.reshape(-1, 3)[kept], n.reshape(-1, 3)[kept], _Grid(xyz, n, ok, u, v, fx, fy, cx, cy, stride))
 
     def neighbourhood(self, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
         """The points within ``radius`` metres of ``centre`` (3,) and their normals, in pixel order."""
