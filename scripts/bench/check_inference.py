@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     datamodule = build_datamodule(run_cfg, system.parameterization.obj, train=False)
     datamodule.setup("test")
     loader = getattr(datamodule, f"{args.split}_dataloader")()
-    space, occ = system.parameterization.obj.pose_space, system.hparams.max_occlusion
+    space, occ = system.parameterization.obj.pose_space, system.max_occlusion
     results, rows = {}, []
     for name, settings in PATHS.items():
         if name == "default":

@@ -85,7 +85,7 @@ class LearningCurve(L.Callback):
         space = pl_module.parameterization.obj.pose_space
         with ema.applied(pl_module) if ema is not None else nullcontext():  # the weights validation scored
             summary, = evaluate(pl_module, trainer.datamodule.test_dataloader(),
-                                [AveragePrecision(space, pl_module.hparams.max_occlusion)])
+                                [AveragePrecision(space, pl_module.max_occlusion)])
         pl_module.train(was_training)
         return float(summary.ap)
 

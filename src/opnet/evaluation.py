@@ -81,18 +81,18 @@ class OnScenes(Evaluator):
 
 def scoring(system: Any) -> list[Evaluator]:
     """:class:`AveragePrecision` and :class:`Diagnostics` of a system's object at its ``max_occlusion``."""
-    obj, occlusion = system.parameterization.obj, system.hparams.max_occlusion
+    obj, occlusion = system.parameterization.obj, system.max_occlusion
     return [AveragePrecision(obj.pose_space, occlusion), Diagnostics(obj.pose_space, obj.diameter, occlusion)]
 
 
 @torch.no_grad()
 def evaluate(system: Any, batches: Iterable[Batch], evaluators: Sequence[Evaluator]) -> list[Any]:
-    """Run ``system`` (an :class:`opnet.system.OPNetSystem`, put in eval mode) over ``batches`` (a
+    """Run ``system`` (an :class:`opnet.estimator.PoseEstimator`, put in eval mode) over ``batches`` (a
     split's loader) and return each evaluator's result, in order.
 
-    Each batch goes to the system's device; the output is :meth:`~opnet.system.OPNetSystem.infer`'s
-    (the fast path where :meth:`~opnet.system.OPNetSystem.configure_inference` set one) and is decoded
-    with :meth:`~opnet.system.OPNetSystem.decode` when an evaluator ``decodes``.
+    Each batch goes to the system's device; the output is :meth:`~opnet.estimator.PoseEstimator.infer`'s
+    (the fast path where :meth:`~opnet.estimator.PoseEstimator.configure_inference` set one) and is decoded
+    with :meth:`~opnet.estimator.PoseEstimator.decode` when an evaluator ``decodes``.
     """
     system.eval()
     decodes = any(e.decodes for e in evaluators)

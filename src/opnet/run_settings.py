@@ -1,7 +1,7 @@
 """What a trained model needs at inference, typed: its framing, its decoding and its object.
 
 A run's settings are made once at the edge (train.py, from its Hydra config, in
-:func:`opnet.cli.build.build_components`), held by the system (``OPNetSystem.settings``) and saved
+:func:`opnet.cli.build.build_components`), held by the model (``PoseEstimator.settings``) and saved
 as their own checkpoint entry (:data:`CHECKPOINT_KEY`, :meth:`RunSettings.to_dict`); predict.py,
 eval.py, the ONNX export and its runtime read them back from there (:func:`opnet.cli.build.load_checkpoint`,
 :meth:`RunSettings.from_dict`), not from the run config. A checkpoint written before the entry

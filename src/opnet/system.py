@@ -1,4 +1,5 @@
-"""The single LightningModule: DenseNet-BC backbone + output parameterization + multi-task loss.
+"""The single LightningModule: a :class:`~opnet.estimator.PoseEstimator` (DenseNet-BC backbone + output
+parameterization) with the multi-task loss, the optimizer and the validation metric.
 
 Training encodes the ground truth with the parameterization (vectorized, on the model's device)
 and optimizes the paper's loss; validation decodes the output into pose hypotheses and scores them
@@ -8,7 +9,6 @@ outside Lightning's loop, by :func:`opnet.evaluation.evaluate` (train.py, eval.p
 
 from __future__ import annotations
 
-import logging
 import math
 from typing import Any
 
@@ -18,23 +18,19 @@ from torch import nn
 
 from opnet.data.sample import Batch
 from opnet.datasets.camera_file import dataset_camera
+from opnet.estimator import PoseEstimator
 from opnet.losses import MultiTaskLoss
 from opnet.metrics.diagnostics import MISS_REASONS
 from opnet.metrics.plot import pr_curve_figure
 from opnet.metrics.records import HypothesisSet
 from opnet.metrics.torchmetric import PoseAP
 from opnet.parameterizations.base import Parameterization
-from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, RunSettings
+from opnet.run_settings import CHECKPOINT_KEY, RunSettings
 from opnet.visualize import draw_positions
 
-log = logging.getLogger(__name__)
 
-#: whole-image CUDA graphs kept per system, one per camera and framing (each holds its own GPU memory)
-MAX_GRAPHED_CAMERAS = 4
-
-
-class OPNetSystem(L.LightningModule):
-    """Backbone, parameterization and loss, with the optimizer and the AP metric.
+class OPNetSystem(PoseEstimator, L.LightningModule):
+    """A :class:`~opnet.estimator.PoseEstimator` that trains: the loss, the optimizer and the AP metric.
 
     Args:
         backbone: maps (B, 1, S, S) normalized depth to (B, C, G, G), C = parameterization.out_channels.
@@ -50,6 +46,9 @@ class OPNetSystem(L.LightningModule):
             ``config``, with the parameterization's decoding.
     """
 
+    #: Lightning's own (it follows ``.to()`` before the module has weights on the device)
+    device = L.LightningModule.device
+
     def __init__(
         self,
         backbone: nn.Module,
@@ -64,41 +63,12 @@ class OPNetSystem(L.LightningModule):
         config: dict[str, Any] | None = None,
         settings: RunSettings | None = None,
     ) -> None:
-        super().__init__()
+        super().__init__(backbone, parameterization, config=config, settings=settings, max_occlusion=max_occlusion)
         self.save_hyperparameters(ignore=["backbone", "parameterization", "loss", "settings"])
-        self.backbone = backbone
-        self.parameterization = parameterization
         self.loss = loss
-        if settings is None:
-            settings = RunSettings.from_training_config(config or {}, decoding=DecodingSettings.of(parameterization))
-        self.settings = settings
         space, diameter = parameterization.obj.pose_space, parameterization.obj.diameter
         self.val_ap = PoseAP(space, max_occlusion=max_occlusion, diameter=diameter)
         self._val_images: list[torch.Tensor] = []
-
-    @property
-    def obj(self) -> Any:
-        """The object the system estimates (its parameterization's :class:`~opnet.objects.model.ObjectModel`)."""
-        return self.parameterization.obj
-
-    @property
-    def settings(self) -> RunSettings:
-        """What the trained model needs at inference (:class:`~opnet.run_settings.RunSettings`): the
-        framing, the training clip planes and the object as given, the decoding the parameterization
-        decodes with now."""
-        return self._run_settings.with_decoding(DecodingSettings.of(self.parameterization))
-
-    @settings.setter
-    def settings(self, settings: RunSettings) -> None:
-        self._run_settings = settings
-        self.set_decoding(settings.decoding)
-
-    def set_decoding(self, decoding: DecodingSettings) -> None:
-        """Decode with ``decoding`` from now on: the parameterization becomes a copy with those
-        settings (its encoding unchanged)."""
-        if decoding == DecodingSettings.of(self.parameterization):
-            return
-        self.parameterization = self.parameterization.with_decoding(**decoding.overrides())
 
     def on_fit_start(self) -> None:
         """Record the training scenes' clip planes in :attr:`settings` (``trained_clip``), which the
@@ -116,79 +86,6 @@ class OPNetSystem(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Save :attr:`settings` as their own entry (:data:`opnet.run_settings.CHECKPOINT_KEY`), plain data."""
         checkpoint[CHECKPOINT_KEY] = self.settings.to_dict()
-
-    def forward(self, images: torch.Tensor) -> torch.Tensor:
-        """(B, 1, S, S) normalized depth -> (B, C, G, G) parameterization output."""
-        return self.backbone(images)
-
-    def predict_poses(self, batch: Batch) -> list[HypothesisSet]:
-        """Pose hypotheses per image, camera frame, metres (through the fast inference path when
-        :meth:`configure_inference` set one and the module is not training)."""
-        return self.decode(self.infer(batch.images), batch.cameras)
-
-    def decode(self, output: torch.Tensor, cameras: Any) -> list[HypothesisSet]:
-        """The parameterization's hypotheses of a network output, averaged on the model's device
-        or on the host as :attr:`device_side` says."""
-        return self.parameterization.decode(output, cameras, device_side=self.device_side)
-
-    @property
-    def device_side(self) -> bool:
-        """Whether preprocessing (predict.py) and averaging run as torch operations on the model's
-        device (``inference.device_side``, resolved for the device the module is on now: ``auto``
-        is on for CUDA, so validation on a GPU averages there)."""
-        from opnet.inference import device_side
-
-        return device_side(getattr(self, "_device_side", "auto"), self.device)
-
-    def configure_decoding(self, device_side: bool | str = "auto") -> None:
-        """Set ``inference.device_side`` (auto, true or false) for validation, test and predictions."""
-        from opnet.inference import device_side as resolve
-
-        resolve(device_side, self.device)  # a bad value is refused now, naming the key
-        self._device_side = device_side
-
-    def configure_inference(self, settings: Any) -> str:
-        """Use :func:`opnet.inference.fast_forward` with ``settings`` for predictions (and their
-        ``device_side`` for decoding); returns a description of the path (precision, memory
-        format, CUDA graph, where preprocessing and averaging run, device)."""
-        from opnet.inference import InferenceSettings, fast_forward
-
-        if not isinstance(settings, InferenceSettings):
-            settings = InferenceSettings.from_config(settings)
-        self._fast = fast_forward(self.backbone, settings)
-        self._settings = settings
-        self._pipelines: dict = {}
-        self.configure_decoding(settings.device_side)
-        return settings.describe(self.device, self.backbone)
-
-    def graphed_pipeline(self, camera: Any, size: int, fit: str) -> Any:
-        """The whole prediction of one image of ``camera`` as one CUDA graph
-        (:class:`opnet.inference.GraphedPipeline`, made at the first image of each camera and
-        framing), where :meth:`configure_inference` asked for a CUDA graph and device-side decoding
-        on a CUDA device; else None."""
-        settings = getattr(self, "_settings", None)
-        if settings is None or self.training or not settings.graphed(self.device) or not self.device_side:
-            return None
-        key = (camera, size, fit)
-        if key not in self._pipelines:
-            if len(self._pipelines) >= MAX_GRAPHED_CAMERAS:  # each graph holds its own GPU memory
-                if not getattr(self, "_graphs_full", False):
-                    log.info("inference: more than %d cameras (a region of interest per image?): images of further "
-                             "cameras run without a whole-image graph", MAX_GRAPHED_CAMERAS)
-                    self._graphs_full = True
-                return None
-            from opnet.inference import GraphedPipeline
-
-            self._pipelines[key] = GraphedPipeline(self.backbone, settings, self.parameterization, camera, size, fit,
-                                                   fuse=settings.compile_pipeline)
-        return self._pipelines[key]
-
-    def infer(self, images: torch.Tensor) -> torch.Tensor:
-        """The network output for prediction: the fast path if configured (eval mode), else forward."""
-        fast = getattr(self, "_fast", None)
-        if fast is not None and not self.training:
-            return fast(images)
-        return self(images)
 
     # ---- training ---------------------------------------------------------------------------
     def _losses(self, batch: Batch, output: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -313,7 +313,7 @@ def test_a_region_of_interest_is_trained_kept_and_applied_by_eval_predict_and_ex
     assert list(tiny_dataset.glob("cache_*_roi8-4-120-116"))  # the cropped scenes' own cache
     ckpt = out / "checkpoints" / "last.ckpt"
     system = eval_cli.load_checkpoint(ckpt)[0]
-    assert list(system.hparams["config"]["data"]["roi"]) == [8, 4, 120, 116]
+    assert list(system.config["data"]["roi"]) == [8, 4, 120, 116]
     ev = eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"out={tmp_path / 'eval'}", "examples=0"]))
     assert ev["scenes"] > 0
     png = sorted((tiny_dataset / "p_depth").rglob("*.png"))[-1]
@@ -342,7 +342,7 @@ def test_the_bin_finder_roi_is_trained_on_moved_bins_and_kept_by_the_checkpoint_
     assert list(data.glob("cache_*_roiauto0.2"))
     ckpt = out / "checkpoints" / "last.ckpt"
     system = eval_cli.load_checkpoint(ckpt)[0]
-    assert system.hparams["config"]["data"]["roi"] == "auto:0.2"
+    assert system.config["data"]["roi"] == "auto:0.2"
     assert eval_cli.run(_cfg("eval", [f"ckpt={ckpt}", f"out={tmp_path / 'eval'}", "examples=0"]))["scenes"] > 0
     png = sorted((data / "p_depth").rglob("*.png"))[-1]
     assert predict_cli.run(_cfg("predict", [f"ckpt={ckpt}", f"input={png}", f"out={tmp_path / 'pred'}"])) == 0

@@ -428,7 +428,7 @@ def test_the_system_keeps_a_few_whole_image_graphs(monkeypatch: pytest.MonkeyPat
     """One pipeline per camera and framing, at most MAX_GRAPHED_CAMERAS (a region of interest per image
     makes a camera per image: further ones run the ordinary way instead of holding ever more GPU memory)."""
     from opnet.inference import InferenceSettings
-    from opnet.system import MAX_GRAPHED_CAMERAS
+    from opnet.estimator import MAX_GRAPHED_CAMERAS
 
     monkeypatch.setattr(InferenceSettings, "graphed", lambda self, device: True)  # as on a GPU
     system = tiny_system(["parameterization=eve", "decoding=tuned"])

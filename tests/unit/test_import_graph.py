@@ -197,12 +197,33 @@ def test_no_circle_between_the_packages_of_opnet() -> None:
     assert not found, "\n".join(describe(graph, c) for c in found)
 
 
-@pytest.mark.parametrize("module", ["opnet.inference", "opnet.system", "opnet.data.datamodule",
-                                    "opnet.synthesis", "opnet.parameterizations"])
-def test_low_layers_load_no_command_line_module(module: str) -> None:
-    code = f"import sys, {module}; print(sorted(m for m in sys.modules if m.startswith('opnet.cli')))"
+LOW_LAYERS = ("opnet.inference", "opnet.estimator", "opnet.system", "opnet.data.datamodule", "opnet.synthesis",
+              "opnet.parameterizations")
+
+
+def test_low_layers_load_no_command_line_module() -> None:
+    """Each low layer imported in turn in one fresh interpreter: the command-line modules each one loads are
+    those new after its import (one loaded by an earlier layer is that layer's finding)."""
+    code = ("import importlib, sys\n"
+            "cli = lambda: {m for m in sys.modules if m.startswith('opnet.cli')}\n"
+            f"for module in {LOW_LAYERS!r}:\n"
+            "    before = cli(); importlib.import_module(module); print(module, sorted(cli() - before))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
-    assert out.stdout.strip() == "[]", f"{module} loads {out.stdout.strip()}"
+    assert out.stdout.splitlines() == [f"{m} []" for m in LOW_LAYERS]
+
+
+#: what only training needs: seconds of every start of a command that does not train
+TRAINING_ONLY = ("lightning", "torchmetrics", "albumentations", "torch._dynamo")
+
+
+def test_the_inference_commands_load_nothing_only_training_needs() -> None:
+    """predict.py, eval.py, the export and the model they load start without Lightning, torchmetrics and
+    the augmentation (several seconds each start on a 2-core CPU); eval.py's data module loads Lightning
+    when it runs, not when it is imported."""
+    code = ("import sys, opnet.cli.predict, opnet.cli.eval, opnet.cli.export, opnet.estimator, opnet.cli.build\n"
+            f"print(sorted(m for m in {TRAINING_ONLY!r} if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.strip() == "[]", f"the inference commands load {out.stdout.strip()}"
 
 
 def test_a_physics_engine_is_imported_only_when_asked_for() -> None:

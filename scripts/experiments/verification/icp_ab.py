@@ -82,7 +82,7 @@ def run_decoding(ckpt: Path, split: str, budget_list: list[float | None], search
     dm = build_datamodule(cfg, obj, train=False)
     dm.setup("test")
     scenes = predict_scenes(system, getattr(dm, f"{split}_dataloader")())
-    max_occ = system.hparams.max_occlusion
+    max_occ = system.max_occlusion
     name = ckpt.resolve().parent.parent.name
     shown = ",".join(f"{k}={v}" for k, v in (decoding or {}).items()) or "as trained"
     rows = [{"run": name, "object": obj.name, "decoding": shown, "refine": "none", "scenes": len(scenes),

@@ -8,7 +8,7 @@ import pickle
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from hydra.errors import InstantiationException
@@ -18,13 +18,15 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from opnet._repr import short_repr
 from opnet.cli.trusted import saved_config, short
 from opnet.fileio.files import require_regular_file
-from opnet.losses import MultiTaskLoss
 from opnet.objects.config import object_from_config
 from opnet.objects.model import ObjectModel
 from opnet.parameterizations.base import Parameterization
 from opnet.run_settings import CHECKPOINT_KEY, DecodingSettings, InputSettings, RunSettings
 from opnet.settings_schema import METADATA, TRAINING, check_value, read_settings
-from opnet.system import OPNetSystem
+
+if TYPE_CHECKING:
+    from opnet.estimator import PoseEstimator
+    from opnet.system import OPNetSystem
 
 
 @dataclass
@@ -147,8 +149,8 @@ def check_scene_address(cfg: DictConfig) -> None:
                      f"generate.py); write {keys} instead of data.generate.scene.<key>")
 
 
-def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
-    """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
+def _network(cfg: DictConfig | dict[str, Any]) -> tuple[DictConfig, ObjectModel, Parameterization, Any, RunSettings]:
+    """The config (as a DictConfig), object, parameterization, backbone and settings of a (run) config."""
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
     for section in ("rotation", "parameterization", "model", "loss"):
@@ -168,12 +170,30 @@ def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
     if presence_prior is not None and hasattr(backbone, "set_head_bias"):
         # start every slot's presence near the share of occupied cells (stabilizes early training)
         backbone.set_head_bias(parameterization.presence_channels(), float(presence_prior))
-    with config_group("loss"):
-        loss: MultiTaskLoss = instantiate(cfg.loss)
-    optim = plain(cfg.get("optim", {})) or {}
     settings = RunSettings.from_training_config(cfg, decoding=DecodingSettings.of(parameterization))
+    return cfg, obj, parameterization, backbone, settings
+
+
+def build_components(cfg: DictConfig | dict[str, Any]) -> Components:
+    """Object, parameterization, backbone, loss and the LightningModule from a (run) config."""
+    from opnet.system import OPNetSystem
+
+    cfg, obj, parameterization, backbone, settings = _network(cfg)
+    with config_group("loss"):
+        loss = instantiate(cfg.loss)
+    optim = plain(cfg.get("optim", {})) or {}
     system = OPNetSystem(backbone, parameterization, loss, config=run_config(cfg), settings=settings, **optim)
     return Components(obj, parameterization, system)
+
+
+def build_estimator(cfg: DictConfig | dict[str, Any]) -> PoseEstimator:
+    """The model for inference (:class:`~opnet.estimator.PoseEstimator`: no loss, no optimizer, no Lightning)
+    from a (run) config; ``optim.max_occlusion`` is kept for scoring."""
+    from opnet.estimator import PoseEstimator
+
+    cfg, _, parameterization, backbone, settings = _network(cfg)
+    occlusion = (plain(cfg.get("optim", {})) or {}).get("max_occlusion", 0.5)
+    return PoseEstimator(backbone, parameterization, config=run_config(cfg), settings=settings, max_occlusion=occlusion)
 
 
 def build_datamodule(cfg: DictConfig, obj: ObjectModel, train: bool = True) -> Any:
@@ -298,9 +318,10 @@ def check_framing_agrees(cfg: DictConfig, settings: RunSettings, path: str | Pat
                          "edit both, or neither")
 
 
-def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetSystem, DictConfig]:
-    """Rebuild a trained system from a checkpoint written by ``train.py``: the network from its run
-    config and weights, its :attr:`~opnet.system.OPNetSystem.settings` from its settings entry
+def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[PoseEstimator, DictConfig]:
+    """Rebuild the trained model (a :class:`~opnet.estimator.PoseEstimator`, without Lightning) from a checkpoint
+    written by ``train.py``: the network from its run config and weights, its
+    :attr:`~opnet.estimator.PoseEstimator.settings` from its settings entry
     (:func:`checkpoint_settings`; the system decodes as they say) or, in a checkpoint written before
     the entry, from its run config (:func:`saved_settings`)."""
     ckpt = read_checkpoint(path, map_location)
@@ -310,7 +331,7 @@ def load_checkpoint(path: str | Path, map_location: str = "cpu") -> tuple[OPNetS
     if not isinstance(ckpt.get("state_dict"), dict):
         raise ValueError(f"{path}: checkpoint holds no state_dict (was it written by train.py?)")
     try:
-        system = build_components(cfg).system
+        system = build_estimator(cfg)
     except (ValueError, FileNotFoundError) as e:  # keys its components do not take, a mesh it names is gone
         raise ValueError(f"{path}: the checkpoint's config: {e}") from None
     if settings is None:

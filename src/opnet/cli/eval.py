@@ -34,13 +34,13 @@ from opnet.refine import (
 )
 from opnet.run_settings import InputSettings
 from opnet.settings_schema import SettingError
-from opnet.system import OPNetSystem
+from opnet.estimator import PoseEstimator
 from opnet.visualize import draw_models
 
 log = logging.getLogger(__name__)
 
 
-def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Path, examples: int = 0,
+def evaluate_split(system: PoseEstimator, datamodule: Any, split: str, out_dir: Path, examples: int = 0,
                    icp: ICPSettings | None = None) -> dict[str, Any]:  # fmt: skip
     """Predict a split, write ``gt/`` and ``results/`` (Siléane JSON), ``summary.json``, ``ap_table.md``
     (eval.py and train.py's test; one :func:`opnet.evaluation.evaluate` with the refinement, the
@@ -61,9 +61,9 @@ def evaluate_split(system: OPNetSystem, datamodule: Any, split: str, out_dir: Pa
         writers.append(OnScenes(lambda scenes: write_examples(system, samples, scenes, out_dir / "predictions",
                                                               examples)))
     turns = OnScenes(lambda scenes: orientation_misses(scenes, obj.pose_space, obj.diameter,
-                                                       max_occlusion=system.hparams.max_occlusion))
+                                                       max_occlusion=system.max_occlusion))
     split_errors = OnScenes(lambda scenes: error_breakdown(scenes, obj.pose_space, obj.diameter,
-                                                           max_occlusion=system.hparams.max_occlusion))
+                                                           max_occlusion=system.max_occlusion))
     *done, count, summary, diagnostics, misses, breakdown = evaluate(
         system, loader, [*refine, *writers, OnScenes(len), *scoring(system), turns, split_errors])
     result = summary.to_dict()
@@ -141,7 +141,7 @@ def _write_bop_results(datamodule: Any, split: str, scenes: dict[str, tuple[Grou
 
 
 def write_examples(
-    system: OPNetSystem, samples: Any, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], out: Path, n: int,
+    system: PoseEstimator, samples: Any, scenes: dict[str, tuple[GroundTruthSet, HypothesisSet]], out: Path, n: int,
     min_score: float = 0.5,
 ) -> list[Path]:
     """PNGs of the first ``n`` scenes: depth with each estimated object's model (score >= min_score) on it."""
@@ -173,7 +173,7 @@ def with_decoding_overrides(param: Any, overrides: Any) -> Any:
     return param.with_decoding(**settings)
 
 
-def apply_decoding_overrides(system: OPNetSystem, overrides: Any) -> None:
+def apply_decoding_overrides(system: PoseEstimator, overrides: Any) -> None:
     """Make ``system`` decode with its settings' decoding overridden by ``decoding=`` (eval.py's and
     predict.py's ``+decoding.*``; :meth:`opnet.run_settings.DecodingSettings.with_overrides`); nothing
     given: unchanged. A bad value or an unknown key is one ``SettingError`` naming it as written."""
@@ -182,7 +182,7 @@ def apply_decoding_overrides(system: OPNetSystem, overrides: Any) -> None:
     system.set_decoding(system.settings.decoding.with_overrides(overrides))
 
 
-def model_settings(system: OPNetSystem, refine: Any, decoding: Any) -> ICPSettings | None:
+def model_settings(system: PoseEstimator, refine: Any, decoding: Any) -> ICPSettings | None:
     """eval.py's and predict.py's refinement and decoding for ``system``: ``refine=model`` (their
     default) is the refinement the checkpoint records (none if it records none); the search decodes
     without pose averaging (every hypothesis is refined and verified on its own) unless

@@ -62,14 +62,14 @@ from opnet.fileio.atomic import write_bytes_atomic
 from opnet.geometry.camera import describe_clip, with_clip, working_clip
 from opnet.metrics.records import HypothesisSet
 from opnet.refine import Refiner
-from opnet.system import OPNetSystem
+from opnet.estimator import PoseEstimator
 from opnet.visualize import draw_models
 
 log = logging.getLogger(__name__)
 
 
 @torch.no_grad()
-def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint") -> HypothesisSet:
+def predict_image(system: PoseEstimator, image: DepthImage, roi: Any = "checkpoint") -> HypothesisSet:
     """Pose hypotheses for one depth image (camera frame, metres).
 
     Args:
@@ -98,7 +98,7 @@ def predict_image(system: OPNetSystem, image: DepthImage, roi: Any = "checkpoint
     return system.decode(output, [net_cam])[0]
 
 
-def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: OPNetSystem,
+def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: PoseEstimator,
                      min_score: float, scene: str | None = None, T_base_cam: np.ndarray | None = None) -> list[Path]:
     """Write ``<out>/<name>.json`` (with base-frame poses when ``T_base_cam`` is given) and (with a
     mesh) ``<out>/<name>.png``; returns the files written."""

@@ -4,17 +4,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import torch
 
-from opnet.data.augment import DepthAugmenter
 from opnet.data.preprocess import RESIZE_INTERPOLATIONS, resize_segmentation, to_network_input
 from opnet.datasets.record import SceneRecord
 from opnet.geometry.camera import Camera
 from opnet.metrics.records import GroundTruthSet
 from opnet.parameterizations.base import GroundTruthBatch
+
+if TYPE_CHECKING:  # the augmenter (and albumentations) only where training loads it
+    from opnet.data.augment import DepthAugmenter
 
 
 @dataclass

@@ -78,7 +78,7 @@ def parameterization_name(param: Parameterization) -> str:
 
 def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
     """Everything the torch-free runtime needs besides the graph: the system's settings
-    (:attr:`~opnet.system.OPNetSystem.settings`: framing, training clip planes, decoding, written by
+    (:attr:`~opnet.estimator.PoseEstimator.settings`: framing, training clip planes, decoding, written by
     their ``to_metadata``), its object's pose space and ICP points, the network's layout.
 
     Args:

@@ -74,7 +74,7 @@ def record(ckpt: Path, split: str) -> dict[str, Any]:
         index, cell, origin = param.target_cells(batch.gt, batch.cameras)
         batches.append({"out": out, "cams": batch.cameras, "gt": batch.gt, "gt_sets": batch.gt_sets,
                         "index": index, "cell": cell, "origin": origin, "names": batch.names})  # fmt: skip
-    return {"param": param, "batches": batches, "max_occlusion": system.hparams.max_occlusion}
+    return {"param": param, "batches": batches, "max_occlusion": system.max_occlusion}
 
 
 def cell_hypotheses(param: Any, out: torch.Tensor, cams: list[Any], cell: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -79,7 +79,7 @@ class RecordedSplit:
         dm = build_datamodule(cfg, system.parameterization.obj, train=False)
         dm.setup("test")
         recorded, = evaluate(system, every_kth(getattr(dm, f"{split}_dataloader")(), stride), [Outputs()])
-        return cls(system.parameterization, *recorded, system.hparams.max_occlusion)
+        return cls(system.parameterization, *recorded, system.max_occlusion)
 
     def scenes(self, settings: dict[str, Any]) -> dict[str, tuple[GroundTruthSet, Any]]:
         """Scene name -> (ground truth, hypotheses) decoded with ``settings``."""
