@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from omegaconf import open_dict
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
@@ -90,6 +91,12 @@ def test_without_a_cell_file_each_measured_key_is_mandatory() -> None:
     cfg = compose_cfg("train", ["experiment=cell", "object=zbracket", "scene.camera_file=c.yaml",
                                 "scene.camera_height=1.5", "scene.camera_tilt_deg=0", "scene.camera_azimuth_deg=0"])
     with pytest.raises(ValueError, match=r"scene\.clip is not set"):
+        state_cell(cfg)
+    # a cell file of an earlier opnet-cell spelt the working volume scene.clip_start / clip_end: named, with what to write
+    with open_dict(cfg.scene):
+        cfg.scene.clip_start, cfg.scene.clip_end = 1.4, 2.1
+    with pytest.raises(ValueError, match=r"sets scene\.clip_start and scene\.clip_end, an earlier spelling: write "
+                                         r"clip: \[1\.4, 2\.1\] under scene"):
         state_cell(cfg)
 
 

@@ -26,6 +26,24 @@ def _planes(clip: Any) -> str:
     return f"{clip}"
 
 
+#: measured keys an earlier opnet-cell wrote under other names: key -> those names
+OLD_SPELLINGS = {"scene.clip": ("scene.clip_start", "scene.clip_end")}
+
+
+def _old_spelling(cfg: Any, key: str) -> str:
+    """What to write instead, where the config holds ``key`` in an earlier spelling (a cell file written by an
+    earlier opnet-cell); else ''."""
+    from omegaconf import OmegaConf
+
+    old = [name for name in OLD_SPELLINGS.get(key, ()) if OmegaConf.select(cfg, name, default=None) is not None]
+    if not old:
+        return ""
+    values = [OmegaConf.select(cfg, name) for name in OLD_SPELLINGS[key]]
+    return (f"; the config sets {' and '.join(old)}, an earlier spelling: write {key.split('.')[-1]}: "
+            f"[{values[0]}, {values[1]}] under {key.split('.')[0]} instead (near and far plane, metres; an entry may "
+            "be null: derived)")
+
+
 def state_cell(cfg: Any) -> list[str]:
     """For ``experiment=cell`` (a config with a ``cell`` node): every measured key resolved (the first one
     missing is a ValueError naming it and where to get it), a sensor preset chosen by the cell file or the
@@ -47,7 +65,7 @@ def state_cell(cfg: Any) -> list[str]:
             value = None
         if value is None:
             where = f"conf/cell/{name}.yaml lacks it" if name else "give cell=<name> (a cell file of opnet-cell)"
-            raise ValueError(f"experiment=cell: {key} is not set ({where}, or {key}=<value>)")
+            raise ValueError(f"experiment=cell: {key} is not set ({where}, or {key}=<value>){_old_spelling(cfg, key)}")
         values[key] = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
     sensor = cfg.sensor.get("name", "ideal")
     if not cfg.cell.get("sensor") and not _given_on_command_line("sensor"):
