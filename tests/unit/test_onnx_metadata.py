@@ -32,6 +32,27 @@ def test_a_valid_metadata_is_typed() -> None:
     assert s["pose_space"]["group"].shape == (1, 3, 3) and s["averaging"]["cluster_score"] == "max"
 
 
+def test_whether_slots_are_conditional_is_read_and_exports_without_the_key_are_mp_alone() -> None:
+    assert validate_metadata(_set(_meta(), "slot_conditional", True), "m.onnx")["slot_conditional"] is True
+    assert validate_metadata(_meta(), "m.onnx")["slot_conditional"] is False  # vanilla, exported before the key
+    assert validate_metadata(_set(_meta(), "parameterization", "mp"), "m.onnx")["slot_conditional"] is True
+
+
+def test_the_parameterizations_say_whether_their_slots_are_conditional() -> None:
+    """MP's slot l + 1 counts only where slots 1..l are present; the mask follows the class's flag."""
+    import torch
+
+    from opnet.objects import builtin_object
+    from opnet.parameterizations import MPParameterization, ZParameterization
+
+    obj = builtin_object("bracket")
+    presence = torch.tensor([0.9, 0.0, 0.9]).reshape(1, 3, 1, 1)  # slot 2 absent, slot 3 present
+    mp, z = MPParameterization(obj, grid=1), ZParameterization(obj, grid=1, depth_slabs=3)
+    assert mp.slot_conditional and not z.slot_conditional
+    assert mp.presence_mask(presence).flatten().tolist() == [True, False, False]
+    assert z.presence_mask(presence).flatten().tolist() == [True, False, True]
+
+
 def _set(meta: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
     meta = copy.deepcopy(meta)
     *parents, last = key.split(".")
@@ -62,6 +83,7 @@ def _set(meta: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
     ("input.interpolation", "cubic", "input.interpolation='cubic'"),
     ("grid_size", 0, "grid_size=0"),
     ("slots", "4", "slots='4'"),
+    ("slot_conditional", 1, "slot_conditional=1: expected true or false"),
     ("pose_space.delta", math.inf, "pose_space.delta=inf"),
     ("pose_space.revolution", 1, "pose_space.revolution=1: expected true or false"),
     ("pose_space.Lambda", [[1, 2], [3]], "pose_space.Lambda="),

@@ -96,6 +96,7 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "rotation": param.rotation.name,
         "grid_size": param.grid_size,
         "slots": param.slots,
+        "slot_conditional": bool(param.slot_conditional),
         "channels_per_slot": param.channels_per_slot,
         "out_channels": param.out_channels,
         "input": {**framing["input"],

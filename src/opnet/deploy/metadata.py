@@ -25,7 +25,7 @@ REQUIRED = ("format", "parameterization", "grid_size", "slots", "channels_per_sl
             "outputs")
 #: every key an export writes (:func:`opnet.deploy.export.export_metadata`), and those of its mappings
 KEYS = ("format", "opnet_version", "checkpoint", "object", "parameterization", "rotation", "grid_size", "slots",
-        "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs", "decoding",
+        "slot_conditional", "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs", "decoding",
         "pose_space", "icp_model", "refine", BASE_POSE_KEY, "camera")
 INPUT_KEYS = (*(k.removeprefix("input.") for k in METADATA.values() if k.startswith("input.")), "layout")
 POSE_SPACE_KEYS = ("Lambda", "group", "delta", "revolution", "lam")
@@ -88,7 +88,7 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
     """The typed decoding settings of ONNX metadata ``meta`` read from ``path``.
 
     Returns:
-        ``{"grid_size", "slots", "channels_per_slot", "input_size", "fit", "interpolation",
+        ``{"grid_size", "slots", "slot_conditional", "channels_per_slot", "input_size", "fit", "interpolation",
         "threshold", "score", "min_visibility", "averaging" (None or eps, min_samples,
         cluster_score, keep_noise), "pose_space" (Lambda, group, delta, revolution, lam),
         "icp_model" (None or points, normals, diameter), "trained_clip" (None or (near, far)),
@@ -134,6 +134,9 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
     averaging = decoding.averaging
     out: dict[str, Any] = {
         "grid_size": s["grid"], "slots": s["slots"],
+        # absent: exported before the key, when only MP's slots were conditional
+        "slot_conditional": (f.value(meta, "slot_conditional", Flag()) if "slot_conditional" in meta
+                             else meta["parameterization"] == "mp"),
         "channels_per_slot": f.value(meta, "channels_per_slot", Whole(1, 1024)),
         "input_size": framing.size, "fit": framing.fit, "interpolation": framing.interpolation, "roi": framing.roi,
         "threshold": decoding.threshold, "score": decoding.score, "min_visibility": decoding.min_visibility,

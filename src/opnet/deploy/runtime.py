@@ -55,11 +55,6 @@ def recorded_refinement(name: str | None, budget_ms: float | None = None) -> ICP
                      "refinement needs its case in opnet.deploy.runtime.recorded_refinement)")
 
 
-#: the parameterizations whose slot l + 1 is read only where slots 1..l are present (the cells' order of the graph's
-#: outputs is slot-major), as their ``presence_mask`` does in PyTorch
-SLOT_CONDITIONAL = ("mp",)
-
-
 class OnnxPoseEstimator:
     """An exported opnet model in ONNX Runtime (CPU by default).
 
@@ -173,7 +168,7 @@ class OnnxPoseEstimator:
     def decode(self, presence: np.ndarray, visibility: np.ndarray, t: np.ndarray, R: np.ndarray) -> HypothesisSet:
         """Hypotheses of one image from its dense outputs (N,), (N,), (N, 3), (N, 3, 3)."""
         keep = presence > self.threshold
-        if self.meta["parameterization"] in SLOT_CONDITIONAL:  # slot l + 1 counts only where slots 1..l are present
+        if self.settings["slot_conditional"]:  # slot l + 1 counts only where slots 1..l are present (slot-major cells)
             slots = self.settings["slots"]
             keep = np.minimum.accumulate(keep.reshape(slots, -1), axis=0).reshape(-1)
         if self.min_visibility > 0:

@@ -75,13 +75,15 @@ class Parameterization(abc.ABC):
     Attributes:
         grid_size, slots, channels_per_slot (8, or 7 for revolution objects), out_channels,
         layout (:class:`ChannelLayout` of one slot), pose_weighting ("cubic": λ3 = 8 v³, "linear":
-        λ3 = v), needs_segmentation, rotation (the orientation codec).
+        λ3 = v), needs_segmentation, slot_conditional (slot l + 1 is read only where slots 1..l are
+        present, as MP's are; the ONNX export records it for the runtime), rotation (the orientation codec).
 
     A subclass implements :meth:`candidates` and :meth:`decode_position` (module docstring).
     """
 
     pose_weighting: str = "cubic"
     needs_segmentation: bool = False  # encode needs GroundTruthBatch.segmentation
+    slot_conditional: bool = False  # slot l + 1 decoded only where slots 1..l are present (presence_mask)
 
     def __init__(
         self,
@@ -341,9 +343,12 @@ class Parameterization(abc.ABC):
         return new
 
     def presence_mask(self, presence: torch.Tensor) -> torch.Tensor:
-        """(B, slots, S, S) presence channel -> bool mask of the cells/slots to decode (above the
-        threshold; a parameterization whose slots depend on each other overrides it, as MP does)."""
-        return presence > self.threshold
+        """(B, slots, S, S) presence channel -> bool mask of the cells/slots to decode: above the threshold
+        and, with :attr:`slot_conditional`, only where every slot before is too."""
+        present = presence > self.threshold
+        if self.slot_conditional:
+            return torch.cummin(present.to(torch.uint8), dim=1).values.bool()
+        return present
 
     def decode_translations(
         self, position: torch.Tensor, cells: CellIndex, cams: CameraBatch

@@ -18,7 +18,8 @@ from opnet.parameterizations.positions import CellRelativePosition, ObjectProjec
 
 
 class MPParameterization(CellRelativePosition, Parameterization):
-    """Coarse grid with up to ``slots`` objects per cell, ranked by visibility.
+    """Coarse grid with up to ``slots`` objects per cell, ranked by visibility: slot l + 1 counts only where
+    slots 1..l are present (:attr:`slot_conditional`).
 
     Args:
         obj: the object model.
@@ -29,6 +30,8 @@ class MPParameterization(CellRelativePosition, Parameterization):
             read at (decision; the paper's formula sums every slot, the default).
         **kwargs: the common settings of :class:`Parameterization`.
     """
+
+    slot_conditional = True
 
     def __init__(
         self,
@@ -55,10 +58,6 @@ class MPParameterization(CellRelativePosition, Parameterization):
         )
         position = torch.stack((cells.x, cells.y, proj.z_norm), -1)[idx]  # (K, 3)
         return Candidates(idx, cell, gt.visibility[idx].double(), position)
-
-    def presence_mask(self, presence: torch.Tensor) -> torch.Tensor:
-        """Slot l+1 counts only where slots 1..l are present: (B, P, S, S) -> bool."""
-        return torch.cummin((presence > self.threshold).to(torch.uint8), dim=1).values.bool()
 
     def presence_weight(self, target: torch.Tensor) -> torch.Tensor:
         """(B, P, S, S): ones, or (conditional_presence_loss) the GT presence of the slot before."""
