@@ -257,9 +257,9 @@ NOTES = [
     "0.341 ± 0.029 on val (base 0.081 ± 0.031) and 0.316 ± 0.015 held-out (base 0.082 ± 0.024), 2 seeds. The cell "
     "recipe sizes its grid to the part (`part_cells: 5` in `experiment=cell`; `part_cells=null`: the grid as given).",
     "- *Steps* (on top of grid 32): twice the steps (`g32_s6000`, 6000, the cosine schedule stretched over them; "
-    "seed 0) lift the plate as decoded to 0.453 on val and 0.431 held-out (grid 32 at 3000: 0.341 / 0.316), found "
-    "53 % (47 %), and with the recorded search to 0.58 / 0.55. The in-training AP levels off at 0.45-0.47 over its "
-    "last 500 steps. One seed so far.",
+    "2 seeds) lift the plate as decoded to 0.430 ± 0.032 on val and 0.423 ± 0.011 held-out (grid 32 at 3000: "
+    "0.341 / 0.316), found 54 % (47 %), and with the recorded search to 0.59 / 0.55. The in-training AP levels off "
+    "at 0.45-0.47 over the last 500 steps of both seeds.",
     "- *Seeds*: the base recipe's two seeds differ by 0.03-0.04 AP as decoded on either split: one seed of another "
     "arm tells apart only a change larger than that.",
     "- *No gain* within the base's spread: the position loss weighted 10× (`lxy10`), a 256-pixel input at the same "
