@@ -26,22 +26,22 @@ def _planes(clip: Any) -> str:
     return f"{clip}"
 
 
-#: measured keys an earlier opnet-cell wrote under other names: key -> those names
-OLD_SPELLINGS = {"scene.clip": ("scene.clip_start", "scene.clip_end")}
-
-
 def _old_spelling(cfg: Any, key: str) -> str:
-    """What to write instead, where the config holds ``key`` in an earlier spelling (a cell file written by an
-    earlier opnet-cell); else ''."""
+    """For ``scene.clip``: the line to write where the config holds the working volume as an earlier opnet-cell
+    wrote it (the keys a dataset records it with, read by :func:`opnet.synthesis.working_volume.from_recorded`);
+    else ''."""
     from omegaconf import OmegaConf
 
-    old = [name for name in OLD_SPELLINGS.get(key, ()) if OmegaConf.select(cfg, name, default=None) is not None]
+    from opnet.synthesis.working_volume import RECORDED_KEYS, from_recorded
+
+    scene = cfg.get("scene") if key == "scene.clip" else None
+    old = {k: OmegaConf.select(scene, k) for k in RECORDED_KEYS if scene is not None and k in scene}
     if not old:
         return ""
-    values = [OmegaConf.select(cfg, name) for name in OLD_SPELLINGS[key]]
-    return (f"; the config sets {' and '.join(old)}, an earlier spelling: write {key.split('.')[-1]}: "
-            f"[{values[0]}, {values[1]}] under {key.split('.')[0]} instead (near and far plane, metres; an entry may "
-            "be null: derived)")
+    planes = from_recorded(old, "scene")["clip"]
+    written = ", ".join("null" if plane is None else str(plane) for plane in planes)
+    return (f"; the config sets {' and '.join(f'scene.{k}' for k in old)}, an earlier spelling: write clip: "
+            f"[{written}] under scene instead (near and far plane, metres; an entry may be null: derived)")
 
 
 def state_cell(cfg: Any) -> list[str]:

@@ -19,6 +19,7 @@ from opnet.cli.console import report, result_summary
 from opnet.cli.locks import writer_lock
 from opnet.datasets.outputs import require_output_folder
 from opnet.datasets.sileane_json import write_gt_json, write_results_json
+from opnet.estimator import PoseEstimator
 from opnet.evaluation import OnScenes, Scenes, evaluate, scoring
 from opnet.fileio.atomic import write_bytes_atomic, write_text_atomic
 from opnet.metrics.breakdown import error_breakdown
@@ -34,7 +35,6 @@ from opnet.refine import (
 )
 from opnet.run_settings import InputSettings
 from opnet.settings_schema import SettingError
-from opnet.estimator import PoseEstimator
 from opnet.visualize import draw_models
 
 log = logging.getLogger(__name__)

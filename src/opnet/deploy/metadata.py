@@ -25,8 +25,8 @@ REQUIRED = ("format", "parameterization", "grid_size", "slots", "channels_per_sl
             "outputs")
 #: every key an export writes (:func:`opnet.deploy.export.export_metadata`), and those of its mappings
 KEYS = ("format", "opnet_version", "checkpoint", "object", "parameterization", "rotation", "grid_size", "slots",
-        "slot_conditional", "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs", "decoding",
-        "pose_space", "icp_model", "refine", BASE_POSE_KEY, "camera")
+        "slot_conditional", "channels_per_slot", "out_channels", "input", "camera_input", "trained_clip", "outputs",
+        "decoding", "pose_space", "icp_model", "refine", BASE_POSE_KEY, "camera")
 INPUT_KEYS = (*(k.removeprefix("input.") for k in METADATA.values() if k.startswith("input.")), "layout")
 POSE_SPACE_KEYS = ("Lambda", "group", "delta", "revolution", "lam")
 ICP_KEYS = ("points", "normals", "diameter")

@@ -95,10 +95,10 @@ class SceneCloud:
             c = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
             norm = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
             scale = np.where(norm > 0, norm, np.nan)  # finite: so is every coordinate of the normal
-            facing = (c[0] / scale) * x[1:-1, 1:-1] + (c[1] / scale) * y[1:-1, 1:-1] + (c[2] / scale) * z[1:-1, 1:-1]
-            scale = np.where(facing > 0, -scale, scale)  # facing the camera
-            for k in range(3):
-                n[1:-1, 1:-1, k] = c[k] / scale
+            unit = [ck / scale for ck in c]
+            away = unit[0] * x[1:-1, 1:-1] + unit[1] * y[1:-1, 1:-1] + unit[2] * z[1:-1, 1:-1] > 0
+            for k in range(3):  # turned to face the camera
+                n[1:-1, 1:-1, k] = np.where(away, -unit[k], unit[k])
             ok[1:-1, 1:-1] = np.isfinite(scale) & np.isfinite(z[1:-1, 1:-1])
         kept = np.flatnonzero(ok)  # rows of the flattened grids: faster than a mask over (h, w, 3)
         return cls(xyz.reshape(-1, 3)[kept], n.reshape(-1, 3)[kept], _Grid(xyz, n, ok, u, v, fx, fy, cx, cy, stride))
