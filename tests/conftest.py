@@ -22,6 +22,18 @@ settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist each of the n workers, and every process a test starts, computes with its
+    share of the cores (OpenMP / BLAS threads), unless OMP_NUM_THREADS is set already: n workers each
+    spinning threads on every core oversubscribe the machine (two tiny trainings side by side on two
+    cores took 40 s each with two threads, 13.5 s with one)."""
+    workers = getattr(config.option, "numprocesses", None)
+    if workers in ("auto", "logical"):
+        workers = os.cpu_count()
+    if isinstance(workers, int) and workers > 1:
+        os.environ.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // workers)))
+
+
 @pytest.fixture(scope="session")
 def shared() -> Path:
     """``../shared`` (or $OPNET_SHARED); skips the test when the reference data is absent."""

@@ -83,6 +83,16 @@ def garbage(size: int, tag: str) -> bytes:
     return random.Random(f"fuzz garbage {tag}").randbytes(size)
 
 
+def compose_config(name: str, overrides: list[str]) -> Any:
+    """``conf/<name>.yaml`` composed with ``overrides``, as the entry point of that name composes it."""
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        return compose(config_name=name, overrides=overrides)
+
+
 def make_base(ws: Path) -> dict[str, Path]:
     """A valid tiny dataset, a checkpoint trained for 2 steps on it, and evaluation folders."""
     from opnet.objects import builtin_object
@@ -93,11 +103,16 @@ def make_base(ws: Path) -> dict[str, Path]:
                      scene=SceneConfig(resolution=96), progress=False, previews=0,
                      object_config={"name": "zbracket", "builtin": "zbracket"})  # fmt: skip
     run = ws / "run"
-    subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), "model=tiny", "object=zbracket", f"data.root={data}",
-                    "data.generate=null", "data.batch_size=4", "data.val_fraction=0.25", "data.test_fraction=0.25",
-                    "trainer.max_epochs=1", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
-                    "trainer.enable_progress_bar=false", "example_predictions=0", f"hydra.run.dir={run}"],
-                   check=True, capture_output=True, cwd=REPO_ROOT)  # fmt: skip
+    from omegaconf import OmegaConf
+
+    from opnet.cli.train import run as train_run
+
+    cfg = compose_config("train", [
+        "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
+        "data.val_fraction=0.25", "data.test_fraction=0.25", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
+        "+trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "example_predictions=0"])  # fmt: skip
+    OmegaConf.update(cfg, "paths.output_dir", str(run), force_add=True)
+    train_run(cfg)  # train.py's own run, in this process: a second interpreter would add only its start-up
     return {"data": data, "ckpt": run / "checkpoints" / "last.ckpt", "gt": run / "test" / "gt",
             "results": run / "test" / "results"}
 
@@ -440,12 +455,12 @@ def _documented_status(name: str) -> int:
 
 def make_extra(ws: Path, base: dict[str, Path]) -> dict[str, Path]:
     """A BOP copy of the dataset, the checkpoint exported to ONNX, and a fresh checkpoint copy."""
+    from opnet.cli.export import run as export_run
     from opnet.datasets.bop import convert_ipa_to_bop
 
     extra = {"bop": convert_ipa_to_bop(base["data"], ws / "bop", split="train_synt", obj_id=1).parent}
     onnx = ws / "model.onnx"
-    subprocess.run([sys.executable, str(REPO_ROOT / "export.py"), f"ckpt={base['ckpt']}", f"out={onnx}", "check=false",
-                    f"hydra.run.dir={ws / 'hydra' / 'export0'}"], check=True, capture_output=True, cwd=REPO_ROOT)
+    export_run(compose_config("export", [f"ckpt={base['ckpt']}", f"out={onnx}", "check=false"]))  # export.py's run
     extra["onnx"] = onnx
     return extra
 

@@ -179,31 +179,6 @@ def test_dataset_of_another_object_is_refused(tiny_dataset: Path, tmp_path: Path
         train_cli.run(cfg)
 
 
-@pytest.mark.slow
-def test_sweep_and_compare_runs(tiny_dataset: Path, tmp_path: Path) -> None:
-    sweep = tmp_path / "sweep"
-    proc = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "train.py"), "-m", "parameterization=vanilla,eve", "model=tiny",
-         "object=zbracket", f"data.root={tiny_dataset}", "data.generate=null", "data.batch_size=4",
-         "data.val_fraction=0.25", "data.test_fraction=0.25", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
-         "trainer.enable_progress_bar=false", "example_predictions=0", f"hydra.sweep.dir={sweep}"],
-        capture_output=True, text=True, timeout=400,
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    arms = sorted(p.name for p in sweep.iterdir() if p.is_dir())
-    assert arms == ["0_vanilla_zbracket_tiny", "1_eve_zbracket_tiny"]
-    cmp = subprocess.run([sys.executable, "-m", "opnet.tools.compare_runs", str(sweep)],
-                         capture_output=True, text=True, timeout=120)
-    assert cmp.returncode == 0, cmp.stderr
-    rows = (sweep / "comparison.csv").read_text().splitlines()
-    assert rows[0].startswith("parameterization,object,ap") and len(rows) == 3
-    expected = {arm: json.loads((sweep / arm / "test" / "summary.json").read_text())["ap"] for arm in arms}
-    for line in rows[1:]:
-        param, obj, ap = line.split(",")[:3]
-        assert float(ap) == pytest.approx(expected[f"{'0' if param == 'vanilla' else '1'}_{param}_{obj}_tiny"], abs=1e-6)
-    assert (sweep / "comparison.png").stat().st_size > 1000 and "| vanilla |" in (sweep / "comparison.md").read_text()
-
-
 def test_separate_test_dataset_learning_curve_and_diagnostics(tiny_dataset: Path, tmp_path: Path) -> None:
     """data.test_root scores another dataset; the learning curve records minutes, val and test AP;
     the test summary carries the error diagnostics and the turns of the orientation misses."""
@@ -252,36 +227,6 @@ def test_several_training_datasets_are_split_by_dataset_and_cycle(tiny_dataset: 
     with pytest.raises(ValueError, match="one data.root"):
         build_datamodule(_train_cfg(tiny_dataset, tmp_path / "r2", [f"data.root=[{tiny_dataset},{other}]",
                                                                      "+data.generate={cycles: 1}"]), builtin_object("zbracket"))  # fmt: skip
-
-
-def test_console_ends_with_the_summary_and_paths_each_line_once(tmp_path: Path) -> None:
-    """train.py from a fresh root (generation included): no line twice, no banners or adverts, and
-    the metric summary and output paths are the last lines, in the run's log file too."""
-    run_dir = tmp_path / "run"
-    proc = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "train.py"), "experiment=quickstart", "data.generate.cycles=10",
-         "data.generate.drops=3", "data.generate.workers=2", "scene.resolution=128", "model=tiny",
-         "trainer.max_epochs=1", "trainer.enable_progress_bar=false", "example_predictions=1",
-         f"hydra.run.dir={run_dir}"],
-        capture_output=True, text=True, timeout=400, env={**os.environ, "OPNET_ROOT": str(tmp_path)},
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    out_lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
-    for banner in ("pybullet build time", "litlogger", "OpenGL_accelerate", "Traceback"):
-        hits = [i for i, line in enumerate(out_lines) if banner in line]
-        assert not hits, f"{banner!r} printed:\n" + "\n".join(out_lines[max(0, hits[0] - 5):hits[0] + 40])
-    messages = [line.split("] - ", 1)[1] for line in out_lines if "] - " in line]
-    assert messages and len(messages) == len(set(messages)), "a log line appears twice"
-    assert sum("Total params" in line for line in out_lines) == 1  # the model summary once
-    stdout = [line for line in proc.stdout.splitlines() if line.strip()]
-    start = max(i for i, line in enumerate(stdout) if re.match(r"test \d+ scenes", line))
-    tail = stdout[start:]  # test N scenes / AP ... / [errors] / run time / 5 paths: nothing after them
-    assert tail[1].strip().startswith("AP ") and "run time" in tail[-6] and len(tail) in (8, 9)
-    assert tail[-5].startswith("run directory : ") and tail[-1].startswith("predictions   : ")
-    summary = json.loads((run_dir / "test" / "summary.json").read_text())
-    assert f"AP {summary['ap']:.4f}" in tail[1]
-    log_text = (run_dir / "train.log").read_text()
-    assert tail[1] in log_text and log_text.rstrip().endswith(tail[-1])
 
 
 def test_eval_and_predict_with_icp_refine_against_each_scene_depth(checkpoint: Path, tiny_dataset: Path,

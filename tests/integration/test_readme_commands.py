@@ -77,6 +77,27 @@ def fill(command: str, values: list[tuple[str, str]]) -> list[str]:
     return argv
 
 
+def assert_console_ends_with_the_summary(proc: subprocess.CompletedProcess, run_dir: Path) -> None:
+    """train.py's console: no line twice, no banners or adverts, and the metric summary and output paths
+    are the last lines, in the run's log file too."""
+    out_lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
+    for banner in ("pybullet build time", "litlogger", "OpenGL_accelerate", "Traceback"):
+        hits = [i for i, line in enumerate(out_lines) if banner in line]
+        assert not hits, f"{banner!r} printed:\n" + "\n".join(out_lines[max(0, hits[0] - 5):hits[0] + 40])
+    messages = [line.split("] - ", 1)[1] for line in out_lines if "] - " in line]
+    assert messages and len(messages) == len(set(messages)), "a log line appears twice"
+    assert sum("Total params" in line for line in out_lines) == 1  # the model summary once
+    stdout = [line for line in proc.stdout.splitlines() if line.strip()]
+    start = max(i for i, line in enumerate(stdout) if re.match(r"test \d+ scenes", line))
+    tail = stdout[start:]  # test N scenes / AP ... / [errors] / run time / 5 paths: nothing after them
+    assert tail[1].strip().startswith("AP ") and "run time" in tail[-6] and len(tail) in (8, 9)
+    assert tail[-5].startswith("run directory : ") and tail[-1].startswith("predictions   : ")
+    summary = json.loads((run_dir / "test" / "summary.json").read_text())
+    assert f"AP {summary['ap']:.4f}" in tail[1]
+    log_text = (run_dir / "train.log").read_text()
+    assert tail[1] in log_text and log_text.rstrip().endswith(tail[-1])
+
+
 def cell_rows(run: Callable[..., subprocess.CompletedProcess], ws: Path) -> None:
     """The three rows of your cell: frames of a generated pile of a known rig (its depth PNGs and camera YAML, a
     calibration of the generator's own pose), the cell file written into the workspace (train.py finds it there
@@ -136,8 +157,9 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
 
     qs_dir = ws / "qs_run"
     qs_extra = [*TINY_DATA, "model=tiny", *TINY_FIT]
-    out = run("quickstart (data → train → test → predictions)", [], [*qs_extra, f"hydra.run.dir={qs_dir}"]).stdout
-    assert "run directory : " in out and (qs_dir / "test" / "summary.json").is_file()
+    # from a fresh root: the generation included
+    assert_console_ends_with_the_summary(
+        run("quickstart (data → train → test → predictions)", [], [*qs_extra, f"hydra.run.dir={qs_dir}"]), qs_dir)
     ckpt = qs_dir / "checkpoints" / "last.ckpt"
     data = next((ws / "outputs" / "data").glob("shaft_*"))
 
@@ -153,7 +175,13 @@ def test_readme_table_commands_run_as_printed(tmp_path: Path) -> None:
         sweep = next((ws / "outputs" / "train" / "multiruns").iterdir())
         assert len([p for p in sweep.iterdir() if p.is_dir()]) == 6
         run("compare a sweep (Table I layout)", [("outputs/train/multiruns/<date_time>", str(sweep))])
-        assert (sweep / "comparison.md").is_file()
+        # one row per arm (named <n>_<parameterization>_<object>_<model>), its AP the arm's own test AP
+        tested = {arm.name.split("_")[1]: json.loads((arm / "test" / "summary.json").read_text())["ap"]
+                  for arm in sweep.iterdir() if arm.is_dir()}  # fmt: skip
+        compared = (sweep / "comparison.csv").read_text().splitlines()
+        assert compared[0].startswith("parameterization,object,ap") and len(compared) == 7
+        assert {r.split(",")[0]: float(r.split(",")[2]) for r in compared[1:]} == pytest.approx(tested, abs=1e-6)
+        assert (sweep / "comparison.png").stat().st_size > 1000 and "| vanilla |" in (sweep / "comparison.md").read_text()
         # TensorBoard is a server: its command is checked to exist and the sweep to hold event files
         assert fill(rows["TensorBoard over a sweep"], [("outputs/train/multiruns/<date_time>", str(sweep))])[0] == "tensorboard"
         assert subprocess.run(["tensorboard", "--version_tb"], capture_output=True, timeout=120).returncode == 0

@@ -145,8 +145,9 @@ AVERAGINGS = [
 ]
 
 
-def _parameterization(name: str, obj: object = ZBRACKET) -> object:
-    return instantiate(OmegaConf.load(config_dir() / "parameterization" / f"{name}.yaml"), _partial_=True)(obj=obj)
+def _parameterization(name: str, obj: object = ZBRACKET, **settings: object) -> object:
+    return instantiate(OmegaConf.load(config_dir() / "parameterization" / f"{name}.yaml"), _partial_=True)(
+        obj=obj, **settings)
 
 
 def _with_averaging(param: object, averaging: bool | dict) -> object:
@@ -325,7 +326,8 @@ def test_dense_decoding_equals_the_host_on_random_outputs(obj: str, name: str, a
 def test_dense_decoding_of_z_equals_the_host(averaging: dict) -> None:
     from opnet.parameterizations.dense_decoding import DenseDecoding
 
-    param = _with_averaging(_parameterization("z"), averaging)
+    # 4 depth slabs, not 16: every pair of a grid's hypotheses is compared, 16 times fewer pairs on a CPU
+    param = _with_averaging(_parameterization("z", depth_slabs=4), averaging)
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
     out = noisy_outputs(param, camera, 3, seed=1)
     assert_same_hypotheses(param.decode(out, camera), DenseDecoding(param, camera, 3, "cpu").decode(out))
@@ -408,11 +410,17 @@ def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape
     assert_graph_capturable(tiny_system([f"parameterization={name}", "decoding=tuned", f"formulation={formulation}"]))
 
 
-def test_the_compiled_pipeline_equals_the_plain_one(pile: list) -> None:
-    """``inference.compile_pipeline``: the preprocessing and decoding compiled (here for the CPU) give
-    the same hypotheses; a setting that is no boolean is refused naming the key."""
+def test_the_compiled_pipeline_equals_the_plain_one(pile: list, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``inference.compile_pipeline``: the preprocessing and decoding compiled give the same hypotheses;
+    a setting that is no boolean is refused naming the key. The whole-image pipeline runs on a GPU
+    only: there Inductor generates the kernels; without one, Dynamo traces the same code and AOT
+    Autograd decomposes it (``aot_eager``) but no C++ is generated for a CPU nobody runs it on (a
+    minute of compiling, cold, on a 2-core CPU)."""
     from opnet.inference import GraphedPipeline, InferenceSettings
 
+    if not torch.cuda.is_available():
+        compile_ = torch.compile
+        monkeypatch.setattr(torch, "compile", lambda fn, **kw: compile_(fn, backend="aot_eager", **kw))
     system = tiny_system(["parameterization=eve", "decoding=tuned", "data.fit=image", "presence_prior_logit=0.0"])
     camera = pile[0].camera
     plain = GraphedPipeline(system.backbone, InferenceSettings(), system.parameterization, camera, 128, "image")
