@@ -1,34 +1,29 @@
 """The fast inference path of ``predict.py`` and ``eval.py``: network form, memory format,
-precision, compilation.
-
-Measured on this 2-core CPU (AVX512-BF16), paper network, batch 1, same run
-(``scripts/bench/bench_infer.py``, docs/deployment.md "Inference speed"): fp32 eager ≈ 68 ms, fp32 channels-last
-≈ 67 ms, the fused fp32 form ≈ 50-56 ms (≈ 1.0 x the matrix-product roofline time of its 10
-GFLOP), bf16 autocast channels-last ≈ 36 ms.
+precision, compilation. What each setting buys on a 2-core CPU and on a GPU is measured by
+``scripts/bench/bench_infer.py`` and ``scripts/bench/profile_graph.py`` (docs/deployment.md
+"Inference speed", results/speed/README.md, results/gpu/README.md); the figures live there.
 
 ``inference.precision``: ``32`` (the default: the poses of fp32 eager, to float32 rounding),
 ``bf16`` (autocast), or ``auto`` = bf16 where the hardware computes it natively (CPUs with
 AVX512-BF16 / AMX, CUDA GPUs), fp32 elsewhere.
 ``inference.fused``: ``auto`` = on for fp32 on the CPU: :class:`opnet.models.fused.FusedDenseNet`,
 the network rewritten for inference (block buffers instead of concatenations, batch norms folded,
-prepacked oneDNN convolutions, transitions pooled first); ``false`` = the training module as it is.
+prepacked oneDNN convolutions, transitions pooled first; about the matrix-product roofline time of
+the paper network); ``false`` = the training module as it is.
 ``inference.channels_last``: ``auto`` = on (faster on CPUs and GPUs alike for this network).
 ``inference.compile``: ``torch.compile`` the (unfused) backbone (worth it for long runs or a
 service: the first call compiles for tens of seconds).
 ``inference.max_batch``: larger batches run in chunks of this many images; ``auto`` = 8 for the
 unfused paths; for the fused form as many images as keep its largest block buffer within
-``CHUNK_BYTES`` (8 MiB), at most 8: 1 for the paper network (6.5 MB per image; batch 16 on one
-worker, per image best / median of 3: 55.5 / 55.8 ms in chunks of 1, 57.5 / 60.0 of 2, 56.5 / 60.5
-of 4, 65.2 / 65.8 of 8, 71.7 / 73.0 of 16), 8 for the small and tiny presets (small: 3.2 ms per
-image in chunks of 1, 2.5 of 2, 2.25 of 8, 2.95 of 32).
+``CHUNK_BYTES`` (8 MiB), at most 8: 1 for the paper network (6.5 MB per image: larger chunks were
+slower per image), 8 for the small and tiny presets.
 ``inference.device_side``: ``auto`` = on for a CUDA device, off on the CPU. On: predict.py's
 preprocessing (:mod:`opnet.data.preprocess_torch`) and the pose averaging of predict.py, eval.py
 and validation (:mod:`opnet.parameterizations.averaging_torch`) run as torch operations on the
 model's device, every image of a batch at once, and the poses come to the host in one transfer;
 off: OpenCV / numpy on the host, image by image. Both give the same input and poses to float
-rounding (tests). On this 2-core CPU the host is the faster of the two (``scripts/bench/bench_infer.py``,
-docs/deployment.md "Device-side inference"): OpenCV's resize and the k-d tree beat tens of small
-torch operations.
+rounding (tests). On a 2-core CPU the host is the faster of the two (docs/deployment.md
+"Device-side inference"): OpenCV's resize and the k-d tree beat tens of small torch operations.
 ``inference.cuda_graph``: ``auto`` = on for a CUDA device: a batch of one image runs as a CUDA graph
 (captured at its first call, then replayed: one launch instead of one per kernel); with
 ``device_side`` on as well, ``predict.py`` runs each image whole as one graph
@@ -37,19 +32,16 @@ the grid, :mod:`opnet.parameterizations.dense_decoding`; the host only copies th
 table out, and projects the averaged rotations). On the CPU it is off, with a log line when asked
 for (``true``).
 ``inference.compile_pipeline`` (false): the whole-image graph's preprocessing and decoding are
-``torch.compile``'d (fused into a few kernels; about 40 s at the first image): measured on an H100, the
-paper network in bf16, 1.62 ms end to end against 2.47 ms (``scripts/bench/profile_graph.py --fuse``).
+``torch.compile``'d (fused into a few kernels, compiled at the first image; faster end to end on a
+GPU: ``scripts/bench/profile_graph.py --fuse``, results/gpu/README.md).
 ``inference.workers``: chunks of a batch run on this many threads at once, each computing with one
 core; ``auto`` = the torch thread count for the fused form, 1 (one chunk after the other on all
-cores) otherwise. Measured here, fused, five interleaved rounds, per image best / median: paper
-network at batch 16, 58.4 / 59.4 ms on two workers vs 60.5 / 64.2 ms one chunk after the other;
-small preset at batch 64, 2.81 / 2.87 vs 2.79 / 3.00 ms (a tie). A batch of one chunk runs on all
-cores.
+cores) otherwise (two workers were a little faster for the fused paper network, a tie for the small
+preset). A batch of one chunk runs on all cores.
 
-bf16 changes the network output by a few 1e-3, so its poses are not those of fp32:
-``scripts/bench/check_inference.py`` measured on the quickstart model's 150 test scenes p99 differences
-of 0.37 mm and 3.8 deg between paired hypotheses (1052 vs 1044 hypotheses; AP 0.8092 vs 0.8100),
-which is why fp32 stays the default and bf16 is a documented opt-in.
+bf16 changes the network output by a few 1e-3, so its poses are not those of fp32
+(``scripts/bench/check_inference.py`` pairs the hypotheses of both on the quickstart model's test
+scenes: results/speed/README.md), which is why fp32 stays the default and bf16 is a documented opt-in.
 """
 
 from __future__ import annotations
@@ -83,8 +75,7 @@ class InferenceSettings:
     channels_last: bool | str = "auto"
     compile: bool = False
     #: larger batches run in chunks of this many images ("auto": see the module docstring): the
-    #: DenseNet's activations of a large batch no longer fit the caches (measured per image at
-    #: batch 32, unfused: fp32 122 ms whole, 75 ms in chunks of 8; bf16 43 ms whole, 33 ms)
+    #: DenseNet's activations of a large batch no longer fit the caches (docs/deployment.md)
     max_batch: int | str = "auto"
     fused: bool | str = "auto"
     workers: int | str = "auto"
