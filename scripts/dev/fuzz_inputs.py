@@ -1974,16 +1974,68 @@ def _child(fn: Callable[[], Any], conn: Any) -> None:
         conn.send(("other", f"{type(e).__name__}: {e}"))
 
 
+def _serve(known: dict[int, Case], conn: Any) -> None:
+    """The reader process: runs the cases named by their ``id`` in the parent (the same objects here, forked) one
+    after another until the parent closes the pipe."""
+    while True:
+        try:
+            key = conn.recv()
+        except EOFError:
+            return
+        _child(known[key].run, conn)
+
+
+class _ReaderProcess:
+    """One forked process that runs the reader cases one after another (a fork of the parent per case cost more
+    than most reads). A case that hangs is killed with its process, one that kills it is reported, and the next
+    case gets a fresh process, forked again; so does a case the process does not know (made after its fork)."""
+
+    def __init__(self) -> None:
+        self.proc: Any = None
+        self.conn: Any = None
+        self.known: dict[int, Case] = {}
+
+    def expect(self, cases: list[Case]) -> None:
+        """The cases to come: a process forked from now on knows them."""
+        self.known.update({id(c): c for c in cases if c.run is not None})
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.join()
+            self.conn.close()
+        self.proc = None
+
+    def run(self, case: Case) -> tuple[str, str] | None:
+        """(outcome, message), or None when the case did not answer in its time."""
+        if id(case) not in self.known:
+            self.stop()
+            self.known[id(case)] = case
+        if self.proc is None or not self.proc.is_alive():
+            self.stop()
+            self.conn, child = mp.Pipe()
+            self.proc = mp.get_context("fork").Process(target=_serve, args=(self.known, child))
+            self.proc.start()
+            child.close()
+        self.conn.send(id(case))
+        if not self.conn.poll(case.timeout):
+            self.stop()
+            return None
+        try:
+            return self.conn.recv()
+        except EOFError:
+            self.stop()
+            return "other", "the reader's process died"
+
+
+_READER = _ReaderProcess()
+
+
 def run_reader(case: Case) -> tuple[str, str]:
-    parent, child = mp.Pipe(duplex=False)
-    proc = mp.get_context("fork").Process(target=_child, args=(case.run, child))
-    proc.start()
-    if not parent.poll(case.timeout):
-        proc.kill()
-        proc.join()
+    answer = _READER.run(case)
+    if answer is None:
         return "HANG", f"no answer in {case.timeout:g} s"
-    outcome, message = parent.recv()
-    proc.join()
+    outcome, message = answer
     return _verdict(case, outcome == "returned", outcome == "user_error", message)
 
 
@@ -2158,12 +2210,14 @@ def main(argv: list[str] | None = None) -> int:
                     + cli_defect_cases(ws, base, extra) + new_surface_cases(ws, base, extra)))
         if args.only:
             cases = [case for case in cases if case.family in args.only]
+        _READER.expect(cases)
         for case in cases:
             verdict, message = run_case(case)
             message = re.sub(r"\(pid \d+\)", "(pid <n>)", message.replace(str(ws), "<ws>"))  # the same table each run
             rows.append((case.family, case.name, "valid" if case.valid else "bad", verdict, message))
             print(f"{verdict:9s} {case.family} / {case.name}: {message[:150]}", flush=True)
     finally:
+        _READER.stop()
         unmount_all()
     seconds = time.perf_counter() - start
     if args.only and args.out and args.out.is_file():  # re-score these families in the full pass's table
