@@ -83,16 +83,6 @@ def garbage(size: int, tag: str) -> bytes:
     return random.Random(f"fuzz garbage {tag}").randbytes(size)
 
 
-def compose_config(name: str, overrides: list[str]) -> Any:
-    """``conf/<name>.yaml`` composed with ``overrides``, as the entry point of that name composes it."""
-    from hydra import compose, initialize_config_dir
-
-    from opnet.paths import config_dir
-
-    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        return compose(config_name=name, overrides=overrides)
-
-
 def make_base(ws: Path) -> dict[str, Path]:
     """A valid tiny dataset, a checkpoint trained for 2 steps on it, and evaluation folders."""
     from opnet.objects import builtin_object
@@ -106,8 +96,9 @@ def make_base(ws: Path) -> dict[str, Path]:
     from omegaconf import OmegaConf
 
     from opnet.cli.train import run as train_run
+    from opnet.studies import compose_train
 
-    cfg = compose_config("train", [
+    cfg = compose_train([
         "model=tiny", "object=zbracket", f"data.root={data}", "data.generate=null", "data.batch_size=4",
         "data.val_fraction=0.25", "data.test_fraction=0.25", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
         "+trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "example_predictions=0"])  # fmt: skip
@@ -457,10 +448,11 @@ def make_extra(ws: Path, base: dict[str, Path]) -> dict[str, Path]:
     """A BOP copy of the dataset, the checkpoint exported to ONNX, and a fresh checkpoint copy."""
     from opnet.cli.export import run as export_run
     from opnet.datasets.bop import convert_ipa_to_bop
+    from opnet.studies import compose_entry
 
     extra = {"bop": convert_ipa_to_bop(base["data"], ws / "bop", split="train_synt", obj_id=1).parent}
     onnx = ws / "model.onnx"
-    export_run(compose_config("export", [f"ckpt={base['ckpt']}", f"out={onnx}", "check=false"]))  # export.py's run
+    export_run(compose_entry("export", [f"ckpt={base['ckpt']}", f"out={onnx}", "check=false"]))  # export.py's run
     extra["onnx"] = onnx
     return extra
 
@@ -2008,11 +2000,10 @@ class _ReaderProcess:
 
     def run(self, case: Case) -> tuple[str, str] | None:
         """(outcome, message), or None when the case did not answer in its time."""
-        if id(case) not in self.known:
-            self.stop()
+        if id(case) not in self.known or (self.proc is not None and not self.proc.is_alive()):
+            self.stop()  # a fresh fork: one that knows this case, or after one that died
             self.known[id(case)] = case
-        if self.proc is None or not self.proc.is_alive():
-            self.stop()
+        if self.proc is None:
             self.conn, child = mp.Pipe()
             self.proc = mp.get_context("fork").Process(target=_serve, args=(self.known, child))
             self.proc.start()

@@ -61,7 +61,8 @@ DENSE_CYCLES = 192
 #: the near-revolution declared on the command line (conf/object/<part>.yaml keeps the exact group)
 NEAR_REVOLUTION = ["object.symmetry.kind=revolution"]
 #: part -> lever -> arm -> the overrides of train.py it adds to the part's recipe ("steps": its step count;
-#: "from": scored with another arm's network, "eval" adding eval.py overrides, "refined" only to the refined scoring)
+#: "from": scored with another arm's network (and trained its steps), "eval" adding eval.py overrides, "refined" only
+#: to the refined scoring)
 ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     "plate": {
         "recipe": {"base": {}},
@@ -84,16 +85,16 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "decoding": {"no_averaging": {"from": "base", "eval": ["+decoding.averaging=false"]},
                      "eps05": {"from": "base", "eval": ["+decoding.averaging_eps=0.5"]}},
         # the kept arm's network, its searched poses polished by projective ICP instead of nearest-point ICP
-        "refinement": {"g32_s6000_ppolish": {"from": "g32_s6000", "steps": 6000,
+        "refinement": {"g32_s6000_ppolish": {"from": "g32_s6000",
                                              "refined": ["refine.icp.polish_association=projective"]},
                        # the searched poses ranked by agreement x the network's score, not agreement alone
-                       "g32_s6000_product": {"from": "g32_s6000", "steps": 6000, "refined": ["refine.search.score=product"]},
+                       "g32_s6000_product": {"from": "g32_s6000", "refined": ["refine.search.score=product"]},
                        # a searched pose within 2 delta of a better one dropped (1 delta: the recorded search)
-                       "g32_s6000_suppress2": {"from": "g32_s6000", "steps": 6000,
+                       "g32_s6000_suppress2": {"from": "g32_s6000",
                                                "refined": ["refine.search.suppress=2.0"]},
                        # more of the network's cells searched: presence threshold 0.05 (recorded: 0.1)
-                       "g32_s6000_thr05": {"from": "g32_s6000", "steps": 6000, "refined": ["+decoding.threshold=0.05"]},
-                       "g32_s6000_thr02": {"from": "g32_s6000", "steps": 6000, "refined": ["+decoding.threshold=0.02"]}},
+                       "g32_s6000_thr05": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.05"]},
+                       "g32_s6000_thr02": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.02"]}},
     },
     # the new-parts recipe (experiment=dense, its budget). exact: the committed config's symmetry (the exact group
     # opnet-object finds); near_revolution: the declaration opnet-object --declare-near writes (every turn about
@@ -147,7 +148,7 @@ def plate_train(arm: str, seed: int) -> Path:
         return plate_train(spec["from"], seed)
     train_sets, _ = CELLS.datasets(CELL_DATA, 200, 12)
     roots = "[" + ",".join(str(r) for r, *_ in train_sets) + "]"
-    steps = spec.get("steps", PLATE_STEPS)
+    steps = plate_steps(arm)
     out = run_dir("plate", arm, seed)
     if not trained_to(out, steps):
         last = out / "checkpoints" / "last.ckpt"  # a run stopped part-way resumes where it stopped
@@ -164,6 +165,12 @@ def plate_train(arm: str, seed: int) -> Path:
 def plate_sets() -> dict[str, list[Path]]:
     _, tests = CELLS.datasets(CELL_DATA, 200, 12)
     return {"val": [CELLS.validation_set(CELL_DATA, 6)[0]], "held_out": [r for r, _ in tests["moved"]]}
+
+
+def plate_steps(arm: str) -> int:
+    """The training steps behind an arm's network (an arm scored "from" another: that arm's)."""
+    _, spec = arm_spec("plate", arm)
+    return plate_steps(spec["from"]) if "from" in spec else spec.get("steps", PLATE_STEPS)
 
 
 def plate_eval(arm: str, seed: int, split: str, refine: str) -> dict[str, Any]:
@@ -210,7 +217,7 @@ def plate_rows(arm: str, seed: int, splits: list[str], refine: bool) -> list[dic
     for split in splits:
         decoded = plate_eval(arm, seed, split, "none")
         refined = plate_eval(arm, seed, split, CELLS.RECIPE_REFINE) if refine else None
-        rows.append(row_of("plate", arm, seed, split, decoded, refined, spec.get("steps", PLATE_STEPS),
+        rows.append(row_of("plate", arm, seed, split, decoded, refined, plate_steps(arm),
                            [*spec.get("train", []), *spec.get("eval", []), *spec.get("refined", [])]))
         print(f"[plate {arm} s{seed} {split}] AP {rows[-1]['ap_decoded']}"
               + (f", refined {rows[-1]['ap_refined']}" if refine else ""), flush=True)

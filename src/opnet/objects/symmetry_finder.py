@@ -102,18 +102,22 @@ class _Surface:
         self.points = np.asarray(probe, np.float64) - self.centroid
         self.tree = cKDTree(np.asarray(dense, np.float64) - self.centroid)
         # what two samplings of one surface differ by: the floor of any deviation
-        self.floor = float(np.percentile(self.tree.query(self.points, workers=-1)[0], 98))
+        self.floor = float(np.percentile(self._distances(self.points), 98))
+
+    def _distances(self, points: np.ndarray) -> np.ndarray:
+        """Each point's distance to the dense sample (the queries on every core)."""
+        return self.tree.query(points, workers=-1)[0]
 
     def deviation(self, R: np.ndarray) -> float:
-        return float(np.percentile(self.tree.query(self.points @ R.T, workers=-1)[0], 98))
+        return float(np.percentile(self._distances(self.points @ R.T), 98))
 
     def screen(self, R: np.ndarray) -> float:
         """The deviation on every 4th point: a quick look at whether a turn is close at all."""
-        return float(np.percentile(self.tree.query(self.points[::4] @ R.T, workers=-1)[0], 98))
+        return float(np.percentile(self._distances(self.points[::4] @ R.T), 98))
 
     def mean_distance(self, R: np.ndarray) -> float:
         """The mean distance: smoother than the percentile, what an axis is refined by."""
-        return float(self.tree.query(self.points @ R.T, workers=-1)[0].mean())
+        return float(self._distances(self.points @ R.T).mean())
 
 
 def _principal(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

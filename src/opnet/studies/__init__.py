@@ -34,14 +34,20 @@ def run_logged(cmd: list[str], log: Path, cwd: Path = REPO_ROOT, env: dict[str, 
         raise SystemExit(f"error: exit {code}; see {log}")
 
 
-def compose_train(overrides: list[str]) -> Any:
-    """train.py's config (``conf/train.yaml``) composed with ``overrides``, as train.py composes it."""
+def compose_entry(name: str, overrides: list[str]) -> Any:
+    """The config of the entry point ``<name>.py`` (``conf/<name>.yaml``) composed with ``overrides``, as it
+    composes it."""
     from hydra import compose, initialize_config_dir
 
     from opnet.paths import config_dir
 
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
-        return compose("train", overrides=overrides)
+        return compose(name, overrides=overrides)
+
+
+def compose_train(overrides: list[str]) -> Any:
+    """train.py's config (``conf/train.yaml``) composed with ``overrides``, as train.py composes it."""
+    return compose_entry("train", overrides)
 
 
 def train_command(overrides: list[str], run_dir: str | Path) -> list[str]:
