@@ -219,11 +219,16 @@ TRAINING_ONLY = ("lightning", "torchmetrics", "albumentations", "torch._dynamo")
 def test_the_inference_commands_load_nothing_only_training_needs() -> None:
     """predict.py, eval.py, the export and the model they load start without Lightning, torchmetrics and
     the augmentation (several seconds each start on a 2-core CPU); eval.py's data module loads Lightning
-    when it runs, not when it is imported."""
+    when it runs, not when it is imported. No command but generation loads the mesh library before a
+    mesh is made or read (about a second of every start, and of every bad setting refused)."""
     code = ("import sys, opnet.cli.predict, opnet.cli.eval, opnet.cli.export, opnet.estimator, opnet.cli.build\n"
-            f"print(sorted(m for m in {TRAINING_ONLY!r} if m in sys.modules))\n")
+            f"print(sorted(m for m in {TRAINING_ONLY!r} if m in sys.modules))\n"
+            "import opnet.cli.train, opnet.cli.object\n"
+            "print('trimesh' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
-    assert out.stdout.strip() == "[]", f"the inference commands load {out.stdout.strip()}"
+    loaded, mesh_library = out.stdout.splitlines()
+    assert loaded == "[]", f"the inference commands load {loaded}"
+    assert mesh_library == "False", "a command loads trimesh when imported"
 
 
 def test_a_physics_engine_is_imported_only_when_asked_for() -> None:

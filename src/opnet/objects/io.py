@@ -5,10 +5,12 @@ from __future__ import annotations
 import logging
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:  # the mesh library is imported where a mesh is made or read (it costs a second at start)
+    import trimesh
 
 from opnet._repr import short_repr
 from opnet.fileio.files import require_regular_file
@@ -42,6 +44,8 @@ def load_mesh(path: str | Path, scale: float = 1.0, model_rotation: Any = None,
     declared = declared_faces(path)
     if declared is not None:
         _check_face_count(declared, path)  # from the header: before minutes of loading
+    import trimesh
+
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as e:  # trimesh raises many types on corrupt files
@@ -113,6 +117,8 @@ def outward_faces(mesh: trimesh.Trimesh, path: Path) -> trimesh.Trimesh:
     """
     if len(mesh.faces) == 0 or (mesh.is_winding_consistent and not (mesh.is_watertight and mesh.volume < 0)):
         return mesh
+    import trimesh
+
     trimesh.repair.fix_normals(mesh)
     if mesh.is_watertight and mesh.volume < 0:
         raise ValueError(f"{path}: the mesh is inside out (its normals point inwards) and could not be repaired; "

@@ -14,9 +14,12 @@ distances coincide for them.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:  # the mesh library is imported where a mesh is made or read (it costs a second at start)
+    import trimesh
 
 from opnet.geometry.symmetry import Symmetry
 from opnet.objects.model import ObjectModel
@@ -52,12 +55,16 @@ def _ear_clip(poly: np.ndarray) -> np.ndarray:
 
 
 def _extruded(profile_mm: list[tuple[float, float]], height_mm: float) -> trimesh.Trimesh:
+    import trimesh
+
     poly = np.asarray(profile_mm, dtype=np.float64) * MM
     mesh = trimesh.creation.extrude_triangulation(poly, _ear_clip(poly), height_mm * MM)
     return _centred(mesh)
 
 
 def _revolved(profile_mm: list[tuple[float, float]], sections: int = 64) -> trimesh.Trimesh:
+    import trimesh
+
     return _centred(trimesh.creation.revolve(np.asarray(profile_mm) * MM, sections=sections))
 
 

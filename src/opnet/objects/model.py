@@ -9,10 +9,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:  # the mesh library is imported where a mesh is made or read (it costs a second at start)
+    import trimesh
 
 from opnet.fileio.files import read_json
 from opnet.geometry.distance import PoseSpace
@@ -152,6 +154,8 @@ class ObjectModel:
 
 def validate_mesh(mesh: trimesh.Trimesh, source: str) -> None:
     """Refuse meshes that cannot describe a part: no faces, NaN vertices, zero area."""
+    import trimesh
+
     if not isinstance(mesh, trimesh.Trimesh):
         raise ValueError(f"{source}: expected a triangle mesh, got {type(mesh).__name__}")
     if len(mesh.faces) == 0 or len(mesh.vertices) < 3:
