@@ -34,6 +34,14 @@ def pytest_configure(config: pytest.Config) -> None:
         os.environ.setdefault("OMP_NUM_THREADS", str(max(1, (os.cpu_count() or 1) // workers)))
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The tests marked ``slow`` run first, in their order, then the rest in theirs: under pytest-xdist the
+    workers begin with the long ones side by side and end together on short ones (a minute-long test handed
+    out last would leave the other workers idle for that minute). Every worker sorts the same way, as
+    xdist requires."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture(scope="session")
 def shared() -> Path:
     """``../shared`` (or $OPNET_SHARED); skips the test when the reference data is absent."""

@@ -47,7 +47,7 @@ CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device"
 ZBRACKET = builtin_object("zbracket")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def pile(tmp_path_factory: pytest.TempPathFactory) -> list:
     """Rendered piles of zbrackets under the structured-light sensor model (about 30 % of the pixels
     missing: shadows, edges, dropouts) at 300 x 236: a shrink to 128 by a non-integer factor. Where
@@ -410,6 +410,7 @@ def test_the_graphed_pipeline_reads_nothing_back_and_has_no_data_dependent_shape
     assert_graph_capturable(tiny_system([f"parameterization={name}", "decoding=tuned", f"formulation={formulation}"]))
 
 
+@pytest.mark.slow
 def test_the_compiled_pipeline_equals_the_plain_one(pile: list, monkeypatch: pytest.MonkeyPatch) -> None:
     """``inference.compile_pipeline``: the preprocessing and decoding compiled give the same hypotheses;
     a setting that is no boolean is refused naming the key. The whole-image pipeline runs on a GPU

@@ -42,7 +42,7 @@ HEX_NUT = trimesh.creation.cylinder(0.02, 0.01, sections=6)
     (builtin_object("shaft").mesh, "C-inf"),
     (builtin_object("pin").mesh, "D-inf"),
     (HEX_NUT, "D6"),
-    (trimesh.creation.box((0.05, 0.05, 0.05)), "O"),
+    pytest.param(trimesh.creation.box((0.05, 0.05, 0.05)), "O", marks=pytest.mark.slow),  # the longest case
 ])  # fmt: skip
 def test_known_groups_are_found(mesh: trimesh.Trimesh, name: str) -> None:
     found, spec = _group(mesh)
