@@ -239,6 +239,7 @@ def test_the_debug_switch_raises_what_the_one_line_names(monkeypatch: pytest.Mon
         guarded(train_cli.run, cfg)
 
 
+@pytest.mark.slow
 def test_fuzz_pass_over_the_readers_finds_no_bug(tmp_path: Path) -> None:
     """scripts/dev/fuzz_inputs.py, readers only (the command lines run in the script's full pass)."""
     spec = importlib.util.spec_from_file_location("fuzz_inputs", REPO_ROOT / "scripts" / "dev" / "fuzz_inputs.py")

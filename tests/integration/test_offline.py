@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from opnet.datasets.png import encode_depth, write_png
 from opnet.paths import REPO_ROOT
@@ -38,6 +39,7 @@ finally:
 #: the modules of the three commands and the augmentation pipeline of training, used on an image
 IMPORT_ALL = """
 import numpy as np
+import pytest
 import opnet.cli.eval, opnet.cli.predict, opnet.cli.train
 from opnet.data.augment import DepthAugmenter
 out = DepthAugmenter(p_elastic=1.0, p_blur=1.0, p_noise=1.0)(np.full((64, 64), 0.5, np.float32),
@@ -59,6 +61,7 @@ def test_the_guard_sees_albumentations_phone_home_on_its_own() -> None:
     assert "network attempts: none" not in proc.stdout and "pypi.org" in proc.stdout, proc.stdout
 
 
+@pytest.mark.slow
 def test_importing_opnet_and_augmenting_stay_offline() -> None:
     proc = _guarded(IMPORT_ALL)
     assert proc.returncode == 0, proc.stderr

@@ -27,6 +27,7 @@ def handful(builtin_dataset) -> Path:
     return builtin_dataset("shaft", 3, 4, 3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("parameterization", ["vanilla", "ap"])
 def test_tiny_network_memorizes_a_handful_of_scenes(parameterization: str, handful: Path) -> None:
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
