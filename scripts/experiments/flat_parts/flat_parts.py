@@ -94,7 +94,17 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                                "refined": ["refine.search.suppress=2.0"]},
                        # more of the network's cells searched: presence threshold 0.05 (recorded: 0.1)
                        "g32_s6000_thr05": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.05"]},
-                       "g32_s6000_thr02": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.02"]}},
+                       "g32_s6000_thr02": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.02"]},
+                       # shifts across the axis twice as far (0.2 D each way; recorded: 0.1): at the same number of
+                       # shifts (step 0.04), and at the recorded step (0.02: four times the shifts)
+                       "g32_s6000_shift20": {"from": "g32_s6000", "refined": ["refine.search.shift=0.2",
+                                                                               "refine.search.shift_step=0.04"]},
+                       "g32_s6000_shift20f": {"from": "g32_s6000", "refined": ["refine.search.shift=0.2"]},
+                       # every hypothesis searched (recorded: one within 0.1 D of a better one's origin is dropped first)
+                       "g32_s6000_merge0": {"from": "g32_s6000", "refined": ["refine.search.merge=0"]},
+                       # the three together: every hypothesis, more cells, twice as far
+                       "g32_s6000_wide": {"from": "g32_s6000", "refined": ["refine.search.merge=0", "+decoding.threshold=0.05",
+                                                                          "refine.search.shift=0.2"]}},
     },
     # the new-parts recipe (experiment=dense, its budget). exact: the committed config's symmetry (the exact group
     # opnet-object finds); near_revolution: the declaration opnet-object --declare-near writes (every turn about
@@ -290,11 +300,11 @@ NOTES = [
     "- *Refinement*: the recorded search (`search_fast`) lifts every arm to 0.42-0.58; its time here is the "
     "refinement's alone with other jobs on the machine. The whole frame on a quiet machine: "
     "[frame_speed.md](frame_speed.md) (`scripts/bench/bench_frame.py`). Against the recorded search's 0.590 ± 0.011 "
-    "on val, none of three changes to it helps (2 seeds each; not kept, not scored held-out): a projective polish "
-    "(`g32_s6000_ppolish`, to save time) 0.549 ± 0.009, ranking by agreement × network score 0.556 ± 0.029, "
-    "suppressing within 2 δ 0.578 ± 0.004. Searching more of the network's cells (presence threshold 0.05 / 0.02, "
-    "recorded 0.1) gives 0.600 ± 0.021 / 0.603 ± 0.023 with 1.9× / 3.4× the hypotheses to refine (the refinement's "
-    "time grows with them): within the seeds' spread; not kept.",
+    "on val (2 seeds each; none kept or scored held-out), four changes do worse (a projective polish, ranking by "
+    "agreement × network score, suppressing within 2 δ, shifts twice as far at the same count) and four gain "
+    "0.01-0.02, within the seeds' spread: more of the network's cells (threshold 0.05 / 0.02, recorded 0.1), shifts "
+    "twice as far (0.2 D) at the recorded step, every hypothesis searched (`merge0`). Threshold 0.05, those shifts "
+    "and `merge0` together (`wide`) give 0.625 ± 0.034 at 3-4× the refinement's time, past the frame's 300 ms.",
     "",
 ]
 
