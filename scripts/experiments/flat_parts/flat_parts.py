@@ -104,7 +104,13 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                        "g32_s6000_merge0": {"from": "g32_s6000", "refined": ["refine.search.merge=0"]},
                        # the three together: every hypothesis, more cells, twice as far
                        "g32_s6000_wide": {"from": "g32_s6000", "refined": ["refine.search.merge=0", "+decoding.threshold=0.05",
-                                                                          "refine.search.shift=0.2"]}},
+                                                                          "refine.search.shift=0.2"]},
+                       # the search started from the averaged poses (the recorded search decodes without averaging)
+                       "g32_s6000_avg": {"from": "g32_s6000", "refined": ["~decoding.averaging"]},
+                       # shifts half as far (0.05 D each way) at the same count (step 0.01): a searched pose
+                       # drifting onto its neighbours' surfaces (a pile of plates agrees with a pose across two)
+                       "g32_s6000_shift05": {"from": "g32_s6000", "refined": ["refine.search.shift=0.05",
+                                                                               "refine.search.shift_step=0.01"]}},
     },
     # the new-parts recipe (experiment=dense, its budget). exact: the committed config's symmetry (the exact group
     # opnet-object finds); near_revolution: the declaration opnet-object --declare-near writes (every turn about
@@ -300,11 +306,12 @@ NOTES = [
     "- *Refinement*: the recorded search (`search_fast`) lifts every arm to 0.42-0.58; its time here is the "
     "refinement's alone with other jobs on the machine. The whole frame on a quiet machine: "
     "[frame_speed.md](frame_speed.md) (`scripts/bench/bench_frame.py`). Against the recorded search's 0.590 ± 0.011 "
-    "on val (2 seeds each; none kept or scored held-out), four changes do worse (a projective polish, ranking by "
-    "agreement × network score, suppressing within 2 δ, shifts twice as far at the same count) and four gain "
-    "0.01-0.02, within the seeds' spread: more of the network's cells (threshold 0.05 / 0.02, recorded 0.1), shifts "
-    "twice as far (0.2 D) at the recorded step, every hypothesis searched (`merge0`). Threshold 0.05, those shifts "
-    "and `merge0` together (`wide`) give 0.625 ± 0.034 at 3-4× the refinement's time, past the frame's 300 ms.",
+    "on val (2 seeds each; none kept or scored held-out), five changes do worse (a projective polish, ranking by "
+    "agreement × network score, suppressing within 2 δ, the search started from averaged poses, shifts twice as far "
+    "at the same count), shifts half as far change nothing, and four gain 0.01-0.02, within the seeds' spread: more "
+    "of the network's cells (threshold 0.05 / 0.02, recorded 0.1), shifts twice as far (0.2 D) at the recorded step, "
+    "every hypothesis searched (`merge0`). Threshold 0.05, those shifts and `merge0` together (`wide`) give "
+    "0.625 ± 0.034 at 3-4× the refinement's time, past the frame's 300 ms.",
     "",
 ]
 
