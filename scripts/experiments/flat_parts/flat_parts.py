@@ -295,9 +295,9 @@ NOTES = [
     "0.341 ± 0.029 on val (base 0.081 ± 0.031) and 0.316 ± 0.015 held-out (base 0.082 ± 0.024), 2 seeds. The cell "
     "recipe sizes its grid to the part (`part_cells: 5` in `experiment=cell`; `part_cells=null`: the grid as given).",
     "- *Steps* (on top of grid 32): twice the steps (`g32_s6000`, 6000, the cosine schedule stretched over them; "
-    "2 seeds) lift the plate as decoded to 0.430 ± 0.032 on val and 0.423 ± 0.011 held-out (grid 32 at 3000: "
-    "0.341 / 0.316), found 54 % (47 %), and with the recorded search to 0.59 / 0.55. The in-training AP levels off "
-    "at 0.45-0.47 over the last 500 steps of both seeds.",
+    "3 seeds) lift the plate as decoded to 0.435 ± 0.024 on val and 0.416 ± 0.014 held-out (grid 32 at 3000, 2 "
+    "seeds: 0.341 / 0.316), found 52 % (54 %), and with the recorded search to 0.577 / 0.557. The in-training AP "
+    "levels off at 0.45-0.48 over the last 500 steps of each seed.",
     "- *Seeds*: the base recipe's two seeds differ by 0.03-0.04 AP as decoded on either split: one seed of another "
     "arm tells apart only a change larger than that.",
     "- *No gain* within the base's spread: the position loss weighted 10× (`lxy10`), a 256-pixel input at the same "
@@ -306,7 +306,7 @@ NOTES = [
     "- *Refinement*: the recorded search (`search_fast`) lifts every arm to 0.42-0.58; its time here is the "
     "refinement's alone with other jobs on the machine. The whole frame on a quiet machine: "
     "[frame_speed.md](frame_speed.md) (`scripts/bench/bench_frame.py`). Against the recorded search's 0.590 ± 0.011 "
-    "on val (2 seeds each; none kept or scored held-out), five changes do worse (a projective polish, ranking by "
+    "on val at seeds 0 and 1 (2 seeds each; none kept or scored held-out), five changes do worse (a projective polish, ranking by "
     "agreement × network score, suppressing within 2 δ, the search started from averaged poses, shifts twice as far "
     "at the same count), shifts half as far change nothing, and four gain 0.01-0.02, within the seeds' spread: more "
     "of the network's cells (threshold 0.05 / 0.02, recorded 0.1), shifts twice as far (0.2 D) at the recorded step, "
