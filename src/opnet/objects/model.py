@@ -45,7 +45,9 @@ class ObjectModel:
     centroid: np.ndarray = field(compare=False)
     covariance: np.ndarray = field(compare=False)
     diameter: float
-    mesh: trimesh.Trimesh | None = field(default=None, compare=False, repr=False)
+    # a trimesh.Trimesh or None, annotated Any: the mesh library is imported where a mesh is made or read, and
+    # OmegaConf resolves a dataclass's field types when an object model goes into a config
+    mesh: Any = field(default=None, compare=False, repr=False)
     Lambda_override: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     # ---- construction ------------------------------------------------------------------------
