@@ -35,11 +35,23 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The tests marked ``slow`` run first, in their order, then the rest in theirs: under pytest-xdist the
-    workers begin with the long ones side by side and end together on short ones (a minute-long test handed
-    out last would leave the other workers idle for that minute). Every worker sorts the same way, as
-    xdist requires."""
+    """The tests marked ``slow`` run first, in their order, then the rest in theirs, so that the run ends on short
+    ones (a minute-long test handed out last leaves the other workers idle for that minute). Every worker sorts
+    the same way, as xdist requires."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """Under ``-n`` (xdist's default, ``--dist load``), work stealing: a worker that runs out takes half of what
+    another still has queued. xdist's ``load`` hands each worker a fixed block of consecutive tests first, so
+    the block holding the slow tests (first, above) would be one worker's alone while the other idles at the
+    end. An explicit other ``--dist`` is left as asked."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import WorkStealingScheduling
+
+    return WorkStealingScheduling(config, log)
 
 
 @pytest.fixture(scope="session")
