@@ -39,7 +39,6 @@ finally:
 #: the modules of the three commands and the augmentation pipeline of training, used on an image
 IMPORT_ALL = """
 import numpy as np
-import pytest
 import opnet.cli.eval, opnet.cli.predict, opnet.cli.train
 from opnet.data.augment import DepthAugmenter
 out = DepthAugmenter(p_elastic=1.0, p_blur=1.0, p_noise=1.0)(np.full((64, 64), 0.5, np.float32),
