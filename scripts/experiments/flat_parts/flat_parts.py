@@ -60,6 +60,13 @@ DENSE_CYCLES = 192
 
 #: the near-revolution declared on the command line (conf/object/<part>.yaml keeps the exact group)
 NEAR_REVOLUTION = ["object.symmetry.kind=revolution"]
+
+
+def _searched(*refined: str) -> dict[str, Any]:
+    """An arm scored with the kept plate arm's network, ``refined`` added to its refined scoring only."""
+    return {"from": "g32_s6000", "refined": list(refined)}
+
+
 #: part -> lever -> arm -> the overrides of train.py it adds to the part's recipe ("steps": its step count;
 #: "from": scored with another arm's network (and trained its steps), "eval" adding eval.py overrides, "refined" only
 #: to the refined scoring)
@@ -84,33 +91,30 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                      "metric01": {"train": ["loss.position=metric", "loss.lambda_pos=0.1"]}},
         "decoding": {"no_averaging": {"from": "base", "eval": ["+decoding.averaging=false"]},
                      "eps05": {"from": "base", "eval": ["+decoding.averaging_eps=0.5"]}},
-        # the kept arm's network, its searched poses polished by projective ICP instead of nearest-point ICP
-        "refinement": {"g32_s6000_ppolish": {"from": "g32_s6000",
-                                             "refined": ["refine.icp.polish_association=projective"]},
-                       # the searched poses ranked by agreement x the network's score, not agreement alone
-                       "g32_s6000_product": {"from": "g32_s6000", "refined": ["refine.search.score=product"]},
-                       # a searched pose within 2 delta of a better one dropped (1 delta: the recorded search)
-                       "g32_s6000_suppress2": {"from": "g32_s6000",
-                                               "refined": ["refine.search.suppress=2.0"]},
-                       # more of the network's cells searched: presence threshold 0.05 (recorded: 0.1)
-                       "g32_s6000_thr05": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.05"]},
-                       "g32_s6000_thr02": {"from": "g32_s6000", "refined": ["+decoding.threshold=0.02"]},
-                       # shifts across the axis twice as far (0.2 D each way; recorded: 0.1): at the same number of
-                       # shifts (step 0.04), and at the recorded step (0.02: four times the shifts)
-                       "g32_s6000_shift20": {"from": "g32_s6000", "refined": ["refine.search.shift=0.2",
-                                                                               "refine.search.shift_step=0.04"]},
-                       "g32_s6000_shift20f": {"from": "g32_s6000", "refined": ["refine.search.shift=0.2"]},
-                       # every hypothesis searched (recorded: one within 0.1 D of a better one's origin is dropped first)
-                       "g32_s6000_merge0": {"from": "g32_s6000", "refined": ["refine.search.merge=0"]},
-                       # the three together: every hypothesis, more cells, twice as far
-                       "g32_s6000_wide": {"from": "g32_s6000", "refined": ["refine.search.merge=0", "+decoding.threshold=0.05",
-                                                                          "refine.search.shift=0.2"]},
-                       # the search started from the averaged poses (the recorded search decodes without averaging)
-                       "g32_s6000_avg": {"from": "g32_s6000", "refined": ["~decoding.averaging"]},
-                       # shifts half as far (0.05 D each way) at the same count (step 0.01): a searched pose
-                       # drifting onto its neighbours' surfaces (a pile of plates agrees with a pose across two)
-                       "g32_s6000_shift05": {"from": "g32_s6000", "refined": ["refine.search.shift=0.05",
-                                                                               "refine.search.shift_step=0.01"]}},
+        # each the kept arm's network (g32_s6000) with the recorded search changed, in its refined scoring only
+        "refinement": {
+            # the searched poses polished by projective ICP instead of nearest-point ICP
+            "g32_s6000_ppolish": _searched("refine.icp.polish_association=projective"),
+            # the searched poses ranked by agreement x the network's score, not agreement alone
+            "g32_s6000_product": _searched("refine.search.score=product"),
+            # a searched pose within 2 delta of a better one dropped (1 delta: the recorded search)
+            "g32_s6000_suppress2": _searched("refine.search.suppress=2.0"),
+            # more of the network's cells searched: presence threshold 0.05 (recorded: 0.1)
+            "g32_s6000_thr05": _searched("+decoding.threshold=0.05"),
+            "g32_s6000_thr02": _searched("+decoding.threshold=0.02"),
+            # shifts across the axis twice as far (0.2 D each way; recorded: 0.1): at the same number of shifts
+            # (step 0.04), and at the recorded step (0.02: four times the shifts)
+            "g32_s6000_shift20": _searched("refine.search.shift=0.2", "refine.search.shift_step=0.04"),
+            "g32_s6000_shift20f": _searched("refine.search.shift=0.2"),
+            # every hypothesis searched (recorded: one within 0.1 D of a better one's origin is dropped first)
+            "g32_s6000_merge0": _searched("refine.search.merge=0"),
+            # the three together: every hypothesis, more cells, twice as far
+            "g32_s6000_wide": _searched("refine.search.merge=0", "+decoding.threshold=0.05", "refine.search.shift=0.2"),
+            # the search started from the averaged poses (the recorded search decodes without averaging)
+            "g32_s6000_avg": _searched("~decoding.averaging"),
+            # shifts half as far (0.05 D each way) at the same count (step 0.01): a searched pose drifting onto
+            # its neighbours' surfaces (a pile of plates agrees with a pose across two)
+            "g32_s6000_shift05": _searched("refine.search.shift=0.05", "refine.search.shift_step=0.01")},
     },
     # the new-parts recipe (experiment=dense, its budget). exact: the committed config's symmetry (the exact group
     # opnet-object finds); near_revolution: the declaration opnet-object --declare-near writes (every turn about
