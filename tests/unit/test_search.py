@@ -142,6 +142,8 @@ def test_refine_with_search_ranks_hypotheses_by_their_agreement(plate_scene) -> 
     ({"method": "search", "search": {"coarse": 0}}, "search.coarse must be a positive integer"),
     ({"method": "search", "search": {"fine": "fast"}}, "search.fine must be grid or local"),
     ({"method": "search", "search": {"merge": -1}}, "search.merge must be a number >= 0"),
+    ({"method": "search", "search": {"anchor": -0.5}}, "search.anchor must be a number in 0..100"),
+    ({"method": "search", "search": {"turn_tolerance": 0}}, "search.turn_tolerance must be a positive number or null"),
     ({"method": "icp", "icp": {"search": {}}}, r"icp: unknown keys \['search'\]"),
     ({"method": "serch"}, "expected none, icp or search"),
 ])
@@ -252,3 +254,38 @@ def test_threads_share_an_images_hypotheses_and_change_no_result(plate_scene, th
     assert set(one_timings) == set(many_timings) == {"scene", "icp", "search", "polish", "rank"}
     with pytest.raises(ValueError, match="icp.threads must be a positive integer, got 0"):
         ICPSettings(threads=0)
+
+
+def test_an_anchored_search_moves_only_where_the_depth_pays_for_it(plate_scene) -> None:
+    """``anchor`` charges a candidate for how far it slid from the hypothesis: agreement alone brings a plate
+    slid 6 mm back, a heavy anchor keeps it where the network put it, and a turn about the normal (which moves
+    no origin) is found as before."""
+    obj, R_gt, depth, model, _ = plate_scene
+    axis = model_axis(model.points)
+    R0, t0 = _turned(R_gt, 0.0, (6.0, 0.0))
+    _, t_free, _ = search_pose(R0, t0, model, depth, CAM, axis, SearchSettings())
+    _, t_held, _ = search_pose(R0, t0, model, depth, CAM, axis, SearchSettings(anchor=10.0))
+    assert np.linalg.norm(t_free - T_GT) < 2e-3 and np.linalg.norm(t_held - t0) < 1e-9
+    R_turn, t_turn, _ = search_pose(*_turned(R_gt, 180.0, (0.0, 0.0)), model, depth, CAM, axis, SearchSettings(anchor=10.0))
+    assert _angle(R_gt, R_turn) < SearchSettings().turn_step_deg and np.linalg.norm(t_turn - T_GT) < 1e-9
+
+
+@pytest.mark.parametrize(("mode", "used"), [("auto", 0.02), ("flips", 0.04)])
+def test_a_flat_part_is_searched_and_ranked_at_its_turn_tolerance(plate_scene, monkeypatch, mode: str, used: float) -> None:
+    """``turn_tolerance`` replaces ``tolerance`` in the search and the ranking of a part searched by turns (the plate:
+    ``auto`` finds it flat) and nowhere else."""
+    import opnet.refine.pipeline as pipeline
+
+    obj, R_gt, depth, model, space = plate_scene
+    seen: list[float] = []
+    real = pipeline.score_poses
+
+    def spy(R, t, model, depth, camera, settings):
+        seen.append(settings.tolerance)
+        return real(R, t, model, depth, camera, settings)
+
+    monkeypatch.setattr(pipeline, "score_poses", spy)
+    scene = SceneCloud.from_depth(depth, CAM.fx, CAM.fy, CAM.cx, CAM.cy)
+    settings = ICPSettings(budget_ms=None, search=SearchSettings(tolerance=0.04, turn_tolerance=0.02, mode=mode))
+    refine_hypotheses(R_gt[None], T_GT[None], np.array([0.5]), model, scene, space, settings, depth, CAM)
+    assert seen == [used]

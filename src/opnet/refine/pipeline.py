@@ -54,6 +54,8 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     if search is not None and (depth is None or camera is None):
         raise ValueError("icp: the search needs the depth image and its camera")
     mode = resolve_mode(search, model.points) if search is not None else None
+    if mode == "turn" and search.turn_tolerance is not None:
+        search = dataclasses.replace(search, tolerance=search.turn_tolerance)
     axis = model_axis(model.points, search.axis) if mode == "turn" else None
     flips = ambiguity_turns(model.points, space) if mode == "flips" else None
     merged = _merged(t_out, score_in, search.merge * model.diameter) if search is not None else np.zeros(len(t_out), bool)

@@ -67,21 +67,33 @@ def _offsets(step: float, reach: float) -> np.ndarray:
     return values[np.argsort(np.abs(values), kind="stable")]
 
 
+def _anchored(scores: np.ndarray, away: np.ndarray, diameter: float, settings: SearchSettings) -> np.ndarray:
+    """Agreements ``scores`` (..., M) less ``settings.anchor`` × the distance (× diameter) each candidate's
+    origin moved from the hypothesis's (``away``: (..., M, 3) metres): on a pile of plates the depth agrees as
+    well with a pose slid across two of them, and the network's position breaks the tie."""
+    if settings.anchor == 0:
+        return scores
+    return scores - settings.anchor * np.linalg.norm(away, axis=-1) / diameter
+
+
 #: candidate points scored per batch of the turn search (bounds its memory: about 100 MB)
 BATCH_POINTS = 1_500_000
 
 
 def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, n: np.ndarray,
              angles: np.ndarray, offsets: np.ndarray, frame: tuple[np.ndarray, np.ndarray], settings: SearchSettings,
-             keep: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+             keep: int = 1, origin: np.ndarray | None = None,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """For each of N poses (N, 3, 3), (N, 3): the ``keep`` best among its turns by ``angles`` (A,) radians
     about its axis ``n`` (N, 3) through t and its shifts ``offsets[i] e1 + offsets[j] e2`` (metres; ``frame``:
     e1, e2 (N, 3)); the best shift of each turn only, best first (ties: the earlier angle, the smaller shift).
-    Returns agreement (N, keep), R (N, keep, 3, 3), t (N, keep, 3), angle (N, keep)."""
+    Scored by :func:`_anchored` from ``origin`` (N, 3) (None: t). Returns that score (N, keep), R (N, keep, 3, 3),
+    t (N, keep, 3), angle (N, keep)."""
     e1, e2 = frame
     N, A = len(R), len(angles)
     shifts = (offsets[None, :, None, None] * e1[:, None, None] + offsets[None, None, :, None] * e2[:, None, None])
     shifts = shifts.reshape(N, -1, 3)  # (N, M, 3), row-major (i, j)
+    away = shifts if origin is None else shifts + (t - origin)[:, None]  # (N, M, 3): how far each candidate moved
     Rs = (rodrigues(n[:, None], angles[None]) @ R[:, None]).reshape(-1, 3, 3)  # (N A, 3, 3)
     x, y, z, facing = facing_xyz(Rs, np.repeat(t, A, 0), model, _dtype(depth))  # (N A, K) each
     M, P = shifts.shape[1], x.shape[1]
@@ -94,6 +106,7 @@ def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera
         valid = np.broadcast_to(facing[sl, None], (len(sh), M, P))
         scores = agreement_xyz(x[sl, None] + sh[..., 0], y[sl, None] + sh[..., 1], z[sl, None] + sh[..., 2], valid,
                                depth, camera, settings.tolerance * D, settings.see_through_weight)  # fmt: skip
+        scores = _anchored(scores, away[np.arange(N * A)[sl] // A], D, settings)
         best_shift[sl] = scores.argmax(1)
         best_score[sl] = scores[np.arange(len(scores)), best_shift[sl]]
     best_score, best_shift = best_score.reshape(N, A), best_shift.reshape(N, A)
@@ -127,7 +140,7 @@ def search_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, ca
         axis: the model-frame axis to turn about (:func:`model_axis`).
     Returns:
         R (N, 3, 3), t (N, 3), agreement (N,) of each pose's best candidate (the first of equals: no turn, no
-        shift, if it ties).
+        shift, if it ties; less the ``anchor`` setting's penalty for moving, if any).
     """
     R, t = np.asarray(R, np.float64).reshape(-1, 3, 3), np.asarray(t, np.float64).reshape(-1, 3)
     D, s = model.diameter, settings
@@ -145,7 +158,7 @@ def search_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, ca
     angles = np.radians(np.arange(0.0, 360.0 - 1e-9, turn))
     coarse = _best_of(R, t, model, depth, camera, n, angles, _offsets(step * D, s.shift * D), frame, s, keep=3)
     if s.fine == "local":
-        return _refine_turns(coarse[:3], model, depth, camera, n, frame, np.radians(turn) / 2, step * D / 2, s)
+        return _refine_turns(coarse[:3], t, model, depth, camera, n, frame, np.radians(turn) / 2, step * D / 2, s)
     out_R, out_t, out_s = R.copy(), t.copy(), np.full(len(R), -np.inf)
     for c in range(coarse[0].shape[1]):  # around each of the three best coarse turns, the first best of equals
         angle = coarse[3][:, c]
@@ -154,20 +167,22 @@ def search_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, ca
             fine = fine[np.argsort(np.abs(fine - angle[h]), kind="stable")]  # the coarse turn first: it wins ties
             score, Rb, tb, _ = _best_of(R[h : h + 1], coarse[2][h : h + 1, c], model, depth, camera, n[h : h + 1],
                                         fine, _offsets(s.shift_step * D, step * D), (e1[h : h + 1], frame[1][h : h + 1]),
-                                        s)  # fmt: skip
+                                        s, origin=t[h : h + 1])  # fmt: skip
             if score[0, 0] > out_s[h]:
                 out_R[h], out_t[h], out_s[h] = Rb[0, 0], tb[0, 0], score[0, 0]
     return out_R, out_t, out_s
 
 
-def _refine_turns(starts: tuple[np.ndarray, np.ndarray, np.ndarray], model: Any, depth: np.ndarray, camera: Any,
+def _refine_turns(starts: tuple[np.ndarray, np.ndarray, np.ndarray], origin: np.ndarray, model: Any, depth: np.ndarray,
+                  camera: Any,
                   n: np.ndarray, frame: tuple[np.ndarray, np.ndarray], turn: float, shift: float,
                   settings: SearchSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """``fine: local``: from each pose's coarse best (``starts``: agreement (N, S), R (N, S, 3, 3), t (N, S, 3))
     a pattern search of six moves (a turn of ``turn`` radians about its axis ``n`` (N, 3) either way, a shift of
     ``shift`` metres either way along each of ``frame`` (N, 3) each), every start's moves scored in one batch; a
     start whose best is to stay halves its steps; a pose's starts go on until all its steps are below half the
-    grid's own. Each pose's best (the first start of equals): R (N, 3, 3), t (N, 3), agreement (N,)."""
+    grid's own; scored by :func:`_anchored` from the hypotheses' origins ``origin`` (N, 3). Each pose's best (the
+    first start of equals): R (N, 3, 3), t (N, 3), that score (N,)."""
     score, R, t = (np.array(a, np.float64) for a in starts)
     N, S = score.shape
     steps_r, steps_t = np.full((N, S), turn), np.full((N, S), shift)
@@ -188,8 +203,9 @@ def _refine_turns(starts: tuple[np.ndarray, np.ndarray, np.ndarray], model: Any,
         tn = t[live][:, :, None] + dv  # turns about the axis through the pose's origin, as the grid's
         sc = np.empty((L, S, 7))
         sc[..., 0] = score[live]  # staying keeps its score: only the moves are scored
-        sc[..., 1:] = score_poses(Rn[:, :, 1:].reshape(-1, 3, 3), tn[:, :, 1:].reshape(-1, 3), model, depth, camera,
-                                  settings).reshape(L, S, 6)  # fmt: skip
+        sc[..., 1:] = _anchored(score_poses(Rn[:, :, 1:].reshape(-1, 3, 3), tn[:, :, 1:].reshape(-1, 3), model, depth,
+                                            camera, settings).reshape(L, S, 6),
+                                tn[:, :, 1:] - origin[live, None, None], model.diameter, settings)  # fmt: skip
         best = sc.argmax(-1)
         stay = best == 0
         sr, st = steps_r[live], steps_t[live]

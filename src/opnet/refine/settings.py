@@ -128,6 +128,8 @@ class SearchSettings:
         shift: largest shift across the axis, each way.
         shift_step: step of the shift grid.
         tolerance: a measured depth within this of the model's agrees.
+        turn_tolerance: ``turn`` (a flat part): the tolerance of its search and ranking instead (None:
+            ``tolerance``). A pose across two stacked thin parts agrees with both at a loose one.
         see_through_weight: weight of the points the sensor sees through (measured behind the model).
         score: the refined hypothesis's score: agreement | network (the network's, unchanged) |
             product (network × max(agreement, 0)).
@@ -146,6 +148,8 @@ class SearchSettings:
             search: any part) | auto (turn for a flat part, else flips).
         keep: ``flips``: how many of the best ambiguity turns go on to the local search.
         local_deg, local_shift (× diameter), local_rounds: ``flips``' local search (:mod:`opnet.refine.search`).
+        anchor: ``turn``: a candidate's agreement less this × how far (× diameter) its origin moved from the
+            hypothesis's, when candidates are compared (0: agreement alone).
     """
 
     axis: str = "auto"
@@ -153,6 +157,7 @@ class SearchSettings:
     shift: float = 0.1
     shift_step: float = 0.02
     tolerance: float = 0.04
+    turn_tolerance: float | None = None
     see_through_weight: float = 1.0
     score: str = "agreement"
     suppress: float = 1.0
@@ -164,6 +169,7 @@ class SearchSettings:
     local_deg: float = 8.0
     local_shift: float = 0.04
     local_rounds: int = 4
+    anchor: float = 0.0
 
     def __post_init__(self) -> None:
         if self.fine not in ("grid", "local"):
@@ -178,6 +184,8 @@ class SearchSettings:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or not 0 < value <= 90:
                 raise ValueError(f"search.{key} must be a positive number (at most 90), got {value!r}")
+        if isinstance(self.anchor, bool) or not isinstance(self.anchor, int | float) or not 0 <= self.anchor <= 100:
+            raise ValueError(f"search.anchor must be a number in 0..100, got {self.anchor!r}")
         if self.axis not in AXES:
             raise ValueError(f"search.axis must be one of {', '.join(AXES)}, got {self.axis!r}")
         if self.score not in SCORES:
@@ -186,6 +194,9 @@ class SearchSettings:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value <= 0:
                 raise ValueError(f"search.{key} must be a positive number, got {value!r}")
+        if self.turn_tolerance is not None and (isinstance(self.turn_tolerance, bool) or not isinstance(
+                self.turn_tolerance, int | float) or not np.isfinite(self.turn_tolerance) or self.turn_tolerance <= 0):
+            raise ValueError(f"search.turn_tolerance must be a positive number or null, got {self.turn_tolerance!r}")
         for key in ("shift", "see_through_weight", "suppress", "merge"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
