@@ -1,10 +1,12 @@
 """The whole pipeline of a full camera frame, timed stage by stage: what a cell's robot waits for per frame.
 
     python scripts/bench/bench_frame.py --ckpt models/real_ipd_plate.ckpt --data <IPA-layout folder of full frames>
-        [--frames 40] [--refine model|none|icp|search|search_fast] [--out results/.../frame_speed.md]
+        [--frames 40] [--refine model|none|icp|search|search_fast] [--set KEY=VALUE ...] [--decoding KEY=VALUE ...]
+        [--out results/.../frame_speed.md]
 
 Per frame, as ``predict.py`` runs it (the checkpoint's framing, region of interest and clip planes; its recorded
-refinement unless ``--refine`` says otherwise): *crop* (the bin finder's region of interest and the input's
+refinement unless ``--refine`` says otherwise; ``--set`` changes its keys, e.g. ``search.merge=0``, ``--decoding``
+the checkpoint's decoding, e.g. ``threshold=0.05``): *crop* (the bin finder's region of interest and the input's
 preprocessing: crop, resize, fill), *network* (the fused fp32 forward), *decode* (hypotheses from the grid),
 *refine* (the refinement; its own stages below it: *scene* the depth image's point cloud, *icp*, *search*,
 *polish*, *rank*), *total*. Prints a table of the mean, median and worst milliseconds per stage (the
@@ -43,8 +45,10 @@ def frames(root: Path, count: int) -> list:
 
 
 @torch.no_grad()
-def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]:
-    """Milliseconds per stage (each (N,)) of every frame but the first."""
+def time_frames(ckpt: Path, records: list, refine: str, changes: tuple[list[str], list[str]] = ([], []),
+                ) -> dict[str, np.ndarray]:  # fmt: skip
+    """Milliseconds per stage (each (N,)) of every frame but the first; ``changes``: the refinement's and the
+    decoding's ``KEY=VALUE`` overrides."""
     from opnet.cli.build import load_checkpoint
     from opnet.cli.eval import model_settings
     from opnet.data.preprocess import to_network_input
@@ -55,8 +59,13 @@ def time_frames(ckpt: Path, records: list, refine: str) -> dict[str, np.ndarray]
     system, _ = load_checkpoint(ckpt)
     system.configure_inference(None)
     # the search refines every hypothesis on its own: decoded without pose averaging (as eval.py and predict.py do)
+    from omegaconf import OmegaConf
+
     group = {"method": refine} if refine in ("model", "none") else refine_config(refine)
-    icp = model_settings(system, group, {"averaging": False} if group.get("method") == "search" else None)
+    group = OmegaConf.to_container(OmegaConf.merge(group, OmegaConf.from_dotlist(changes[0])))
+    decoding = {"averaging": False} if group.get("method") == "search" else {}
+    decoding.update(OmegaConf.to_container(OmegaConf.from_dotlist(changes[1])))
+    icp = model_settings(system, group, decoding or None)
     refiner = Refiner.for_object(system.parameterization.obj, icp) if icp is not None else None
     framing = system.settings.input
     clip = working_clip(None, framing.trained_clip)
@@ -98,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, required=True, help="an IPA-layout folder of full camera frames")
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--refine", default="model", help="model (the checkpoint's recorded refinement), none, or a conf/refine name")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", help="the refinement's keys changed")
+    ap.add_argument("--decoding", nargs="+", default=[], metavar="KEY=VALUE", help="the checkpoint's decoding changed")
     ap.add_argument("--out", type=Path, default=None, help="also write the table (markdown) here")
     args = ap.parse_args(argv)
     for path, what in ((args.ckpt, "--ckpt"), (args.data, "--data")):
@@ -107,10 +118,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames < 2:
         print(f"error: --frames {args.frames}: at least 2 (the first warms up)", file=sys.stderr)
         return 2
-    times = time_frames(args.ckpt, frames(args.data, args.frames), args.refine)
+    for option, values in (("--set", args.set), ("--decoding", args.decoding)):
+        bad = [v for v in values if "=" not in v]
+        if bad:
+            print(f"error: {option} {bad[0]!r}: not KEY=VALUE", file=sys.stderr)
+            return 2
+    times = time_frames(args.ckpt, frames(args.data, args.frames), args.refine, (args.set, args.decoding))
     cpu = platform.processor() or platform.machine()
     head = [f"`python scripts/bench/bench_frame.py --ckpt {args.ckpt} --data {args.data} --frames {args.frames} "
-            f"--refine {args.refine}` on {cpu} ({os.cpu_count()} cores), {len(times['total'])} frames timed:", ""]
+            f"--refine {args.refine}" + "".join(f" --{o} {' '.join(v)}" for o, v in (("set", args.set),
+                                                                               ("decoding", args.decoding)) if v)
+            + f"` on {cpu} ({os.cpu_count()} cores), {len(times['total'])} frames timed:", ""]
     lines = head + table(times)
     print("\n".join(lines))
     if args.out:
