@@ -70,9 +70,8 @@ def _offsets(step: float, reach: float) -> np.ndarray:
 def _anchored(scores: np.ndarray, away: np.ndarray, diameter: float, settings: SearchSettings) -> np.ndarray:
     """Agreements ``scores`` (..., M) less ``settings.anchor`` × the distance (× diameter) each candidate's
     origin moved from the hypothesis's (``away``: (..., M, 3) metres): on a pile of plates the depth agrees as
-    well with a pose slid across two of them, and the network's position breaks the tie."""
-    if settings.anchor == 0:
-        return scores
+    well with a pose slid across two of them, and the network's position breaks the tie. Callers skip it (and
+    the distances) when the anchor is 0."""
     return scores - settings.anchor * np.linalg.norm(away, axis=-1) / diameter
 
 
@@ -106,7 +105,8 @@ def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera
         valid = np.broadcast_to(facing[sl, None], (len(sh), M, P))
         scores = agreement_xyz(x[sl, None] + sh[..., 0], y[sl, None] + sh[..., 1], z[sl, None] + sh[..., 2], valid,
                                depth, camera, settings.tolerance * D, settings.see_through_weight)  # fmt: skip
-        scores = _anchored(scores, away[np.arange(N * A)[sl] // A], D, settings)
+        if settings.anchor:
+            scores = _anchored(scores, away[np.arange(N * A)[sl] // A], D, settings)
         best_shift[sl] = scores.argmax(1)
         best_score[sl] = scores[np.arange(len(scores)), best_shift[sl]]
     best_score, best_shift = best_score.reshape(N, A), best_shift.reshape(N, A)
@@ -203,9 +203,10 @@ def _refine_turns(starts: tuple[np.ndarray, np.ndarray, np.ndarray], origin: np.
         tn = t[live][:, :, None] + dv  # turns about the axis through the pose's origin, as the grid's
         sc = np.empty((L, S, 7))
         sc[..., 0] = score[live]  # staying keeps its score: only the moves are scored
-        sc[..., 1:] = _anchored(score_poses(Rn[:, :, 1:].reshape(-1, 3, 3), tn[:, :, 1:].reshape(-1, 3), model, depth,
-                                            camera, settings).reshape(L, S, 6),
-                                tn[:, :, 1:] - origin[live, None, None], model.diameter, settings)  # fmt: skip
+        sc[..., 1:] = score_poses(Rn[:, :, 1:].reshape(-1, 3, 3), tn[:, :, 1:].reshape(-1, 3), model, depth, camera,
+                                  settings).reshape(L, S, 6)  # fmt: skip
+        if settings.anchor:
+            sc[..., 1:] = _anchored(sc[..., 1:], tn[:, :, 1:] - origin[live, None, None], model.diameter, settings)
         best = sc.argmax(-1)
         stay = best == 0
         sr, st = steps_r[live], steps_t[live]
