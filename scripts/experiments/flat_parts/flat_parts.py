@@ -67,6 +67,10 @@ def _searched(*refined: str) -> dict[str, Any]:
     return {"from": "g32_s6000", "refined": list(refined)}
 
 
+#: on top of the flat part's tolerance: more of the network's cells (threshold 0.05) and every hypothesis searched
+WIDER = ("+decoding.threshold=0.05", "refine.search.merge=0")
+
+
 def _before(*refined: str) -> dict[str, Any]:
     """:func:`_searched` against the search as it was before a flat part had its own tolerance (the arms measured
     then, so that they still reproduce)."""
@@ -136,17 +140,15 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
             # at the flat part's tolerance, more of the network's cells (threshold 0.05) and every hypothesis searched
             "g32_s6000_t2_thr05": _searched("+decoding.threshold=0.05"),
             "g32_s6000_t2_merge0": _searched("refine.search.merge=0"),
-            "g32_s6000_t2_thr05_merge0": _searched("+decoding.threshold=0.05", "refine.search.merge=0"),
+            "g32_s6000_t2_thr05_merge0": _searched(*WIDER),
             # the same with half the model points (300: ICP, the search and the polish each about half the work)
-            "g32_s6000_t2_thr05_merge0_mp300": _searched("+decoding.threshold=0.05", "refine.search.merge=0",
-                                                         "refine.icp.model_points=300"),
+            "g32_s6000_t2_thr05_merge0_mp300": _searched(*WIDER, "refine.icp.model_points=300"),
             # the same with the coarse grid's turns and shifts twice as far apart (10 degrees, 0.04 D: a quarter of the
             # candidates; the pattern search then stops at half these steps)
-            "g32_s6000_t2_thr05_merge0_coarse": _searched("+decoding.threshold=0.05", "refine.search.merge=0",
-                                                          "refine.search.turn_step_deg=10", "refine.search.shift_step=0.04"),
+            "g32_s6000_t2_thr05_merge0_coarse": _searched(*WIDER, "refine.search.turn_step_deg=10",
+                                                          "refine.search.shift_step=0.04"),
             # the same with the searched poses polished by projective ICP (no k-d tree)
-            "g32_s6000_t2_thr05_merge0_ppolish": _searched("+decoding.threshold=0.05", "refine.search.merge=0",
-                                                           "refine.icp.polish_association=projective")},
+            "g32_s6000_t2_thr05_merge0_ppolish": _searched(*WIDER, "refine.icp.polish_association=projective")},
     },
     # the new-parts recipe (experiment=dense, its budget). exact: the committed config's symmetry (the exact group
     # opnet-object finds); near_revolution: the declaration opnet-object --declare-near writes (every turn about
