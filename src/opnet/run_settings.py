@@ -58,7 +58,7 @@ ENTRY_KEYS = ("format", "input", "trained_clip", "decoding", "object", "refine",
 #: the training camera's values, in this order (a camera YAML's keys)
 CAMERA_KEYS = YAML_CAMERA_KEYS
 #: the refinements a model may be meant to run with (``deploy_refine``; conf/refine/<name>.yaml)
-REFINE_NAMES = ("icp", "search", "search_fast")
+REFINE_NAMES = ("icp", "search", "search_fast", "search_flat")
 
 
 def check_format(value: Any, source: str = "") -> None:

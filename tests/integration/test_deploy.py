@@ -189,6 +189,11 @@ def test_runtime_refuses_foreign_and_mismatched_models(checkpoint: Path, tmp_pat
     OnnxPoseEstimator(tmp_path / "no_icp.onnx")  # fine without ICP
     with pytest.raises(ValueError, match=r"no_icp\.onnx: no ICP model points in its metadata"):
         OnnxPoseEstimator(tmp_path / "no_icp.onnx", icp=ICPSettings())
+    # a recorded refinement that ranks on model points of its own (search_flat) needs them in the metadata
+    proto.metadata_props[0].value = json.dumps({**meta, "refine": "search_flat"})
+    onnx.save(proto, str(tmp_path / "flat.onnx"))
+    with pytest.raises(ValueError, match=r"flat\.onnx: the refinement ranks on 2000 model points of its own"):
+        OnnxPoseEstimator(tmp_path / "flat.onnx")
     with pytest.raises(ValueError, match=r"threads=20000: expected a whole number in 1\.\."):
         OnnxPoseEstimator(out, threads=20000)
     del proto.metadata_props[0]

@@ -144,6 +144,11 @@ def test_refine_with_search_ranks_hypotheses_by_their_agreement(plate_scene) -> 
     ({"method": "search", "search": {"merge": -1}}, "search.merge must be a number >= 0"),
     ({"method": "search", "search": {"anchor": -0.5}}, "search.anchor must be a number in 0..100"),
     ({"method": "search", "search": {"turn_tolerance": 0}}, "search.turn_tolerance must be a positive number or null"),
+    ({"method": "search", "search": {"suppress_icp": -1}}, "search.suppress_icp must be a number >= 0"),
+    ({"method": "search", "search": {"suppress_searched": "yes"}}, "search.suppress_searched must be true or false"),
+    ({"method": "search", "search": {"coarse_stride": 0}}, "search.coarse_stride must be a positive integer"),
+    ({"method": "search", "search": {"rank_points": -1}}, r"search.rank_points must be an integer in 0..20000"),
+    ({"method": "search", "search": {"polish_share": 2}}, r"search.polish_share must be a number in 0..1"),
     ({"method": "icp", "icp": {"search": {}}}, r"icp: unknown keys \['search'\]"),
     ({"method": "serch"}, "expected none, icp or search"),
 ])
@@ -289,3 +294,113 @@ def test_a_flat_part_is_searched_and_ranked_at_its_turn_tolerance(plate_scene, m
     settings = ICPSettings(budget_ms=None, search=SearchSettings(tolerance=0.04, turn_tolerance=0.02, mode=mode))
     refine_hypotheses(R_gt[None], T_GT[None], np.array([0.5]), model, scene, space, settings, depth, CAM)
     assert seen == [used]
+
+
+def _polished_and_searched(monkeypatch, plate_scene, search: SearchSettings, off: bool = False,
+                           ) -> tuple[list[int], list[int], list[str]]:  # fmt: skip
+    """How many poses each ICP call and each search got, and the statuses, for three hypotheses of the plate: two
+    a few millimetres and degrees apart that search to one pose, and one turned 90 degrees (``off``: 120 mm off
+    the plate, over the holed sheet) (threads: 1)."""
+    import opnet.refine.pipeline as pipeline
+
+    obj, R_gt, depth, model, space = plate_scene
+    icp_calls: list[int] = []
+    searched: list[int] = []
+    real_icp, real_search = pipeline._refine_many, pipeline.search_poses
+
+    def icp_spy(R, *args):
+        icp_calls.append(len(R))
+        return real_icp(R, *args)
+
+    def search_spy(R, *args):
+        searched.append(len(R))
+        return real_search(R, *args)
+
+    poses = [_turned(R_gt, 2.0, (1.0, 0.0)), _turned(R_gt, 0.0, (0.0, 1.0)),
+             _turned(R_gt, 90.0, (120.0, 0.0) if off else (0.0, 6.0))]
+    scene = SceneCloud.from_depth(depth, CAM.fx, CAM.fy, CAM.cx, CAM.cy)
+    settings = ICPSettings(budget_ms=None, threads=1, search=search)
+    with monkeypatch.context() as patch:
+        patch.setattr(pipeline, "_refine_many", icp_spy)
+        patch.setattr(pipeline, "search_poses", search_spy)
+        _, t, status, _ = refine_hypotheses(np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses]),
+                                            np.array([0.9, 0.8, 0.2]), model, scene, space, settings, depth, CAM)
+    kept = [k for k, s in enumerate(status) if s == "searched"]
+    assert kept and np.linalg.norm(t[kept[0]] - T_GT) * 1000 < 2.0
+    return icp_calls, searched, status
+
+
+def test_duplicates_the_search_made_are_not_polished_with_suppress_searched(plate_scene, monkeypatch) -> None:
+    """All three search to the true pose; with ``suppress_searched`` only the one the search found best is polished
+    (the ICP calls: the first ICP of three, then the polish of one): one pose is left either way."""
+    late = _polished_and_searched(monkeypatch, plate_scene, SearchSettings(merge=0.0))
+    early = _polished_and_searched(monkeypatch, plate_scene, SearchSettings(merge=0.0, suppress_searched=True))
+    assert late[0] == [3, 3] and early[0] == [3, 1] and late[1] == early[1] == [3]
+    assert sorted(late[2]) == sorted(early[2]) == ["searched", "suppressed", "suppressed"]
+
+
+def test_hypotheses_icp_brought_together_are_searched_once_with_suppress_icp(plate_scene, monkeypatch) -> None:
+    """The two hypotheses a few millimetres and degrees apart are within 0.5 delta after ICP: the worse is dropped
+    unsearched; the one turned 90 degrees is searched."""
+    icp_calls, searched, status = _polished_and_searched(monkeypatch, plate_scene,
+                                                         SearchSettings(merge=0.0, suppress_icp=0.5))
+    assert searched == [2] and status[1] == "suppressed" and status[0] == "searched"
+
+
+def test_a_strided_coarse_grid_scores_fewer_points_and_finds_the_same_pose(plate_scene, monkeypatch) -> None:
+    import opnet.refine.search as search
+
+    obj, R_gt, depth, model, _ = plate_scene
+    R0, t0 = _turned(R_gt, 140.0, (7.0, -4.0))
+    scored: list[int] = []
+    real = search.agreement_xyz
+
+    def spy(x, *args):
+        scored.append(x.shape[-1])
+        return real(x, *args)
+
+    monkeypatch.setattr(search, "agreement_xyz", spy)
+    found = {}
+    for stride in (1, 3):
+        scored.clear()
+        settings = SearchSettings(coarse_stride=stride)
+        R, t, score = search_pose(R0, t0, model, depth, CAM, model_axis(model.points), settings)
+        assert _angle(R_gt, R) < settings.turn_step_deg and np.linalg.norm(t - T_GT) < settings.shift_step * model.diameter
+        found[stride] = scored[0]
+    assert found[3] == -(-found[1] // 3)  # every third facing point of the coarse grid's candidates
+
+
+def test_a_searched_hypothesis_far_below_the_best_agreement_is_not_polished(plate_scene, monkeypatch) -> None:
+    """With ``polish_share`` 0.8 the hypothesis over the holed sheet (its agreement far below the plate's) keeps its
+    searched pose unpolished: one ICP call fewer; with 0 every searched hypothesis is polished."""
+    icp_all, _, status_all = _polished_and_searched(monkeypatch, plate_scene, SearchSettings(merge=0.0), off=True)
+    icp_some, _, status = _polished_and_searched(monkeypatch, plate_scene, SearchSettings(merge=0.0, polish_share=0.8),
+                                                 off=True)  # fmt: skip
+    assert icp_all == [3, 3] and status_all[2] == "searched"
+    assert icp_some == [3, 2] and status[2] == "unpolished"
+
+
+def test_the_ranking_is_measured_on_the_rank_points_where_set(plate_scene, monkeypatch) -> None:
+    """``rank_points``: the Refiner samples a cloud of its own and the final agreements are measured on it (the
+    search's on ICP's points); the export writes it for a recorded refinement that ranks on it."""
+    import opnet.refine.pipeline as pipeline
+    from opnet.deploy.export import icp_model_metadata
+    from opnet.metrics.records import HypothesisSet
+    from opnet.refine import Refiner
+
+    obj, R_gt, depth, model, space = plate_scene
+    assert Refiner.for_object(obj, ICPSettings(search=SearchSettings())).rank_model is None
+    refiner = Refiner.for_object(obj, ICPSettings(budget_ms=None, search=SearchSettings(rank_points=1500)))
+    assert len(refiner.rank_model.points) == 1500 and len(refiner.model.points) == ICPSettings().model_points
+    counts: list[int] = []
+    real = pipeline.score_poses
+
+    def spy(R, t, model, depth, camera, settings):
+        counts.append(len(model.points))
+        return real(R, t, model, depth, camera, settings)
+
+    monkeypatch.setattr(pipeline, "score_poses", spy)
+    out, status = refiner(HypothesisSet(R_gt[None], T_GT[None], np.array([0.5])), depth, CAM)
+    assert counts == [1500] and status == ["searched"] and out.score[0] > 0.9
+    assert len(icp_model_metadata(obj, "search_flat")["rank_points"]) == 2000
+    assert "rank_points" not in icp_model_metadata(obj, "search_fast")

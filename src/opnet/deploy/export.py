@@ -107,7 +107,7 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "outputs": list(OUTPUTS),
         **settings.decoding.to_metadata(),
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
-        "icp_model": icp_model_metadata(param.obj),
+        "icp_model": icp_model_metadata(param.obj, settings.refine),
         # the refinement the model is meant to run with (train.py's deploy_refine), None: as decoded
         "refine": settings.refine,
         # the training camera's pose in the robot's base frame (its cell's T_base_cam), when recorded
@@ -117,16 +117,21 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
     }
 
 
-def icp_model_metadata(obj: Any) -> dict[str, Any] | None:
-    """The points ICP fits (:class:`opnet.refine.ModelCloud`, default count), so that the
-    runtime refines without the mesh; None for an object without a mesh."""
-    from opnet.refine import ICPSettings, ModelCloud
+def icp_model_metadata(obj: Any, refine: str | None = None) -> dict[str, Any] | None:
+    """The points ICP fits (:class:`opnet.refine.ModelCloud`, default count), so that the runtime refines without
+    the mesh, and where the recorded refinement ``refine`` ranks on points of its own (``search.rank_points``)
+    those too (``rank_points``, ``rank_normals``); None for an object without a mesh."""
+    from opnet.refine import ICPSettings, ModelCloud, rank_cloud
+    from opnet.refine.settings import refine_config, settings_from_config
 
     if obj.mesh is None:
         return None
     cloud = ModelCloud.from_mesh(obj.mesh, ICPSettings().model_points, obj.diameter)
-    return {"points": cloud.points.tolist(), "normals": cloud.normals.tolist(),
-            "diameter": cloud.diameter}
+    out = {"points": cloud.points.tolist(), "normals": cloud.normals.tolist(), "diameter": cloud.diameter}
+    rank = rank_cloud(obj.mesh, obj.diameter, settings_from_config(refine_config(refine))) if refine else None
+    if rank is not None:
+        out.update(rank_points=rank.points.tolist(), rank_normals=rank.normals.tolist())
+    return out
 
 
 def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET) -> dict[str, Any]:

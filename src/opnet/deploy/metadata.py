@@ -29,7 +29,7 @@ KEYS = ("format", "opnet_version", "checkpoint", "object", "parameterization", "
         "decoding", "pose_space", "icp_model", "refine", BASE_POSE_KEY, "camera")
 INPUT_KEYS = (*(k.removeprefix("input.") for k in METADATA.values() if k.startswith("input.")), "layout")
 POSE_SPACE_KEYS = ("Lambda", "group", "delta", "revolution", "lam")
-ICP_KEYS = ("points", "normals", "diameter")
+ICP_KEYS = ("points", "normals", "diameter", "rank_points", "rank_normals")
 #: the settings an export always writes (the others have defaults: fit pad, interpolation area, no roi)
 REQUIRED_SETTINGS = ("decoding.threshold", "decoding.score", "decoding.min_visibility", "input.size")
 AVERAGING_REQUIRED = ("eps", "min_samples", "cluster_score")
@@ -166,8 +166,15 @@ def validate_metadata(meta: Any, path: str | Path) -> dict[str, Any]:
         normals = f.array(icp, "normals", (-1, 3), "icp_model.", max_size=MAX_ICP_POINTS)
         if len(points) != len(normals) or not len(points):
             raise f.fail("icp_model.normals", f"{len(normals)} normals", f"one per point ({len(points)})")
+        rank: dict[str, Any] = {}
+        if "rank_points" in icp or "rank_normals" in icp:  # the points the final agreements are measured on
+            rank = {k: f.array(icp, k, (-1, 3), "icp_model.", max_size=MAX_ICP_POINTS)
+                    for k in ("rank_points", "rank_normals")}  # fmt: skip
+            if len(rank["rank_points"]) != len(rank["rank_normals"]) or not len(rank["rank_points"]):
+                raise f.fail("icp_model.rank_normals", f"{len(rank['rank_normals'])} normals",
+                             f"one per rank point ({len(rank['rank_points'])})")  # fmt: skip
         icp = {"points": points, "normals": normals,
-               "diameter": f.value(icp, "diameter", Number(0.0, 1000.0, low_open=True), "icp_model.")}
+               "diameter": f.value(icp, "diameter", Number(0.0, 1000.0, low_open=True), "icp_model."), **rank}
     out["icp_model"] = icp
     out["pose_space"] = {
         "Lambda": f.array(ps, "Lambda", (3, 3), "pose_space."),

@@ -44,14 +44,14 @@ _INTERPOLATION = {"area": cv2.INTER_AREA}
 def recorded_refinement(name: str | None, budget_ms: float | None = None) -> ICPSettings | None:
     """The settings of a refinement named as an export records it, the runtime's flags too: ``icp``
     (``--icp``; 100 ms per image unless ``budget_ms``), ``search`` (``--search``), ``search_fast``
-    (``--search-fast``; both without a budget unless ``budget_ms``); None: none."""
+    (``--search-fast``), ``search_flat`` (all three without a budget unless ``budget_ms``); None: none."""
     if name is None:
         return None
     if name == "icp":
         return ICPSettings(budget_ms=100.0 if budget_ms is None else budget_ms)
-    if name in ("search", "search_fast"):
-        return search_settings(budget_ms, fast=name == "search_fast")
-    raise ValueError(f"refinement {name!r}: the runtime runs icp, search or search_fast (a new recorded "
+    if name in ("search", "search_fast", "search_flat"):
+        return search_settings(budget_ms, name)
+    raise ValueError(f"refinement {name!r}: the runtime runs icp, search, search_fast or search_flat (a new recorded "
                      "refinement needs its case in opnet.deploy.runtime.recorded_refinement)")
 
 
@@ -133,7 +133,14 @@ class OnnxPoseEstimator:
             cloud = s["icp_model"]
             if cloud is None:
                 raise ValueError(f"{self.path}: no ICP model points in its metadata; export it again with python export.py")
-            self.refiner = Refiner(ModelCloud(cloud["points"], cloud["normals"], cloud["diameter"]), space, icp)
+            rank = None
+            if icp.search is not None and icp.search.rank_points:
+                if len(cloud.get("rank_points", ())) != icp.search.rank_points:
+                    raise ValueError(f"{self.path}: the refinement ranks on {icp.search.rank_points} model points of "
+                                     "its own (search.rank_points), not in its metadata; export it again with "
+                                     "python export.py")  # fmt: skip
+                rank = ModelCloud(cloud["rank_points"], cloud["rank_normals"], cloud["diameter"])
+            self.refiner = Refiner(ModelCloud(cloud["points"], cloud["normals"], cloud["diameter"]), space, icp, rank)
 
     def _check_graph(self) -> None:
         """The graph's inputs and outputs are those the (validated) metadata describes."""

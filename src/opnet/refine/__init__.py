@@ -36,6 +36,7 @@ _WHERE = {
     "refine_poses_projective": "associations",
     "STAGES": "pipeline",
     "Refiner": "pipeline",
+    "rank_cloud": "pipeline",
     "refine_hypotheses": "pipeline",
     "refine_image": "pipeline",
     "serial_blas": "pipeline",

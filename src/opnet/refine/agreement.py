@@ -56,13 +56,15 @@ def facing_xyz(R: np.ndarray, t: np.ndarray, model: Any, dtype: Any = np.float64
     and which of them are real (N, K) (K: the most any pose has; the rest pad with point 0, masked out).
     Agreement counts only these, at half the work of all the points."""
     x, y, z, facing = posed_xyz(R, t, model, dtype)
+    N, P = facing.shape
     count = facing.sum(1)
     K = int(count.max(initial=0))
     rows, cols = np.nonzero(facing)  # row-major: each pose's facing points in model order
     slot = np.arange(len(rows)) - np.repeat(np.cumsum(count) - count, count)
-    chosen = np.zeros((len(facing), K), np.intp)
+    chosen = np.zeros((N, K), np.intp)
     chosen[rows, slot] = cols
-    return (*(np.take_along_axis(c, chosen, 1) for c in (x, y, z)), np.arange(K) < count[:, None])
+    chosen += (np.arange(N) * P)[:, None]  # flat indices: one gather per coordinate
+    return (*(c.ravel()[chosen] for c in (x, y, z)), np.arange(K) < count[:, None])
 
 
 def _dtype(depth: np.ndarray) -> Any:

@@ -40,8 +40,9 @@ from opnet.refine.clouds import ModelCloud, SceneCloud
 from opnet.refine.settings import ICPSettings
 
 #: what became of a hypothesis: ICP's refined, no_depth and rejected, and the refinement's searched,
-#: suppressed (a duplicate) and budget (left as it was when the time ran out)
-STATUSES = ("refined", "searched", "suppressed", "no_depth", "rejected", "budget")
+#: unpolished (searched, its agreement too low to be polished: ``search.polish_share``), suppressed (a duplicate)
+#: and budget (left as it was when the time ran out)
+STATUSES = ("refined", "searched", "unpolished", "suppressed", "no_depth", "rejected", "budget")
 
 
 @dataclass(frozen=True)

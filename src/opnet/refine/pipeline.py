@@ -32,7 +32,7 @@ from opnet.refine.settings import ICPSettings
 
 def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: ModelCloud, scene: SceneCloud,
                       space: Any, settings: ICPSettings = ICPSettings(), depth: np.ndarray | None = None,
-                      camera: Any = None, timings: dict[str, float] | None = None,
+                      camera: Any = None, timings: dict[str, float] | None = None, rank_model: ModelCloud | None = None,
                       ) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:  # fmt: skip
     """Refine the hypotheses of one image, best score first, within ``settings.budget_ms``.
 
@@ -41,6 +41,7 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
         depth, camera: the depth image (H, W) and its camera (fx, fy, cx, cy) the scene was made
             from; needed with ``settings.search``.
         timings: if given, the seconds of each stage are added to it (:data:`STAGES`).
+        rank_model: the model points the final agreements are measured on (``search.rank_points``; None: ``model``).
     Returns:
         refined R (N, 3, 3), t (N, 3) in the input order, each one's status, and its score: the
         input's, or with ``settings.search`` the one its ``score`` setting names (a hypothesis the
@@ -64,73 +65,103 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
         status[k] = "suppressed"
     polish = settings if settings.polish_association is None else \
         dataclasses.replace(settings, association=settings.polish_association)  # fmt: skip
+    threaded = settings.budget_ms is None and settings.threads > 1 and len(order) > 1
+    clock = _Stages(timings)
+    searched = np.full(len(R_out), -np.inf)  # each searched hypothesis's agreement after the search
+    kept_icp: list[int] = []  # hypotheses searched so far (suppress_icp compares with their ICP poses)
+    kept_searched: list[int] = []  # ... and polished so far (suppress_searched compares with them)
 
-    def refine_chunk(ks: list[int], clock: _Stages, workers: int) -> None:
-        """ICP, the search and ICP again of the hypotheses ``ks``, each stage in one batch, in place."""
-        first = clock("icp", _refine_many, R_out[ks], t_out[ks], model, scene, space, settings, workers)
-        starts = [(R_out[k].copy(), t_out[k].copy()) for k in ks]
-        for k, result in zip(ks, first, strict=True):
-            R_out[k], t_out[k], status[k] = result.R, result.t, result.status
-        todo = [j for j, result in enumerate(first) if search is not None and result.status != "no_depth"]
-        if not todo:
+    def each(stage: str, fn: Any, ks: list[int]) -> None:
+        """``fn(share, workers)`` over the hypotheses ``ks``: without a time budget in ``settings.threads``
+        shares side by side (each hypothesis's result is what it gets alone), else all at once; timed."""
+        if not ks:
             return
-        found = [ks[j] for j in todo]
         clock.start()
+        if threaded and len(ks) > 1:
+            parts = [ks[i :: settings.threads] for i in range(min(settings.threads, len(ks)))]
+            with ThreadPoolExecutor(len(parts)) as pool:
+                for done in [pool.submit(fn, part, 1) for part in parts]:
+                    done.result()
+        else:
+            fn(ks, -1)
+        clock.stop(stage)
+
+    starts: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def icp(ks: list[int], workers: int) -> None:
+        for k in ks:
+            starts[k] = (R_out[k].copy(), t_out[k].copy())
+        for k, result in zip(ks, _refine_many(R_out[ks], t_out[ks], model, scene, space, settings, workers),
+                             strict=True):  # fmt: skip
+            R_out[k], t_out[k], status[k] = result.R, result.t, result.status
+
+    def search_many(ks: list[int], workers: int) -> None:
         if mode == "turn":
-            Rs, ts, _ = search_poses(R_out[found], t_out[found], model, depth, camera, axis, search)
+            Rs, ts, sc = search_poses(R_out[ks], t_out[ks], model, depth, camera, axis, search)
         else:
             # from the refined pose and from the hypothesis itself: ICP may have pulled a turned hypothesis
             # further off
-            Rs, ts, _ = search_any_many(np.stack([(R_out[ks[j]], starts[j][0]) for j in todo]),
-                                        np.stack([(t_out[ks[j]], starts[j][1]) for j in todo]), model, depth, camera,
-                                        space, search, flips)  # fmt: skip
-        clock.stop("search")
-        for k, result in zip(found, clock("polish", _refine_many, Rs, ts, model, scene, space, polish, workers),
+            Rs, ts, sc = search_any_many(np.stack([(R_out[k], starts[k][0]) for k in ks]),
+                                         np.stack([(t_out[k], starts[k][1]) for k in ks]), model, depth, camera,
+                                         space, search, flips)  # fmt: skip
+        R_out[ks], t_out[ks], searched[ks] = Rs, ts, sc
+
+    def polish_many(ks: list[int], workers: int) -> None:
+        for k, result in zip(ks, _refine_many(R_out[ks], t_out[ks], model, scene, space, polish, workers),
                              strict=True):  # fmt: skip
             R_out[k], t_out[k], status[k] = result.R, result.t, "searched"
 
-    if settings.budget_ms is None and settings.threads > 1 and len(order) > 1:
-        # no budget: every hypothesis, a share per thread (each hypothesis's result is what it gets alone)
-        parts = [order[i :: settings.threads] for i in range(min(settings.threads, len(order)))]
-        clocks = [_Stages({} if timings is not None else None) for _ in parts]
-        with ThreadPoolExecutor(len(parts)) as pool:
-            for done in [pool.submit(refine_chunk, part, clock, 1) for part, clock in zip(parts, clocks, strict=True)]:
-                done.result()
-        if timings is not None:  # a stage's time: its slowest thread's (they ran side by side)
-            for stage in STAGES:
-                spent = [c.timings[stage] for c in clocks if stage in c.timings]
-                if spent:
-                    timings[stage] = timings.get(stage, 0.0) + max(spent)
-    else:
-        # hypotheses go in chunks, best first: all in one without a time budget; under one, a chunk at a time
-        # (nearest-point ICP: one hypothesis, as the budget always counted)
-        chunk = len(order) if settings.budget_ms is None else PROJECTIVE_CHUNK if settings.association == "projective" \
-            else 1  # fmt: skip
-        clock = _Stages(timings)
-        start = time.perf_counter()
-        for c0 in range(0, len(order), max(chunk, 1)):
-            if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
-                break
-            refine_chunk(order[c0 : c0 + chunk], clock, -1)
+    def drop_copies(ks: list[int], kept: list[int], radius: float) -> list[int]:
+        """Those of ``ks`` (best first) not within ``radius`` δ of a pose kept before them (``kept``, extended
+        by them); the others' status ``suppressed``. Timed as ranking."""
+        clock.start()
+        out = []
+        for k in ks:
+            if radius > 0 and kept and (pose_distance(space, R_out[k], t_out[k], R_out[kept], t_out[kept])
+                                        < radius * space.delta).any():  # fmt: skip
+                status[k] = "suppressed"
+            else:
+                kept.append(k)
+                out.append(k)
+        clock.stop("rank")
+        return out
+
+    # hypotheses go in chunks, best first: all in one without a time budget; under one, a chunk at a time
+    # (nearest-point ICP: one hypothesis, as the budget always counted)
+    chunk = len(order) if settings.budget_ms is None else PROJECTIVE_CHUNK if settings.association == "projective" \
+        else 1  # fmt: skip
+    start, best = time.perf_counter(), -np.inf  # best: the best searched agreement so far
+    for c0 in range(0, len(order), max(chunk, 1)):
+        if settings.budget_ms is not None and (time.perf_counter() - start) * 1000 >= settings.budget_ms:
+            break
+        ks = order[c0 : c0 + chunk]
+        each("icp", icp, ks)
+        if search is None:
+            continue
+        ks = [k for k in ks if status[k] != "no_depth"]
+        ks = drop_copies(ks, kept_icp, search.suppress_icp)
+        each("search", search_many, ks)
+        if search.suppress_searched:
+            ks = sorted(ks, key=lambda k: -searched[k])  # stable: equal agreements keep the network's order
+            ks = drop_copies(ks, kept_searched, search.suppress)
+        if search.polish_share > 0 and ks:
+            best = max(best, max(searched[k] for k in ks))
+            for k in ks:
+                if searched[k] < search.polish_share * best:
+                    status[k] = "unpolished"
+            ks = [k for k in ks if status[k] != "unpolished"]
+        each("polish", polish_many, ks)
+    merged = np.array([s == "suppressed" for s in status], bool)
     if search is None:
         return R_out, t_out, status, score_in.copy()
-    clock = _Stages(timings)
     clock.start()
     agree = np.full(len(R_out), -np.inf)
     if (~merged).any():
-        agree[~merged] = score_poses(R_out[~merged], t_out[~merged], model, depth, camera, search)
+        agree[~merged] = score_poses(R_out[~merged], t_out[~merged], rank_model or model, depth, camera, search)
     final = {"agreement": agree, "network": score_in.copy(), "product": score_in * np.maximum(agree, 0.0)}[search.score]
-    if search.suppress > 0:  # duplicates: searches from nearby hypotheses that ended on one pose
-        kept: list[int] = []
-        for k in np.argsort(-final, kind="stable"):
-            if merged[k]:
-                continue
-            if kept and (pose_distance(space, R_out[k], t_out[k], R_out[kept], t_out[kept])
-                         < search.suppress * space.delta).any():  # fmt: skip
-                status[k] = "suppressed"
-            else:
-                kept.append(int(k))
     clock.stop("rank")
+    # duplicates: searches from nearby hypotheses that ended on one pose
+    drop_copies([int(k) for k in np.argsort(-final, kind="stable") if not merged[k]], [], search.suppress)
     return R_out, t_out, status, final
 
 
@@ -206,10 +237,10 @@ def serial_blas() -> contextlib.AbstractContextManager:
 
 def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCloud, space: Any,
                  settings: ICPSettings = ICPSettings(), timings: dict[str, float] | None = None,
-                 ) -> tuple[Any, list[str]]:  # fmt: skip
+                 rank_model: ModelCloud | None = None) -> tuple[Any, list[str]]:  # fmt: skip
     """The hypotheses of one image (a :class:`opnet.metrics.records.HypothesisSet`) refined against
     its depth image (metres, (H, W)) seen by ``camera`` (fx, fy, cx, cy): (a new set, statuses);
-    ``timings``: the seconds of each of :data:`STAGES` added to it."""
+    ``timings``: the seconds of each of :data:`STAGES` added to it; ``rank_model``: :func:`refine_hypotheses`'."""
     if depth.shape != (camera.height, camera.width):
         raise ValueError(f"icp: depth of shape {depth.shape} does not match the camera ({camera.height}, {camera.width})")
     with serial_blas():
@@ -217,7 +248,8 @@ def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCl
                                  settings.stride)  # fmt: skip
         # the search scores in float32 (:func:`opnet.refine.agreement.agreement`): depth to a tenth of a micron
         R, t, status, score = refine_hypotheses(hypotheses.R, hypotheses.t, hypotheses.score, model, scene, space,
-                                                settings, np.asarray(depth, np.float32), camera, timings)  # fmt: skip
+                                                settings, np.asarray(depth, np.float32), camera, timings,
+                                                rank_model)  # fmt: skip
     keep = np.array([s != "suppressed" for s in status], bool)
     visibility = None if hypotheses.visibility is None else np.asarray(hypotheses.visibility)[keep]
     return type(hypotheses)(R[keep], t[keep], score[keep], visibility), status
@@ -225,11 +257,13 @@ def refine_image(hypotheses: Any, depth: np.ndarray, camera: Any, model: ModelCl
 
 @dataclass(frozen=True)
 class Refiner:
-    """ICP for one object: its model cloud, pose space and settings, ready for images."""
+    """ICP for one object: its model cloud, pose space and settings, ready for images; ``rank_model``: the
+    points its final agreements are measured on (``search.rank_points``; None: ``model``'s)."""
 
     model: ModelCloud
     space: Any
     settings: ICPSettings
+    rank_model: ModelCloud | None = None
 
     @classmethod
     def for_object(cls, obj: Any, settings: ICPSettings) -> Refiner:
@@ -239,12 +273,20 @@ class Refiner:
         if obj.mesh is None:
             raise ValueError(f"icp: object {obj.name!r} has no mesh to refine against")
         return cls(ModelCloud.from_mesh(obj.mesh, settings.model_points, obj.diameter),
-                   PoseSpaceArrays.of(obj.pose_space), settings)  # fmt: skip
+                   PoseSpaceArrays.of(obj.pose_space), settings, rank_cloud(obj.mesh, obj.diameter, settings))
 
     def __call__(self, hypotheses: Any, depth: np.ndarray, camera: Any,
                  timings: dict[str, float] | None = None) -> tuple[Any, list[str]]:  # fmt: skip
         """:func:`refine_image` with this object's model."""
-        return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings, timings)
+        return refine_image(hypotheses, depth, camera, self.model, self.space, self.settings, timings, self.rank_model)
 
 
-__all__ = ["STAGES", "Refiner", "refine_hypotheses", "refine_image", "serial_blas"]
+def rank_cloud(mesh: Any, diameter: float, settings: ICPSettings) -> ModelCloud | None:
+    """The model points ``settings``' final agreements are measured on (``search.rank_points`` of them, sampled
+    apart from ICP's), or None where they are ICP's own."""
+    if settings.search is None or not settings.search.rank_points:
+        return None
+    return ModelCloud.from_mesh(mesh, settings.search.rank_points, diameter, seed=1)
+
+
+__all__ = ["STAGES", "Refiner", "rank_cloud", "refine_hypotheses", "refine_image", "serial_blas"]

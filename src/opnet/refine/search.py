@@ -81,20 +81,20 @@ BATCH_POINTS = 1_500_000
 
 def _best_of(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, camera: Any, n: np.ndarray,
              angles: np.ndarray, offsets: np.ndarray, frame: tuple[np.ndarray, np.ndarray], settings: SearchSettings,
-             keep: int = 1, origin: np.ndarray | None = None,
+             keep: int = 1, origin: np.ndarray | None = None, stride: int = 1,
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """For each of N poses (N, 3, 3), (N, 3): the ``keep`` best among its turns by ``angles`` (A,) radians
     about its axis ``n`` (N, 3) through t and its shifts ``offsets[i] e1 + offsets[j] e2`` (metres; ``frame``:
     e1, e2 (N, 3)); the best shift of each turn only, best first (ties: the earlier angle, the smaller shift).
-    Scored by :func:`_anchored` from ``origin`` (N, 3) (None: t). Returns that score (N, keep), R (N, keep, 3, 3),
-    t (N, keep, 3), angle (N, keep)."""
+    Scored by :func:`_anchored` from ``origin`` (N, 3) (None: t), on every ``stride``-th of each candidate's model
+    points facing the camera. Returns that score (N, keep), R (N, keep, 3, 3), t (N, keep, 3), angle (N, keep)."""
     e1, e2 = frame
     N, A = len(R), len(angles)
     shifts = (offsets[None, :, None, None] * e1[:, None, None] + offsets[None, None, :, None] * e2[:, None, None])
     shifts = shifts.reshape(N, -1, 3)  # (N, M, 3), row-major (i, j)
     away = shifts if origin is None else shifts + (t - origin)[:, None]  # (N, M, 3): how far each candidate moved
     Rs = (rodrigues(n[:, None], angles[None]) @ R[:, None]).reshape(-1, 3, 3)  # (N A, 3, 3)
-    x, y, z, facing = facing_xyz(Rs, np.repeat(t, A, 0), model, _dtype(depth))  # (N A, K) each
+    x, y, z, facing = (c[:, ::stride] for c in facing_xyz(Rs, np.repeat(t, A, 0), model, _dtype(depth)))  # (N A, K)
     M, P = shifts.shape[1], x.shape[1]
     best_score, best_shift = np.empty(N * A), np.empty(N * A, np.intp)
     rows = max(1, BATCH_POINTS // max(M * P, 1))
@@ -156,7 +156,8 @@ def search_poses(R: np.ndarray, t: np.ndarray, model: Any, depth: np.ndarray, ca
         return Rb[:, 0], tb[:, 0], score[:, 0]
     turn, step = s.turn_step_deg * s.coarse, s.shift_step * s.coarse
     angles = np.radians(np.arange(0.0, 360.0 - 1e-9, turn))
-    coarse = _best_of(R, t, model, depth, camera, n, angles, _offsets(step * D, s.shift * D), frame, s, keep=3)
+    coarse = _best_of(R, t, model, depth, camera, n, angles, _offsets(step * D, s.shift * D), frame, s, keep=3,
+                      stride=s.coarse_stride)
     if s.fine == "local":
         return _refine_turns(coarse[:3], t, model, depth, camera, n, frame, np.radians(turn) / 2, step * D / 2, s)
     out_R, out_t, out_s = R.copy(), t.copy(), np.full(len(R), -np.inf)

@@ -150,6 +150,17 @@ class SearchSettings:
         local_deg, local_shift (× diameter), local_rounds: ``flips``' local search (:mod:`opnet.refine.search`).
         anchor: ``turn``: a candidate's agreement less this × how far (× diameter) its origin moved from the
             hypothesis's, when candidates are compared (0: agreement alone).
+        coarse_stride: the coarse grid (``coarse`` > 1) scores every this-th of a candidate's model points facing
+            the camera (1: all): it only picks the turns the fine search starts from.
+        suppress_icp: after the first ICP, a hypothesis whose pose lies within this many δ of a better-scored
+            one's is dropped (status ``suppressed``) unsearched: it would search to the same pose (0: keep all).
+        suppress_searched: the ``suppress`` test also runs right after the search, on the search's agreements,
+            so that duplicates are not polished (False: only after the polish).
+        rank_points: the final agreements, which rank the hypotheses, measured on this many model points of their
+            own (a denser sample than ICP's ``model_points``: finer differences between near-equal poses; 0: ICP's).
+        polish_share: only the searched hypotheses whose agreement is at least this share of the image's best are
+            polished by ICP; the others keep the search's pose (status ``unpolished``) and rank by its agreement
+            (0: all polished).
     """
 
     axis: str = "auto"
@@ -170,6 +181,11 @@ class SearchSettings:
     local_shift: float = 0.04
     local_rounds: int = 4
     anchor: float = 0.0
+    coarse_stride: int = 1
+    suppress_icp: float = 0.0
+    suppress_searched: bool = False
+    polish_share: float = 0.0
+    rank_points: int = 0
 
     def __post_init__(self) -> None:
         if self.fine not in ("grid", "local"):
@@ -197,12 +213,22 @@ class SearchSettings:
         if self.turn_tolerance is not None and (isinstance(self.turn_tolerance, bool) or not isinstance(
                 self.turn_tolerance, int | float) or not np.isfinite(self.turn_tolerance) or self.turn_tolerance <= 0):
             raise ValueError(f"search.turn_tolerance must be a positive number or null, got {self.turn_tolerance!r}")
-        for key in ("shift", "see_through_weight", "suppress", "merge"):
+        if not isinstance(self.suppress_searched, bool):
+            raise ValueError(f"search.suppress_searched must be true or false, got {self.suppress_searched!r}")
+        if isinstance(self.polish_share, bool) or not isinstance(self.polish_share, int | float) \
+                or not 0 <= self.polish_share <= 1:  # fmt: skip
+            raise ValueError(f"search.polish_share must be a number in 0..1, got {self.polish_share!r}")
+        for key in ("shift", "see_through_weight", "suppress", "merge", "suppress_icp"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"search.{key} must be a number >= 0, got {value!r}")
-        if isinstance(self.coarse, bool) or not isinstance(self.coarse, int) or self.coarse < 1:
-            raise ValueError(f"search.coarse must be a positive integer, got {self.coarse!r}")
+        if isinstance(self.rank_points, bool) or not isinstance(self.rank_points, int) \
+                or not 0 <= self.rank_points <= 20_000:  # fmt: skip
+            raise ValueError(f"search.rank_points must be an integer in 0..20000, got {self.rank_points!r}")
+        for key in ("coarse", "coarse_stride"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"search.{key} must be a positive integer, got {value!r}")
         if self.turn_step_deg > 360:
             raise ValueError(f"search.turn_step_deg must be at most 360, got {self.turn_step_deg!r}")
         if self.shift / self.shift_step > 50:
@@ -219,12 +245,14 @@ class SearchSettings:
         return cls(**cfg)
 
 
-def search_settings(budget_ms: float | None = None, fast: bool = False) -> ICPSettings:
-    """The settings of ``conf/refine/search.yaml`` (ICP with a wider reach and a looser guard, then the
-    search), or with ``fast`` of ``search_fast.yaml`` (the first ICP projective, ten steps, a 1 % gain to
-    go on), with a time budget of ``budget_ms`` per image (None: none): the runtime's ``--search`` and
-    ``--search-fast``."""
-    settings = settings_from_config(refine_config("search_fast" if fast else "search"))
+def search_settings(budget_ms: float | None = None, name: str = "search") -> ICPSettings:
+    """The settings of ``conf/refine/<name>.yaml``, a refinement with the search: ``search`` (ICP with a wider reach
+    and a looser guard, then the search), ``search_fast`` (the first ICP projective, ten steps, a 1 % gain to go
+    on) or ``search_flat`` (search_fast for a flat part), with a time budget of ``budget_ms`` per image (None:
+    none): the runtime's ``--search`` and ``--search-fast``, and an export's recorded refinement."""
+    settings = settings_from_config(refine_config(name))
+    if settings is None or settings.search is None:
+        raise ValueError(f"refine={name!r}: not a refinement with the search")
     return dataclasses.replace(settings, budget_ms=budget_ms)
 
 
