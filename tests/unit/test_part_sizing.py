@@ -77,3 +77,44 @@ def test_bad_settings_are_one_line_naming_the_key(overrides: list[str], message:
         size_to_part(cfg, 0.1)
     key = overrides[-1].split("=")[0]
     assert "\n" not in str(e.value) and key in str(e.value)
+
+
+def _box(*sides: float):
+    import trimesh
+
+    return trimesh.creation.box(sides)
+
+
+def test_a_flat_part_trains_and_records_the_cell_recipes_flat_part_settings() -> None:
+    """experiment=cell's ``flat_part``: a 120 x 80 x 2 mm plate gets its refinement and threshold, a 50 x 40 x 30 mm
+    block the recipe's own."""
+    from opnet.cli.sizing import settings_for_flat_part
+
+    cfg = compose_train(["experiment=cell", "object=bracket"])
+    assert cfg.flat_part.deploy_refine == "search_flat" and cfg.deploy_refine == "search_fast"
+    threshold = cfg.parameterization.threshold
+    assert settings_for_flat_part(cfg, _box(0.05, 0.04, 0.03)) is None
+    assert cfg.deploy_refine == "search_fast" and cfg.parameterization.threshold == threshold
+    line = settings_for_flat_part(cfg, _box(0.12, 0.08, 0.002))
+    assert cfg.deploy_refine == "search_flat" and cfg.parameterization.threshold == cfg.flat_part.threshold != threshold
+    assert cfg.trainer.max_steps == cfg.flat_part.max_steps == 6000
+    assert "deploy_refine=search_flat" in line and "parameterization.threshold=" in line
+
+
+def test_a_key_given_on_the_command_line_wins_over_flat_part() -> None:
+    from opnet.cli.sizing import settings_for_flat_part
+
+    cfg = compose_train(["experiment=cell", "object=bracket", "trainer.max_steps=300"])
+    line = settings_for_flat_part(cfg, _box(0.12, 0.08, 0.002), {"trainer.max_steps"})
+    assert cfg.trainer.max_steps == 300 and cfg.deploy_refine == "search_flat"
+    assert "trainer.max_steps as given" in line
+
+
+@pytest.mark.parametrize("value", ["{refine: search_flat}", "search_flat"])
+def test_a_bad_flat_part_is_one_line_naming_it(value: str) -> None:
+    from opnet.cli.sizing import settings_for_flat_part
+
+    cfg = compose_train(["object=bracket", f"flat_part={value}"])
+    with pytest.raises(ValueError, match="^flat_part=.*expected a mapping of deploy_refine, threshold") as e:
+        settings_for_flat_part(cfg, _box(0.12, 0.08, 0.002))
+    assert "\n" not in str(e.value)

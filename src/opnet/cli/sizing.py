@@ -11,12 +11,19 @@
 Where the input is a square of known metric side, the bin finder's crop ``data.roi=auto:S`` (the cell recipe),
 the side is ``S``: ``input = 32 * ceil(part_pixels * S / D / 32)`` (at least ``model.in_size`` as configured,
 at most 512), the model built for it and the grid keeping the configured pixels per cell (16 cells at 128:
-8 pixels a cell)."""
+8 pixels a cell).
+
+A third, ``flat_part``, is what a flat part (thin against its width: the refinement's search turns it about its
+normal, :func:`opnet.refine.search.is_flat`) trains and records instead of the recipe's own: ``deploy_refine`` (its
+refinement), ``threshold`` (the decoding's presence threshold) and ``max_steps``; a key given on the command line
+wins."""
 
 from __future__ import annotations
 
 import math
 from typing import Any
+
+import numpy as np
 
 from omegaconf import DictConfig, open_dict
 
@@ -108,5 +115,51 @@ def size_input_to_part(cfg: DictConfig, diameter_m: float) -> str | None:
             f"{diameter_m / side * size:.0f} of {size} pixels (part_pixels={pixels:g}), grid {new_grid}")
 
 
-__all__ = ["MAX_SIZED_INPUT", "SIZE_STEP", "size_grid_to_part", "size_input_to_part", "size_to_part", "sized_grid",
-           "sized_input"]
+#: the keys ``flat_part`` may set, and the config key each one sets
+FLAT_PART_KEYS = {"deploy_refine": "deploy_refine", "threshold": "parameterization.threshold",
+                  "max_steps": "trainer.max_steps"}
+
+
+def settings_for_flat_part(cfg: DictConfig, mesh: Any, given: set[str] = frozenset()) -> str | None:
+    """Apply ``flat_part`` to ``cfg`` where the part of ``mesh`` (a trimesh) is flat, but for the config keys in
+    ``given`` (set on the command line: they win); the line the console states, or None where ``flat_part`` is not
+    set or the part is not flat. Raises ValueError naming the key where it is not a mapping of
+    :data:`FLAT_PART_KEYS`."""
+    flat_part: Any = cfg.get("flat_part")
+    if flat_part is None:
+        return None
+    if not isinstance(flat_part, DictConfig) or set(flat_part) - set(FLAT_PART_KEYS):
+        raise ValueError(f"flat_part={flat_part!r}: expected a mapping of {', '.join(FLAT_PART_KEYS)} (null: none)")
+    if mesh is None:
+        return None
+    import trimesh
+    from omegaconf import OmegaConf
+
+    from opnet.refine.search import is_flat
+
+    points, _ = trimesh.sample.sample_surface_even(mesh, 600, seed=0)
+    if not is_flat(np.asarray(points)):
+        return None
+    said = []
+    with open_dict(cfg):
+        for key, value in flat_part.items():
+            target = FLAT_PART_KEYS[key]
+            if target in given:
+                said.append(f"{target} as given")
+            else:
+                OmegaConf.update(cfg, target, value, merge=False)
+                said.append(f"{target}={value}")
+    return "a flat part (flat_part): " + ", ".join(said)
+
+
+def command_line_keys() -> set[str]:
+    """The config keys set on the command line of the running Hydra app (none outside one)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return set()
+    return {item.split("=", 1)[0].lstrip("+~") for item in HydraConfig.get().overrides.task}
+
+
+__all__ = ["FLAT_PART_KEYS", "MAX_SIZED_INPUT", "command_line_keys", "SIZE_STEP", "size_grid_to_part", "size_input_to_part", "size_to_part", "sized_grid",
+           "settings_for_flat_part", "sized_input"]

@@ -78,12 +78,14 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
     check_scene_address(cfg)
-    if cfg.get("part_pixels") is not None or cfg.get("part_cells") is not None:
-        from opnet.cli.sizing import size_to_part
+    if any(cfg.get(key) is not None for key in ("part_pixels", "part_cells", "flat_part")):
+        from opnet.cli.sizing import command_line_keys, settings_for_flat_part, size_to_part
         from opnet.objects.config import object_from_config
 
-        for line in size_to_part(cfg, object_from_config(plain(cfg.object)).diameter):
-            log.info(line)
+        part = object_from_config(plain(cfg.object))
+        for line in [*size_to_part(cfg, part.diameter), settings_for_flat_part(cfg, part.mesh, command_line_keys())]:
+            if line:
+                log.info(line)
     comps = build_components(cfg)
     datamodule = build_datamodule(cfg, comps.obj, train=True)
     trainer = build_trainer(cfg)
