@@ -314,8 +314,8 @@ def test_dense_decoding_equals_the_host_on_random_outputs(obj: str, name: str, a
 
     param = _with_averaging(_parameterization(name, builtin_object(obj)), averaging)
     camera = network_camera(Camera.from_fov(50.0, 512, 512, 0.6, 1.2))
-    out = noisy_outputs(param, camera, 6, seed=len(name))
-    dense = DenseDecoding(param, camera, 6, "cpu")
+    out = noisy_outputs(param, camera, 4, seed=len(name))
+    dense = DenseDecoding(param, camera, 4, "cpu")
     host = param.decode(out, camera)
     assert_same_hypotheses(host, dense.decode(out))
     assert len(host[1]) == 1 and len(host[2]) == 0
