@@ -239,7 +239,7 @@ def test_the_refinement_a_model_records_comes_from_deploy_refine_and_an_old_entr
     assert RunSettings.from_dict(entry, "x").refine is None
 
 
-@pytest.mark.parametrize("name", ["icp", "search", "search_fast"])
+@pytest.mark.parametrize("name", ["icp", "search", "search_fast", "search_flat"])
 def test_a_recorded_refinement_is_its_group_as_hydra_composes_it(name: str) -> None:
     from conftest import compose_cfg
     from omegaconf import OmegaConf

@@ -402,5 +402,7 @@ def test_the_ranking_is_measured_on_the_rank_points_where_set(plate_scene, monke
     monkeypatch.setattr(pipeline, "score_poses", spy)
     out, status = refiner(HypothesisSet(R_gt[None], T_GT[None], np.array([0.5])), depth, CAM)
     assert counts == [1500] and status == ["searched"] and out.score[0] > 0.9
-    assert len(icp_model_metadata(obj, "search_flat")["rank_points"]) == 2000
+    flat = icp_model_metadata(obj, "search_flat")  # the recorded refinement's points: 400 for ICP, 2000 to rank
+    assert len(flat["points"]) == 400 and len(flat["rank_points"]) == 2000
     assert "rank_points" not in icp_model_metadata(obj, "search_fast")
+    assert len(icp_model_metadata(obj, "search_fast")["points"]) == len(icp_model_metadata(obj)["points"]) == 600

@@ -118,17 +118,19 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
 
 
 def icp_model_metadata(obj: Any, refine: str | None = None) -> dict[str, Any] | None:
-    """The points ICP fits (:class:`opnet.refine.ModelCloud`, default count), so that the runtime refines without
-    the mesh, and where the recorded refinement ``refine`` ranks on points of its own (``search.rank_points``)
-    those too (``rank_points``, ``rank_normals``); None for an object without a mesh."""
+    """The points ICP fits (:class:`opnet.refine.ModelCloud`: as many as the recorded refinement ``refine`` takes,
+    ``icp.model_points``; the default without one), so that the runtime refines without the mesh, and where that
+    refinement ranks on points of its own (``search.rank_points``) those too (``rank_points``, ``rank_normals``);
+    None for an object without a mesh."""
     from opnet.refine import ICPSettings, ModelCloud, rank_cloud
     from opnet.refine.settings import refine_config, settings_from_config
 
     if obj.mesh is None:
         return None
-    cloud = ModelCloud.from_mesh(obj.mesh, ICPSettings().model_points, obj.diameter)
+    settings = settings_from_config(refine_config(refine)) if refine else ICPSettings()
+    cloud = ModelCloud.from_mesh(obj.mesh, settings.model_points, obj.diameter)
     out = {"points": cloud.points.tolist(), "normals": cloud.normals.tolist(), "diameter": cloud.diameter}
-    rank = rank_cloud(obj.mesh, obj.diameter, settings_from_config(refine_config(refine))) if refine else None
+    rank = rank_cloud(obj.mesh, obj.diameter, settings)
     if rank is not None:
         out.update(rank_points=rank.points.tolist(), rank_normals=rank.normals.tolist())
     return out
