@@ -371,7 +371,10 @@ def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int) ->
     import shutil
 
     run_dir = runs / CELL_ARM
-    run(train_command([*cell_overrides(cycles, views, scale, steps), "test=false"], run_dir), run_dir / "console.log")
+    last = run_dir / "checkpoints" / "last.ckpt"  # a run stopped part-way resumes where it stopped
+    resume = [f"ckpt_path={last}"] if last.is_file() else []
+    run(train_command([*cell_overrides(cycles, views, scale, steps), "test=false", *resume], run_dir),
+        run_dir / "console.log")
     ckpt = best_checkpoint(run_dir)
     if ckpt is None:
         raise SystemExit(f"error: {run_dir}: train.py wrote no checkpoint (see {run_dir / 'console.log'})")
