@@ -161,5 +161,5 @@ def command_line_keys() -> set[str]:
     return {item.split("=", 1)[0].lstrip("+~") for item in HydraConfig.get().overrides.task}
 
 
-__all__ = ["FLAT_PART_KEYS", "MAX_SIZED_INPUT", "command_line_keys", "SIZE_STEP", "size_grid_to_part", "size_input_to_part", "size_to_part", "sized_grid",
-           "settings_for_flat_part", "sized_input"]
+__all__ = ["FLAT_PART_KEYS", "MAX_SIZED_INPUT", "SIZE_STEP", "command_line_keys", "settings_for_flat_part",
+           "size_grid_to_part", "size_input_to_part", "size_to_part", "sized_grid", "sized_input"]

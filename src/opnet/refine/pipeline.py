@@ -157,7 +157,8 @@ def refine_hypotheses(R: np.ndarray, t: np.ndarray, score: np.ndarray, model: Mo
     clock.start()
     agree = np.full(len(R_out), -np.inf)
     if (~merged).any():
-        agree[~merged] = score_poses(R_out[~merged], t_out[~merged], rank_model or model, depth, camera, search)
+        agree[~merged] = score_poses(R_out[~merged], t_out[~merged], model if rank_model is None else rank_model,
+                                     depth, camera, search)  # fmt: skip
     final = {"agreement": agree, "network": score_in.copy(), "product": score_in * np.maximum(agree, 0.0)}[search.score]
     clock.stop("rank")
     # duplicates: searches from nearby hypotheses that ended on one pose
