@@ -194,6 +194,11 @@ def test_runtime_refuses_foreign_and_mismatched_models(checkpoint: Path, tmp_pat
     onnx.save(proto, str(tmp_path / "flat.onnx"))
     with pytest.raises(ValueError, match=r"flat\.onnx: the refinement ranks on 2000 model points of its own"):
         OnnxPoseEstimator(tmp_path / "flat.onnx")
+    ranked = {**icp, "rank_points": (icp["points"] * 4)[:2000], "rank_normals": (icp["normals"] * 4)[:2000]}
+    proto.metadata_props[0].value = json.dumps({**meta, "refine": "search_flat", "icp_model": ranked})
+    onnx.save(proto, str(tmp_path / "flat_ranked.onnx"))
+    refiner = OnnxPoseEstimator(tmp_path / "flat_ranked.onnx").refiner  # with them: the ranking's own cloud
+    assert len(refiner.rank_model.points) == 2000 and refiner.settings.search.rank_points == 2000
     with pytest.raises(ValueError, match=r"threads=20000: expected a whole number in 1\.\."):
         OnnxPoseEstimator(out, threads=20000)
     del proto.metadata_props[0]
