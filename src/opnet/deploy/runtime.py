@@ -34,7 +34,7 @@ from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.parameterizations.averaging import PoseAveraging
 from opnet.refine import ICPSettings, ModelCloud, Refiner, search_settings
-from opnet.run_settings import DecodingSettings, InputSettings
+from opnet.run_settings import REFINE_NAMES, DecodingSettings, InputSettings
 
 METADATA_KEY = "opnet"
 
@@ -49,10 +49,9 @@ def recorded_refinement(name: str | None, budget_ms: float | None = None) -> ICP
         return None
     if name == "icp":
         return ICPSettings(budget_ms=100.0 if budget_ms is None else budget_ms)
-    if name in ("search", "search_fast", "search_flat"):
+    if name in REFINE_NAMES:  # every other recordable refinement runs the search: its own conf/refine file
         return search_settings(budget_ms, name)
-    raise ValueError(f"refinement {name!r}: the runtime runs icp, search, search_fast or search_flat (a new recorded "
-                     "refinement needs its case in opnet.deploy.runtime.recorded_refinement)")
+    raise ValueError(f"refinement {name!r}: the runtime runs {', '.join(REFINE_NAMES)}")
 
 
 class OnnxPoseEstimator:

@@ -192,16 +192,18 @@ class SearchSettings:
             raise ValueError(f"search.fine must be grid or local, got {self.fine!r}")
         if self.mode not in MODES:
             raise ValueError(f"search.mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        for key in ("keep", "local_rounds"):
+        for key, most in (("keep", 100), ("local_rounds", 100), ("rank_points", 20_000)):
             value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 100:
-                raise ValueError(f"search.{key} must be an integer in 0..100, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= most:
+                raise ValueError(f"search.{key} must be an integer in 0..{most}, got {value!r}")
         for key in ("local_deg", "local_shift"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or not 0 < value <= 90:
                 raise ValueError(f"search.{key} must be a positive number (at most 90), got {value!r}")
-        if isinstance(self.anchor, bool) or not isinstance(self.anchor, int | float) or not 0 <= self.anchor <= 100:
-            raise ValueError(f"search.anchor must be a number in 0..100, got {self.anchor!r}")
+        for key, most in (("anchor", 100), ("polish_share", 1)):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value <= most:
+                raise ValueError(f"search.{key} must be a number in 0..{most}, got {value!r}")
         if self.axis not in AXES:
             raise ValueError(f"search.axis must be one of {', '.join(AXES)}, got {self.axis!r}")
         if self.score not in SCORES:
@@ -215,16 +217,10 @@ class SearchSettings:
             raise ValueError(f"search.turn_tolerance must be a positive number or null, got {self.turn_tolerance!r}")
         if not isinstance(self.suppress_searched, bool):
             raise ValueError(f"search.suppress_searched must be true or false, got {self.suppress_searched!r}")
-        if isinstance(self.polish_share, bool) or not isinstance(self.polish_share, int | float) \
-                or not 0 <= self.polish_share <= 1:  # fmt: skip
-            raise ValueError(f"search.polish_share must be a number in 0..1, got {self.polish_share!r}")
         for key in ("shift", "see_through_weight", "suppress", "merge", "suppress_icp"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"search.{key} must be a number >= 0, got {value!r}")
-        if isinstance(self.rank_points, bool) or not isinstance(self.rank_points, int) \
-                or not 0 <= self.rank_points <= 20_000:  # fmt: skip
-            raise ValueError(f"search.rank_points must be an integer in 0..20000, got {self.rank_points!r}")
         for key in ("coarse", "coarse_stride"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
