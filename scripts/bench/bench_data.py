@@ -95,7 +95,7 @@ def run_one(data: Path, scenes: int, workers: int, cache: bool, batch: int, memo
 
     from opnet.data.augment import DepthAugmenter
     from opnet.data.cache import build_scene_cache, default_cache_dir
-    from opnet.data.datamodule import OPNetDataModule, SceneSamples
+    from opnet.data.scene_data import SceneData, SceneSamples
     from opnet.datasets import open_dataset
     from opnet.objects.config import object_from_config
 
@@ -108,7 +108,7 @@ def run_one(data: Path, scenes: int, workers: int, cache: bool, batch: int, memo
                                    else data.parent / f"{data.name}_x{scenes}_cache", 256, workers=2)  # fmt: skip
     elif memoize:
         source = Memoized(source)
-    dm = OPNetDataModule(obj, data, batch_size=batch, num_workers=workers, augmenter=DepthAugmenter(), cache=False)
+    dm = SceneData(obj, data, batch_size=batch, num_workers=workers, augmenter=DepthAugmenter(), cache=False)
     keys = source.scenes()
     dm.splits = {"train": SceneSamples(source, [i for i, k in enumerate(keys) if k[1] > 0][:scenes], train=True,
                                        augmenter=DepthAugmenter())}  # fmt: skip

@@ -121,9 +121,9 @@ def test_impossible_camera_jitter_names_the_key(key: str, value: float) -> None:
 
 
 def test_splits_keep_the_views_of_a_pile_together(two_views: Path) -> None:
-    from opnet.data.datamodule import OPNetDataModule
+    from opnet.data.scene_data import SceneData
 
-    dm = OPNetDataModule(builtin_object("bracket"), two_views, val_fraction=0.5, test_fraction=0.0, cache=False,
+    dm = SceneData(builtin_object("bracket"), two_views, val_fraction=0.5, test_fraction=0.0, cache=False,
                          check="off", test_root=two_views, test_min_objects=DROPS)
     dm.setup()
     piles = {split: {int(dm.splits[split].record(i).name.split("_")[1]) // 2 for i in range(len(dm.splits[split]))} for split in ("train", "val")}
@@ -131,19 +131,19 @@ def test_splits_keep_the_views_of_a_pile_together(two_views: Path) -> None:
     # the test split: only the full piles of test_root
     assert sorted(dm.splits["test"].record(i).name for i in range(len(dm.splits["test"]))) == [f"cycle_{c:04d}_{DROPS:03d}" for c in range(6)]
     with pytest.raises(ValueError, match="test_min_objects"):
-        OPNetDataModule(builtin_object("bracket"), two_views, test_min_objects=-1)
+        SceneData(builtin_object("bracket"), two_views, test_min_objects=-1)
 
 
 def test_rotation_refused_for_data_without_segmentation(two_views: Path, tmp_path: Path) -> None:
     import shutil
 
     from opnet.data.augment import DepthAugmenter
-    from opnet.data.datamodule import OPNetDataModule
+    from opnet.data.scene_data import SceneData
 
     bare = tmp_path / "bare"
     shutil.copytree(two_views, bare)
     shutil.rmtree(bare / "p_segmentation")
-    make = lambda deg: OPNetDataModule(builtin_object("bracket"), bare, cache=False, check="off",  # noqa: E731
+    make = lambda deg: SceneData(builtin_object("bracket"), bare, cache=False, check="off",  # noqa: E731
                                        augmenter=DepthAugmenter(p_rotate=0.5, rotate_deg=deg))
     with pytest.raises(ValueError, match=r"bare: augmentation.p_rotate=0.5 .* no segmentation"):
         make((-30.0, 30.0)).setup()
@@ -151,12 +151,12 @@ def test_rotation_refused_for_data_without_segmentation(two_views: Path, tmp_pat
 
 
 def test_train_groups_keeps_the_first_piles_of_the_training_split(two_views: Path) -> None:
-    from opnet.data.datamodule import OPNetDataModule
+    from opnet.data.scene_data import SceneData
 
-    def piles(dm: OPNetDataModule, split: str) -> set[int]:
+    def piles(dm: SceneData, split: str) -> set[int]:
         return {int(dm.splits[split].record(i).name.split("_")[1]) // 2 for i in range(len(dm.splits[split]))}
 
-    make = lambda n: OPNetDataModule(builtin_object("bracket"), two_views, val_fraction=0.34, test_fraction=0.0,  # noqa: E731
+    make = lambda n: SceneData(builtin_object("bracket"), two_views, val_fraction=0.34, test_fraction=0.0,  # noqa: E731
                                      cache=False, check="off", train_groups=n)
     full, one = make(None), make(1)
     full.setup()

@@ -15,7 +15,7 @@ from hydra import compose, initialize_config_dir
 from torch.utils.data import DataLoader
 
 from opnet.cli.build import build_components, build_datamodule
-from opnet.data.datamodule import SceneSamples
+from opnet.data.scene_data import SceneSamples
 from opnet.data.sample import collate
 from opnet.evaluation import predict_scenes
 from opnet.metrics.bregier import evaluate_scenes

@@ -19,7 +19,7 @@ def test_eval_names_an_unknown_dataset_key(checkpoint: Path, tmp_path: Path) -> 
 
     out = tmp_path / "eval"
     cfg = compose_cfg("eval", [f"ckpt={checkpoint}", f"out={out}", "examples=0", "+data.bogus_key=1"])
-    with pytest.raises(ValueError, match=r"^data.bogus_key=1: not a setting of data \(OPNetDataModule\); expected "
+    with pytest.raises(ValueError, match=r"^data.bogus_key=1: not a setting of data \(SceneData\); expected "
                                          r"some of .*batch_size") as info:
         eval_cli.run(cfg)
     assert "\n" not in str(info.value)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from opnet.data.datamodule import split_groups
+from opnet.data.scene_data import split_groups
 from opnet.data.sample import collate, make_sample
 from opnet.datasets.record import SceneRecord
 from opnet.geometry import Camera

@@ -197,8 +197,8 @@ def test_no_circle_between_the_packages_of_opnet() -> None:
     assert not found, "\n".join(describe(graph, c) for c in found)
 
 
-LOW_LAYERS = ("opnet.inference", "opnet.estimator", "opnet.system", "opnet.data.datamodule", "opnet.synthesis",
-              "opnet.parameterizations")
+LOW_LAYERS = ("opnet.inference", "opnet.estimator", "opnet.system", "opnet.data.scene_data", "opnet.data.datamodule",
+              "opnet.synthesis", "opnet.parameterizations")
 
 
 def test_low_layers_load_no_command_line_module() -> None:
@@ -218,17 +218,41 @@ TRAINING_ONLY = ("lightning", "torchmetrics", "albumentations", "torch._dynamo")
 
 def test_the_inference_commands_load_nothing_only_training_needs() -> None:
     """predict.py, eval.py, the export and the model they load start without Lightning, torchmetrics and
-    the augmentation (several seconds each start on a 2-core CPU); eval.py's data module loads Lightning
-    when it runs, not when it is imported. No command but generation loads the mesh library before a
-    mesh is made or read (about a second of every start, and of every bad setting refused)."""
+    the augmentation (several seconds each start on a 2-core CPU), and so does the data module eval.py
+    builds from a run's config (the same class without Lightning). No command but generation loads the mesh
+    library before a mesh is made or read (about a second of every start, and of every bad setting refused)."""
     code = ("import sys, opnet.cli.predict, opnet.cli.eval, opnet.cli.export, opnet.estimator, opnet.cli.build\n"
-            f"print(sorted(m for m in {TRAINING_ONLY!r} if m in sys.modules))\n"
+            f"loaded = lambda: sorted(m for m in {TRAINING_ONLY!r} if m in sys.modules)\n"
+            "print(loaded())\n"
+            "from hydra import compose, initialize_config_dir\n"
+            "from opnet.paths import config_dir\n"
+            "with initialize_config_dir(config_dir=str(config_dir()), version_base='1.3'):\n"
+            "    cfg = compose(config_name='train')\n"
+            "data = opnet.cli.build.build_datamodule(cfg, None, train=False)\n"
+            "print(type(data).__name__, loaded())\n"
             "import opnet.cli.train, opnet.cli.object\n"
             "print('trimesh' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
-    loaded, mesh_library = out.stdout.splitlines()
+    loaded, data_module, mesh_library = out.stdout.splitlines()
     assert loaded == "[]", f"the inference commands load {loaded}"
+    assert data_module == "SceneData []", f"eval.py's data module: {data_module}"
     assert mesh_library == "False", "a command loads trimesh when imported"
+
+
+def test_training_builds_the_lightning_data_module() -> None:
+    """The configs' data module is a LightningDataModule for train.py, with the plain one's settings."""
+    import inspect
+
+    import lightning as L
+
+    from conftest import compose_cfg
+    from opnet.cli.build import build_datamodule
+    from opnet.data.datamodule import OPNetDataModule
+    from opnet.data.scene_data import SceneData
+
+    data = build_datamodule(compose_cfg("train", ["augmentation=none"]), None, train=True)
+    assert type(data) is OPNetDataModule and isinstance(data, L.LightningDataModule)
+    assert isinstance(data, SceneData) and inspect.signature(OPNetDataModule) == inspect.signature(SceneData)
 
 
 def test_a_physics_engine_is_imported_only_when_asked_for() -> None:

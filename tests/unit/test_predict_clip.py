@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 from omegaconf import OmegaConf
 
-from opnet.data.datamodule import SceneSamples
+from opnet.data.scene_data import SceneSamples
 from opnet.geometry.camera import Camera, describe_clip, parse_clip, working_clip
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from opnet.arguments import variant_settings
-from opnet.data.datamodule import OPNetDataModule
+from opnet.data.scene_data import SceneData
 from opnet.datasets.autodetect import open_dataset
 from opnet.losses import MultiTaskLoss
 from opnet.objects import builtin_object
@@ -48,14 +48,14 @@ def test_loss_weights_take_numbers() -> None:
 ])  # fmt: skip
 def test_the_data_modules_numbers_are_checked_when_it_is_built(settings: dict, named: str, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="^" + re.escape(named)):
-        OPNetDataModule(builtin_object("zbracket"), tmp_path, **settings)
+        SceneData(builtin_object("zbracket"), tmp_path, **settings)
 
 
 def test_the_data_modules_bounds_keep_what_trains() -> None:
-    dm = OPNetDataModule(builtin_object("zbracket"), "x", val_fraction=0.0, test_fraction=0.0, batch_size=1,
+    dm = SceneData(builtin_object("zbracket"), "x", val_fraction=0.0, test_fraction=0.0, batch_size=1,
                          num_workers=0, seed=3)  # fmt: skip
     assert (dm.val_fraction, dm.batch_size) == (0.0, 1)
-    assert OPNetDataModule(builtin_object("zbracket"), "x", seed=None).seed is None  # seed=null: a random split
+    assert SceneData(builtin_object("zbracket"), "x", seed=None).seed is None  # seed=null: a random split
 
 
 def test_train_names_a_seed_that_is_no_whole_number(tiny_dataset: Path, tmp_path: Path) -> None:

@@ -178,7 +178,7 @@ def test_a_training_config_is_checked_by_the_same_schema() -> None:
 @pytest.mark.parametrize("clip", [[True, 2], [0.5, "2"], [2.0, 0.5]])
 def test_data_clip_is_checked_like_the_trained_planes(clip: list) -> None:
     """eval.py's data.clip (the planes BOP scenes are normalized with) took [true, 2] as [1, 2] m."""
-    from opnet.data.datamodule import OPNetDataModule
+    from opnet.data.scene_data import SceneData
 
     with pytest.raises(ValueError, match=r"^data.clip=.*: expected (\[near, far\] in metres|0 < near < far)"):
-        OPNetDataModule(None, "/nonexistent", clip=clip)
+        SceneData(None, "/nonexistent", clip=clip)

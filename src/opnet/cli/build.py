@@ -196,13 +196,22 @@ def build_estimator(cfg: DictConfig | dict[str, Any]) -> PoseEstimator:
     return PoseEstimator(backbone, parameterization, config=run_config(cfg), settings=settings, max_occlusion=occlusion)
 
 
+#: data modules whose scenes a command that does not train reads through the plain class (no Lightning)
+READ_ONLY_DATA = {"opnet.data.datamodule.OPNetDataModule": "opnet.data.scene_data.SceneData"}
+
+
 def build_datamodule(cfg: DictConfig, obj: ObjectModel, train: bool = True) -> Any:
-    """The DataModule of the config (with the augmentation config for training)."""
-    check_keys(cfg.get("data"), "data")
+    """The DataModule of the config: with the augmentation config for training; without training
+    (``train=False``) the same scenes, splits and loaders through :class:`~opnet.data.scene_data.SceneData`."""
+    data = cfg.get("data")
+    if not train and isinstance(data, DictConfig) and data.get("_target_") in READ_ONLY_DATA:
+        data = OmegaConf.create(OmegaConf.to_container(data, resolve=True))  # the same class without Lightning
+        data._target_ = READ_ONLY_DATA[data._target_]
+    check_keys(data, "data")
     if train:
         check_keys(cfg.get("augmentation"), "augmentation")
     augmenter = instantiate(cfg.augmentation) if train and cfg.get("augmentation") is not None else None
-    make = instantiate(cfg.data, _partial_=True, _recursive_=False)
+    make = instantiate(data, _partial_=True, _recursive_=False)
     return make(obj=obj, augmenter=augmenter, object_config=plain(cfg.object))
 
 

@@ -24,7 +24,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 from opnet.arguments import ArgumentParser  # noqa: E402
 from opnet.cli.build import load_checkpoint, read_checkpoint  # noqa: E402
 from opnet.cli.tools import require_writable, save_checkpoint, tool_main  # noqa: E402
-from opnet.data.datamodule import ConcatScenes, SceneSamples, as_paths  # noqa: E402
+from opnet.data.scene_data import ConcatScenes, SceneSamples, as_paths  # noqa: E402
 from opnet.datasets import open_dataset  # noqa: E402
 from opnet.run_settings import CHECKPOINT_KEY
 
