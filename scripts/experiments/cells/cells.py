@@ -144,7 +144,10 @@ def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str]) -> 
 #: the refinements scored: none, the search, and the recipe's (RECIPE_REFINE): the most accurate on the cell
 #: study's validation piles within the speed target, 300 ms per frame on 2 cores (results/verification/speed.md)
 REFINE = {"none": ["refine=none"], "search": ["refine=search", "+decoding.averaging=false"],
-          "search_fast": ["refine=search_fast", "+decoding.averaging=false"]}  # fmt: skip
+          "search_fast": ["refine=search_fast", "+decoding.averaging=false"],
+          "search_flat": ["refine=search_flat", "+decoding.averaging=false"]}  # fmt: skip
+#: the refinements a model is scored with: search_flat only where the model records it (a flat part's recipe)
+REFINE_OF = {"search_flat": ("cell_ipd",)}
 RECIPE_REFINE = "search_fast"
 
 
@@ -232,6 +235,8 @@ def score_real_frames(run_dir: Path) -> int:
     """The three real frames scored once by the trained recipe as it stands (the checkpoint's ROI policy and
     clip planes), as decoded and with the search: ``results/real_ipd/cell.md`` and ``cell.csv``; the one
     command's model (``run_dir`` named ``cell``): ``results/real_ipd/cell_one_command.md`` and its CSV."""
+    if run_dir.name == CELL_FILE_ARM:
+        return score_real_frames_cell_file(run_dir)
     one_command = run_dir.name == CELL_ARM
     ckpt = best_checkpoint(run_dir)
     if ckpt is None:
@@ -248,6 +253,8 @@ def score_real_frames(run_dir: Path) -> int:
     ckpt = shipped
     rows = []
     for refine, overrides in REFINE.items():
+        if refine in REFINE_OF:
+            continue
         out = run_dir / "eval_real" / refine
         split = (FRAMES / "test").resolve()
         run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
@@ -287,6 +294,36 @@ def score_real_frames(run_dir: Path) -> int:
                 ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
     with (REPO_ROOT / "results" / "real_ipd" / f"{stem}.md").open("a") as f:
         f.write("\n".join(notes) + ("\n" if notes else ""))
+    return 0
+
+
+def score_real_frames_cell_file(run_dir: Path) -> int:
+    """The three real frames scored once by the model trained from opnet-cell's file (``--stage cell --cell-file
+    ipd``), as it stands: its ROI policy, the clip planes the cell file measured, each refinement of
+    :data:`REFINE` (``search_flat``: the one it records); ``results/real_ipd/cell_file.md`` and its CSV."""
+    ckpt = best_checkpoint(run_dir)
+    if ckpt is None:
+        print(f"error: {run_dir}: no checkpoint; train first (--stage cell --cell-file ipd)", file=sys.stderr)
+        return 2
+    rows = []
+    for refine, overrides in REFINE.items():
+        out = run_dir / "eval_real" / refine
+        split = (FRAMES / "test").resolve()
+        run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
+             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{CELL_FILE_CLIP[0]},{CELL_FILE_CLIP[1]}]",
+             "+data.cache=false", f"out={out}", "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
+        rows.append(row(json.loads((out / "summary.json").read_text()), policy=arm_policy(CELL_FILE_ARM),
+                        model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
+    head = ["# The real frames, scored by the model set up from the cell's own frames", "",
+            f"`python scripts/experiments/cells/cells.py --stage real --real-arm {CELL_FILE_ARM}`: the model of "
+            "`python scripts/experiments/cells/cells.py --stage cell --cell-file ipd --steps 3000` (`python train.py "
+            "experiment=cell cell=ipd object=ipd_plate`: every measured key from `conf/cell/ipd.yaml`, which opnet-cell "
+            "wrote from these frames' depth, no ground truth; given only the basket's three perforations and the "
+            "budget), nothing changed after it ran. The three Photoneo frames of IPD object 18, official "
+            "`visib_fract`, the whole frame given; `search_flat` is the refinement the checkpoint records. Scored "
+            "once; no setting was chosen on them.", ""]  # fmt: skip
+    write_table(REPO_ROOT / "results" / "real_ipd" / "cell_file.csv", rows, head,
+                ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
     return 0
 
 
@@ -340,6 +377,11 @@ ARMS = {
 OLD_ARM = "fixed_box"
 #: the one command's run (``--stage cell``)
 CELL_ARM = "cell"
+#: the one command with every measured key from the cell file opnet-cell wrote from the frames' depth
+#: (``--stage cell --cell-file ipd``: ``cell=ipd``, no ground truth; its run and model apart from the above)
+CELL_FILE_ARM = "cell_ipd"
+#: the working volume the cell file measured (the real frames are read within the planes the model trained on)
+CELL_FILE_CLIP = (1.427, 2.075)
 
 
 def arm_policy(arm: str) -> str:
@@ -347,6 +389,8 @@ def arm_policy(arm: str) -> str:
         return f"fixed box {list(OLD_ROI)}"
     if arm == CELL_ARM:  # apart from the seeds of the study's own training (the table over seeds)
         return f"auto:{roi_side():g}, one command"
+    if arm == CELL_FILE_ARM:
+        return f"auto:{roi_side():g}, one command, cell=ipd (opnet-cell)"
     roi = ARMS[arm]["roi"]
     return roi if roi else "working area (whole frame)"
 
@@ -365,19 +409,33 @@ def cell_overrides(cycles: int, views: int, scale: float, steps: int) -> list[st
             "trainer.enable_progress_bar=false"]  # fmt: skip
 
 
-def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int) -> Path:
+def cell_file_overrides(name: str, cycles: int, views: int, scale: float, steps: int) -> list[str]:
+    """``python train.py experiment=cell cell=<name>`` as a user runs it after ``opnet-cell``: every measured key
+    (the camera and its pose, the working volume and area, the basket's sizes, the crop side, the sensor preset)
+    from the cell file; given as in :func:`cell_overrides` only what a depth frame does not show (the basket's
+    three perforations) and the budget (cycles, views, the rendering scale, the steps)."""
+    models = ",".join(f"{{bin_hole_size:{size},bin_hole_pitch:{pitch}}}" for size, pitch in HOLES)
+    return ["experiment=cell", f"cell={name}", "object=ipd_plate", f"scene.camera_scale={scale:g}",
+            f"scene.bin_models=[{models}]", f"data.generate.cycles={cycles}", f"scene.views={views}",
+            f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false"]  # fmt: skip
+
+
+def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int, cell_file: str | None = None) -> Path:
     """The one command for the cell (generates its piles, trains, records the ROI policy, clip planes and
     refinement in the checkpoint), its best checkpoint shipped as ``models/real_ipd_plate.ckpt``."""
     import shutil
 
-    run_dir = runs / CELL_ARM
+    run_dir = runs / (CELL_FILE_ARM if cell_file else CELL_ARM)
     last = run_dir / "checkpoints" / "last.ckpt"  # a run stopped part-way resumes where it stopped
     resume = [f"ckpt_path={last}"] if last.is_file() else []
-    run(train_command([*cell_overrides(cycles, views, scale, steps), "test=false", *resume], run_dir),
-        run_dir / "console.log")
+    overrides = cell_file_overrides(cell_file, cycles, views, scale, steps) if cell_file else \
+        cell_overrides(cycles, views, scale, steps)  # fmt: skip
+    run(train_command([*overrides, "test=false", *resume], run_dir), run_dir / "console.log")
     ckpt = best_checkpoint(run_dir)
     if ckpt is None:
         raise SystemExit(f"error: {run_dir}: train.py wrote no checkpoint (see {run_dir / 'console.log'})")
+    if cell_file:
+        return ckpt
     shutil.copyfile(ckpt, CELL_MODEL)
     return CELL_MODEL
 
@@ -400,7 +458,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="cell: the one command (train.py experiment=cell) -> models/real_ipd_plate.ckpt; "
                          "real: score the real frames once with --real-arm (results/real_ipd/cell.md)")
     ap.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
-    ap.add_argument("--real-arm", default="auto", choices=[*ARMS, CELL_ARM])
+    ap.add_argument("--real-arm", default="auto", choices=[*ARMS, CELL_ARM, CELL_FILE_ARM])
+    ap.add_argument("--cell-file", default=None, help="--stage cell: train with cell=<this> (opnet-cell's file) "
+                                                      f"into {CELL_FILE_ARM}/ instead of the keys given here")
     ap.add_argument("--cycles", type=int, default=200)
     ap.add_argument("--views", type=int, default=2)
     ap.add_argument("--test-cycles", type=int, default=12)
@@ -438,9 +498,10 @@ def main(argv: list[str] | None = None) -> int:
         for arm in args.arms:
             train_arm(arm, train_sets, args.runs, args.steps)
     if args.stage in ("all", "cell"):
-        train_cell(args.runs, args.cycles, args.views, args.scale, args.steps)
+        train_cell(args.runs, args.cycles, args.views, args.scale, args.steps, args.cell_file)
     if args.stage in ("all", "cell", "eval"):
-        arms = [CELL_ARM] if args.stage == "cell" else [*args.arms, OLD_ARM, CELL_ARM]
+        cell_arm = CELL_FILE_ARM if args.cell_file else CELL_ARM
+        arms = [cell_arm] if args.stage == "cell" else [*args.arms, OLD_ARM, CELL_ARM, CELL_FILE_ARM]
         for arm in arms:
             ckpt = {OLD_ARM: OLD_MODEL, CELL_ARM: CELL_MODEL}.get(arm) or best_checkpoint(args.runs / arm)
             if ckpt is None or not ckpt.is_file():
@@ -448,19 +509,22 @@ def main(argv: list[str] | None = None) -> int:
             extra = [f"+data.roi=[{','.join(map(str, OLD_ROI))}]"] if arm == OLD_ARM else []
             for placement, sets in tests.items():
                 for refine, overrides in REFINE.items():
+                    if arm not in REFINE_OF.get(refine, (arm,)):
+                        continue
                     folder = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}"
                     if (arm == OLD_ARM or not args.rescore) and (folder / "summary.json").is_file():
                         continue  # scored before (the shipped model: once)
                     evaluate(ckpt, [r for r, _ in sets], folder, [*extra, *overrides])
     rows = []
     whole = {placement: frame_required([r for r, _ in sets]) for placement, sets in tests.items()}
-    for arm in [OLD_ARM, *ARMS, CELL_ARM]:
+    for arm in [OLD_ARM, *ARMS, CELL_ARM, CELL_FILE_ARM]:
         for placement in tests:
             for refine in REFINE:
                 summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}" / "summary.json"
                 if summary.is_file():
                     model = {OLD_ARM: "models/fixed_box_ipd_plate.ckpt",
-                             CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)"}.get(arm) or \
+                             CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)",
+                             CELL_FILE_ARM: f"{CELL_FILE_ARM} (experiment=cell cell=ipd, seed 0)"}.get(arm) or \
                         f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
                     rows.append(row(json.loads(summary.read_text()), policy=arm_policy(arm), model=model,
                                     placement=placement, refine=refine))
