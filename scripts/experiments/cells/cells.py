@@ -147,7 +147,7 @@ REFINE = {"none": ["refine=none"], "search": ["refine=search", "+decoding.averag
           "search_fast": ["refine=search_fast", "+decoding.averaging=false"],
           "search_flat": ["refine=search_flat", "+decoding.averaging=false"]}  # fmt: skip
 #: the refinements a model is scored with: search_flat only where the model records it (a flat part's recipe)
-REFINE_OF = {"search_flat": ("cell_ipd",)}
+REFINE_OF = {"search_flat": ("cell_ipd", "cell_ipd_area")}
 RECIPE_REFINE = "search_fast"
 
 
@@ -235,7 +235,7 @@ def score_real_frames(run_dir: Path) -> int:
     """The three real frames scored once by the trained recipe as it stands (the checkpoint's ROI policy and
     clip planes), as decoded and with the search: ``results/real_ipd/cell.md`` and ``cell.csv``; the one
     command's model (``run_dir`` named ``cell``): ``results/real_ipd/cell_one_command.md`` and its CSV."""
-    if run_dir.name == CELL_FILE_ARM:
+    if run_dir.name in CELL_FILE_ARMS:
         return score_real_frames_cell_file(run_dir)
     one_command = run_dir.name == CELL_ARM
     ckpt = best_checkpoint(run_dir)
@@ -300,7 +300,9 @@ def score_real_frames(run_dir: Path) -> int:
 def score_real_frames_cell_file(run_dir: Path) -> int:
     """The three real frames scored once by the model trained from opnet-cell's file (``--stage cell --cell-file
     ipd``), as it stands: its ROI policy, the clip planes the cell file measured, each refinement of
-    :data:`REFINE` (``search_flat``: the one it records); ``results/real_ipd/cell_file.md`` and its CSV."""
+    :data:`REFINE` (``search_flat``: the one it records); ``results/real_ipd/<arm>.md`` and its CSV."""
+    name = CELL_FILE_ARMS[run_dir.name]
+    clip = cell_file_clip(name)
     ckpt = best_checkpoint(run_dir)
     if ckpt is None:
         print(f"error: {run_dir}: no checkpoint; train first (--stage cell --cell-file ipd)", file=sys.stderr)
@@ -310,19 +312,19 @@ def score_real_frames_cell_file(run_dir: Path) -> int:
         out = run_dir / "eval_real" / refine
         split = (FRAMES / "test").resolve()
         run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
-             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{CELL_FILE_CLIP[0]},{CELL_FILE_CLIP[1]}]",
+             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{clip[0]},{clip[1]}]",
              "+data.cache=false", f"out={out}", "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
-        rows.append(row(json.loads((out / "summary.json").read_text()), policy=arm_policy(CELL_FILE_ARM),
+        rows.append(row(json.loads((out / "summary.json").read_text()), policy=arm_policy(run_dir.name),
                         model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
     head = ["# The real frames, scored by the model set up from the cell's own frames", "",
-            f"`python scripts/experiments/cells/cells.py --stage real --real-arm {CELL_FILE_ARM}`: the model of "
-            "`python scripts/experiments/cells/cells.py --stage cell --cell-file ipd --steps 3000` (`python train.py "
-            "experiment=cell cell=ipd object=ipd_plate`: every measured key from `conf/cell/ipd.yaml`, which opnet-cell "
+            f"`python scripts/experiments/cells/cells.py --stage real --real-arm {run_dir.name}`: the model of "
+            f"`python scripts/experiments/cells/cells.py --stage cell --cell-file {name} --steps 3000` (`python train.py "
+            f"experiment=cell cell={name} object=ipd_plate`: every measured key from `conf/cell/{name}.yaml`, which opnet-cell "
             "wrote from these frames' depth, no ground truth; given only the basket's three perforations and the "
             "budget), nothing changed after it ran. The three Photoneo frames of IPD object 18, official "
             "`visib_fract`, the whole frame given; `search_flat` is the refinement the checkpoint records. Scored "
             "once; no setting was chosen on them.", ""]  # fmt: skip
-    write_table(REPO_ROOT / "results" / "real_ipd" / "cell_file.csv", rows, head,
+    write_table(REPO_ROOT / "results" / "real_ipd" / f"{run_dir.name}.csv", rows, head,
                 ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
     return 0
 
@@ -378,10 +380,18 @@ OLD_ARM = "fixed_box"
 #: the one command's run (``--stage cell``)
 CELL_ARM = "cell"
 #: the one command with every measured key from the cell file opnet-cell wrote from the frames' depth
-#: (``--stage cell --cell-file ipd``: ``cell=ipd``, no ground truth; its run and model apart from the above)
-CELL_FILE_ARM = "cell_ipd"
-#: the working volume the cell file measured (the real frames are read within the planes the model trained on)
-CELL_FILE_CLIP = (1.427, 2.075)
+#: (``--stage cell --cell-file ipd``: ``cell=ipd``, no ground truth; its run and model apart from the above):
+#: run name -> cell name
+CELL_FILE_ARMS = {"cell_ipd": "ipd", "cell_ipd_area": "ipd_area"}
+
+
+def cell_file_clip(name: str) -> tuple[float, float]:
+    """The working volume ``conf/cell/<name>.yaml`` measured: the planes its model trained within (the real
+    frames are read within them)."""
+    import yaml
+
+    near, far = yaml.safe_load((REPO_ROOT / "conf" / "cell" / f"{name}.yaml").read_text())["scene"]["clip"]
+    return float(near), float(far)
 
 
 def arm_policy(arm: str) -> str:
@@ -389,8 +399,8 @@ def arm_policy(arm: str) -> str:
         return f"fixed box {list(OLD_ROI)}"
     if arm == CELL_ARM:  # apart from the seeds of the study's own training (the table over seeds)
         return f"auto:{roi_side():g}, one command"
-    if arm == CELL_FILE_ARM:
-        return f"auto:{roi_side():g}, one command, cell=ipd (opnet-cell)"
+    if arm in CELL_FILE_ARMS:
+        return f"auto:{roi_side():g}, one command, cell={CELL_FILE_ARMS[arm]} (opnet-cell)"
     roi = ARMS[arm]["roi"]
     return roi if roi else "working area (whole frame)"
 
@@ -425,7 +435,7 @@ def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int, ce
     refinement in the checkpoint), its best checkpoint shipped as ``models/real_ipd_plate.ckpt``."""
     import shutil
 
-    run_dir = runs / (CELL_FILE_ARM if cell_file else CELL_ARM)
+    run_dir = runs / (f"cell_{cell_file}" if cell_file else CELL_ARM)
     last = run_dir / "checkpoints" / "last.ckpt"  # a run stopped part-way resumes where it stopped
     resume = [f"ckpt_path={last}"] if last.is_file() else []
     overrides = cell_file_overrides(cell_file, cycles, views, scale, steps) if cell_file else \
@@ -458,14 +468,16 @@ def main(argv: list[str] | None = None) -> int:
                     help="cell: the one command (train.py experiment=cell) -> models/real_ipd_plate.ckpt; "
                          "real: score the real frames once with --real-arm (results/real_ipd/cell.md)")
     ap.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
-    ap.add_argument("--real-arm", default="auto", choices=[*ARMS, CELL_ARM, CELL_FILE_ARM])
+    ap.add_argument("--real-arm", default="auto", choices=[*ARMS, CELL_ARM, *CELL_FILE_ARMS])
     ap.add_argument("--cell-file", default=None, help="--stage cell: train with cell=<this> (opnet-cell's file) "
-                                                      f"into {CELL_FILE_ARM}/ instead of the keys given here")
+                                                      "into cell_<this>/ instead of the keys given here", choices=list(CELL_FILE_ARMS.values()))
     ap.add_argument("--cycles", type=int, default=200)
     ap.add_argument("--views", type=int, default=2)
     ap.add_argument("--test-cycles", type=int, default=12)
     ap.add_argument("--val-cycles", type=int, default=6, help="validation piles (the refinement's settings)")
     ap.add_argument("--rescore", action="store_true", help="--stage eval: score again what was scored before")
+    ap.add_argument("--refine", nargs="+", default=list(REFINE), choices=list(REFINE),
+                    help="--stage cell / eval: the refinements to score with (default: all)")
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--scale", type=float, default=0.5, help="the training piles' resolution, x the camera's")
     ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "cells")
@@ -500,8 +512,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.stage in ("all", "cell"):
         train_cell(args.runs, args.cycles, args.views, args.scale, args.steps, args.cell_file)
     if args.stage in ("all", "cell", "eval"):
-        cell_arm = CELL_FILE_ARM if args.cell_file else CELL_ARM
-        arms = [cell_arm] if args.stage == "cell" else [*args.arms, OLD_ARM, CELL_ARM, CELL_FILE_ARM]
+        cell_arm = f"cell_{args.cell_file}" if args.cell_file else CELL_ARM
+        arms = [cell_arm] if args.stage == "cell" else [*args.arms, OLD_ARM, CELL_ARM, *CELL_FILE_ARMS]
         for arm in arms:
             ckpt = {OLD_ARM: OLD_MODEL, CELL_ARM: CELL_MODEL}.get(arm) or best_checkpoint(args.runs / arm)
             if ckpt is None or not ckpt.is_file():
@@ -509,26 +521,32 @@ def main(argv: list[str] | None = None) -> int:
             extra = [f"+data.roi=[{','.join(map(str, OLD_ROI))}]"] if arm == OLD_ARM else []
             for placement, sets in tests.items():
                 for refine, overrides in REFINE.items():
-                    if arm not in REFINE_OF.get(refine, (arm,)):
+                    if arm not in REFINE_OF.get(refine, (arm,)) or refine not in args.refine:
                         continue
                     folder = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}"
                     if (arm == OLD_ARM or not args.rescore) and (folder / "summary.json").is_file():
                         continue  # scored before (the shipped model: once)
                     evaluate(ckpt, [r for r, _ in sets], folder, [*extra, *overrides])
     rows = []
+    # a row whose evaluation is not on this machine (scored in another session) is kept as the page has it
+    published = args.out / "cells.csv"
+    kept = {(r["model"], r["placement"], r["refine"]): r
+            for r in (csv.DictReader(published.open()) if published.is_file() else [])}  # fmt: skip
     whole = {placement: frame_required([r for r, _ in sets]) for placement, sets in tests.items()}
-    for arm in [OLD_ARM, *ARMS, CELL_ARM, CELL_FILE_ARM]:
+    for arm in [OLD_ARM, *ARMS, CELL_ARM, *CELL_FILE_ARMS]:
         for placement in tests:
             for refine in REFINE:
                 summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}" / "summary.json"
+                model = {OLD_ARM: "models/fixed_box_ipd_plate.ckpt",
+                         CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)",
+                         **{a: f"{a} (experiment=cell cell={n}, seed 0)" for a, n in CELL_FILE_ARMS.items()}}.get(arm) or \
+                    f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
                 if summary.is_file():
-                    model = {OLD_ARM: "models/fixed_box_ipd_plate.ckpt",
-                             CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)",
-                             CELL_FILE_ARM: f"{CELL_FILE_ARM} (experiment=cell cell=ipd, seed 0)"}.get(arm) or \
-                        f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
                     rows.append(row(json.loads(summary.read_text()), policy=arm_policy(arm), model=model,
                                     placement=placement, refine=refine))
                     rows[-1]["found_of_all"] = round(rows[-1]["matched"] / max(whole[placement], 1), 4)
+                elif (model, placement, refine) in kept:
+                    rows.append(kept[(model, placement, refine)])
     notes = ["Models: trained on piles whose basket stands anywhere in the working area (" f"{args.cycles} cycles, "
              f"{args.views} views per pile, three perforations, rendered at {args.scale:g} x the camera's pixels; EVE, "
              f"small preset, {args.steps} steps). `auto:S`: the network's input is a square of S m at the basket's "
@@ -548,10 +566,17 @@ def main(argv: list[str] | None = None) -> int:
              "last checkpoint (`ckpt_path=last`); its rows' ms/frame were measured while other jobs shared the CPU."]
     notes += ["Every setting of the recipe, and what chose it (no setting was chosen by a score on the real frames):", "",
               *SETTINGS]
-    arms = sorted({r["model"].split(" ")[0] for r in rows if not r["model"].startswith("models/")})
+    arms = sorted({r["model"].split(" ")[0] for r in rows} & set(ARMS))
     command = (f"`python scripts/experiments/cells/cells.py --stage generate`, then `--stage train --arms {' '.join(arms)}`, "
-               f"`--stage cell` (the one command) and `--stage eval --arms {' '.join(arms)}` (`--stage report` re-makes "
-               "this page)")
+               f"`--stage cell` (the one command), `--stage cell --cell-file ipd --steps 3000` (the same set up by "
+               f"opnet-cell) and `--stage eval --arms {' '.join(arms)}` (`--stage report` re-makes this page)")
+    notes.append("`cell_ipd`, `cell_ipd_area`: the one command with every measured key from `conf/cell/ipd.yaml` "
+                 "(opnet-cell on the frames' depth, no ground truth; the working area where the basket stood in them "
+                 "plus 0.1 m) or `conf/cell/ipd_area.yaml` (the same with `--area=-0.2,-0.2,0.2,0.2`, the area above), "
+                 "given only the perforations, at 3000 steps; the flat part's recipe otherwise (the grid sized to the "
+                 "plate, threshold 0.05, `search_flat` recorded). They trained within the planes their cell file "
+                 f"measured and these test piles hold depth within {list(CLIP)} m: their networks see that depth "
+                 "normalized otherwise than in training (eval.py warns).")
     notes.insert(1, "`found % of the frame's parts`: matched parts over every part the metric requires in the whole "
                  "frames (visibility >= 0.5). A fixed box's own `required`, `found` and AP count only the parts "
                  "inside it (the crop scales each part's visibility by its share inside), so where the basket moved "
