@@ -146,8 +146,6 @@ def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str]) -> 
 REFINE = {"none": ["refine=none"], "search": ["refine=search", "+decoding.averaging=false"],
           "search_fast": ["refine=search_fast", "+decoding.averaging=false"],
           "search_flat": ["refine=search_flat", "+decoding.averaging=false"]}  # fmt: skip
-#: the refinements a model is scored with: search_flat only where the model records it (a flat part's recipe)
-REFINE_OF = {"search_flat": ("cell_ipd", "cell_ipd_area")}
 RECIPE_REFINE = "search_fast"
 
 
@@ -231,6 +229,21 @@ def seed_table(rows: list[dict[str, Any]]) -> list[str]:
             "| policy | refine | seeds | AP trained | AP moved | moved - trained |", "|---|---|---|---|---|---|", *lines]
 
 
+def score_real(ckpt: Path, run_dir: Path, clip: tuple[float, float], policy: str, refines: list[str]) -> list[dict[str, Any]]:
+    """eval.py of ``ckpt`` on the three real frames, read within ``clip``, once per refinement of ``refines``
+    (into ``<run_dir>/eval_real/<refine>``); their rows."""
+    rows = []
+    split = (FRAMES / "test").resolve()
+    for refine in refines:
+        out = run_dir / "eval_real" / refine
+        run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
+             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{clip[0]},{clip[1]}]", "+data.cache=false", f"out={out}",
+             "examples=3", *REFINE[refine]], out.with_suffix(".log"))  # fmt: skip
+        rows.append(row(json.loads((out / "summary.json").read_text()), policy=policy,
+                        model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
+    return rows
+
+
 def score_real_frames(run_dir: Path) -> int:
     """The three real frames scored once by the trained recipe as it stands (the checkpoint's ROI policy and
     clip planes), as decoded and with the search: ``results/real_ipd/cell.md`` and ``cell.csv``; the one
@@ -251,17 +264,7 @@ def score_real_frames(run_dir: Path) -> int:
 
         shutil.copyfile(ckpt, shipped)
     ckpt = shipped
-    rows = []
-    for refine, overrides in REFINE.items():
-        if refine in REFINE_OF:
-            continue
-        out = run_dir / "eval_real" / refine
-        split = (FRAMES / "test").resolve()
-        run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
-             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{CLIP[0]},{CLIP[1]}]", "+data.cache=false", f"out={out}",
-             "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
-        rows.append(row(json.loads((out / "summary.json").read_text()), policy=policy,
-                        model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
+    rows = score_real(ckpt, run_dir, CLIP, policy, [r for r in REFINE if r not in REFINE_OF])
     stages = (json.loads((run_dir / "eval_real" / RECIPE_REFINE / "summary.json").read_text()).get("icp") or {}) \
         .get("ms_per_image_by_stage", {})  # fmt: skip
     head = ["# The real frames, scored by the cell recipe", "",
@@ -307,15 +310,7 @@ def score_real_frames_cell_file(run_dir: Path) -> int:
     if ckpt is None:
         print(f"error: {run_dir}: no checkpoint; train first (--stage cell --cell-file ipd)", file=sys.stderr)
         return 2
-    rows = []
-    for refine, overrides in REFINE.items():
-        out = run_dir / "eval_real" / refine
-        split = (FRAMES / "test").resolve()
-        run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={split}", f"data.test_root={split}",
-             f"+data.object_id={OBJECT_ID}", f"+data.clip=[{clip[0]},{clip[1]}]",
-             "+data.cache=false", f"out={out}", "examples=3", *overrides], out.with_suffix(".log"))  # fmt: skip
-        rows.append(row(json.loads((out / "summary.json").read_text()), policy=arm_policy(run_dir.name),
-                        model=os.path.relpath(ckpt, REPO_ROOT), placement="real frames", refine=refine))
+    rows = score_real(ckpt, run_dir, clip, arm_policy(run_dir.name), list(REFINE))
     head = ["# The real frames, scored by the model set up from the cell's own frames", "",
             f"`python scripts/experiments/cells/cells.py --stage real --real-arm {run_dir.name}`: the model of "
             f"`python scripts/experiments/cells/cells.py --stage cell --cell-file {name} --steps 3000` (`python train.py "
@@ -383,6 +378,8 @@ CELL_ARM = "cell"
 #: (``--stage cell --cell-file ipd``: ``cell=ipd``, no ground truth; its run and model apart from the above):
 #: run name -> cell name
 CELL_FILE_ARMS = {"cell_ipd": "ipd", "cell_ipd_area": "ipd_area"}
+#: the refinements a model is scored with: search_flat only where the model records it (a flat part's recipe)
+REFINE_OF = {"search_flat": tuple(CELL_FILE_ARMS)}
 
 
 def cell_file_clip(name: str) -> tuple[float, float]:
@@ -405,16 +402,21 @@ def arm_policy(arm: str) -> str:
     return roi if roi else "working area (whole frame)"
 
 
+def perforations() -> str:
+    """The basket's three perforations as the bin models of one dataset (the override)."""
+    models = ",".join(f"{{bin_hole_size:{size},bin_hole_pitch:{pitch}}}" for size, pitch in HOLES)
+    return f"scene.bin_models=[{models}]"
+
+
 def cell_overrides(cycles: int, views: int, scale: float, steps: int) -> list[str]:
     """``python train.py experiment=cell`` for this cell as a user gives it: the camera's own file, its pose,
     the working volume and area, the basket's sizes and its three perforations as bin models, the ROI policy;
     the rest is the experiment's (its recorded refinement included)."""
-    models = ",".join(f"{{bin_hole_size:{size},bin_hole_pitch:{pitch}}}" for size, pitch in HOLES)
     basket = ("bin_inner", "bin_inner_y", "bin_wall_height", "bin_wall_thickness", "bin_clearance")
     return ["experiment=cell", "object=ipd_plate", "sensor=photoneo", f"scene.camera_file={FRAMES / 'camera_photoneo.yaml'}",
             f"scene.camera_scale={scale:g}", f"scene.clip=[{CLIP[0]},{CLIP[1]}]",
             *(f"scene.{k}={v}" for k, v in CAMERA_POSE.items()), f"scene.bin_area=[{','.join(map(str, AREA))}]",
-            *(f"scene.{k}={BASKET[k]}" for k in basket), f"scene.bin_models=[{models}]", f"data.roi=auto:{roi_side():g}",
+            *(f"scene.{k}={BASKET[k]}" for k in basket), perforations(), f"data.roi=auto:{roi_side():g}",
             f"data.generate.cycles={cycles}", f"scene.views={views}", f"trainer.max_steps={steps}",
             "trainer.enable_progress_bar=false"]  # fmt: skip
 
@@ -424,9 +426,8 @@ def cell_file_overrides(name: str, cycles: int, views: int, scale: float, steps:
     (the camera and its pose, the working volume and area, the basket's sizes, the crop side, the sensor preset)
     from the cell file; given as in :func:`cell_overrides` only what a depth frame does not show (the basket's
     three perforations) and the budget (cycles, views, the rendering scale, the steps)."""
-    models = ",".join(f"{{bin_hole_size:{size},bin_hole_pitch:{pitch}}}" for size, pitch in HOLES)
-    return ["experiment=cell", f"cell={name}", "object=ipd_plate", f"scene.camera_scale={scale:g}",
-            f"scene.bin_models=[{models}]", f"data.generate.cycles={cycles}", f"scene.views={views}",
+    return ["experiment=cell", f"cell={name}", "object=ipd_plate", f"scene.camera_scale={scale:g}", perforations(),
+            f"data.generate.cycles={cycles}", f"scene.views={views}",
             f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false"]  # fmt: skip
 
 
