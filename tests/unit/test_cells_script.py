@@ -63,3 +63,26 @@ def test_the_seed_table_gives_mean_sd_and_the_gap_for_policies_with_seeds() -> N
     seeds = [{**r, "model": m} for r, m in zip(rows[:4], ("auto (input 128, seed 0)", "auto_s1 (input 128, seed 1)",
                                                            "auto (input 128, seed 0)", "auto_s1 (input 128, seed 1)"), strict=True)]
     assert cells.seed_table(seeds)[-1] == lines[-1]
+
+
+def test_a_cell_file_model_is_scored_on_the_same_piles_written_within_its_own_planes(
+        shared: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    # the study's piles are written within its planes: a model whose cell file measured others (a surface beyond
+    # its far plane at its far plane) is scored on the same piles (seeds, settings) written within its own
+    own = cells.cell_file_clip("ipd_area")
+    assert cells.piles_of("auto") == {"": cells.CLIP}
+    assert cells.piles_of("cell_ipd_area") == {"": cells.CLIP, "_own_planes": own}
+    study, mine = cells.datasets(tmp_path, 200, 12)[1], cells.datasets(tmp_path, 200, 12, own)[1]
+    calls: list[tuple] = []
+    monkeypatch.setattr(cells, "generate", lambda camera, root, cycles, views, seed, scale, logs, **scene:
+                        calls.append((Path(camera), root, cycles, seed, scene)))
+    cells.generate_tests(tmp_path, study, cells.CLIP, tmp_path)
+    cells.generate_tests(tmp_path, mine, own, tmp_path)
+    half = len(calls) // 2
+    assert half == 5 and len(calls) == 10
+    for a, b in zip(calls[:half], calls[half:], strict=True):
+        assert a[1] != b[1] and a[2:] == b[2:]  # other folders, the same piles
+    from opnet.datasets.camera_file import read_camera_file
+
+    assert (read_camera_file(calls[0][0]).clip_start, read_camera_file(calls[0][0]).clip_end) == cells.CLIP
+    assert (read_camera_file(calls[-1][0]).clip_start, read_camera_file(calls[-1][0]).clip_end) == own

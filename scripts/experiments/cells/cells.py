@@ -83,15 +83,15 @@ def run(cmd: list[str], log: Path) -> None:
     run_logged(cmd, log, REPO_ROOT)
 
 
-def camera_file(scale: float, out: Path) -> Path:
-    """The cell's camera (the frames' Photoneo) with the working clip planes, its pixels scaled by ``scale``."""
+def camera_file(scale: float, out: Path, clip: tuple[float, float] = CLIP) -> Path:
+    """The cell's camera (the frames' Photoneo) with the clip planes ``clip``, its pixels scaled by ``scale``."""
     from opnet.datasets.camera_file import read_camera_file
 
     cam = read_camera_file(FRAMES / "camera_photoneo.yaml").scaled(scale)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(f"# the Photoneo of the IPD frames at {scale:g} x its pixels, clip planes {CLIP} (scripts/cells.py)\n"
+    out.write_text(f"# the Photoneo of the IPD frames at {scale:g} x its pixels, clip planes {clip} (scripts/cells.py)\n"
                    f"fx: {cam.fx!r}\nfy: {cam.fy!r}\ncx: {cam.cx!r}\ncy: {cam.cy!r}\n"
-                   f"width: {cam.width}\nheight: {cam.height}\nclip_start: {CLIP[0]!r}\nclip_end: {CLIP[1]!r}\n")  # fmt: skip
+                   f"width: {cam.width}\nheight: {cam.height}\nclip_start: {clip[0]!r}\nclip_end: {clip[1]!r}\n")  # fmt: skip
     return out
 
 
@@ -109,8 +109,9 @@ def generate(camera: Path, out: Path, cycles: int, views: int, seed: int, scale:
          *(f"scene.{k}={value(v)}" for k, v in settings.items())], logs / f"generate_{out.name}.log")  # fmt: skip
 
 
-def datasets(data: Path, cycles: int, test_cycles: int) -> tuple[list[tuple[Path, int, dict]], dict[str, list[tuple[Path, dict]]]]:
-    """(training sets: (root, cycles, scene settings)), {placement: test sets (root, scene settings)}."""
+def datasets(data: Path, cycles: int, test_cycles: int, clip: tuple[float, float] = CLIP) -> tuple[list[tuple[Path, int, dict]], dict[str, list[tuple[Path, dict]]]]:
+    """(training sets: (root, cycles, scene settings)), {placement: test sets (root, scene settings)}; the test
+    piles written within ``clip`` (the study's working volume, or a cell file's: then in folders of their own)."""
     train = []
     for k, (size, pitch) in enumerate(HOLES):
         n = cycles // len(HOLES) + (k < cycles % len(HOLES))
@@ -118,11 +119,22 @@ def datasets(data: Path, cycles: int, test_cycles: int) -> tuple[list[tuple[Path
                       {"bin_area": AREA, "bin_hole_size": size, "bin_hole_pitch": pitch, "seed": k}))
     size, pitch = HOLES[0]
     holes = {"bin_hole_size": size, "bin_hole_pitch": pitch}
-    tests = {"trained": [(data / f"test_trained_c{test_cycles}", {"bin_jitter_m": TRAINED_JITTER, **holes,
-                                                                   "cycles": test_cycles})],
-             "moved": [(data / f"test_moved{k}_c{test_cycles // 4}", {"bin_area": area, **holes, "cycles": test_cycles // 4})
+    planes = "" if tuple(clip) == CLIP else f"_clip{clip[0]:g}-{clip[1]:g}"
+    tests = {"trained": [(data / f"test_trained_c{test_cycles}{planes}", {"bin_jitter_m": TRAINED_JITTER, **holes,
+                                                                           "cycles": test_cycles})],
+             "moved": [(data / f"test_moved{k}_c{test_cycles // 4}{planes}", {"bin_area": area, **holes, "cycles": test_cycles // 4})
                        for k, area in enumerate(CORNERS)]}  # fmt: skip
     return train, tests
+
+
+def generate_tests(data: Path, tests: dict[str, list[tuple[Path, dict]]], clip: tuple[float, float], logs: Path) -> None:
+    """The test piles of :func:`datasets` at the camera's full resolution, one view each, written within
+    ``clip``: the same seeds (so the same piles) whatever the planes; cycles complete before are kept."""
+    full = camera_file(1.0, data / ("camera_x1.yaml" if tuple(clip) == CLIP else f"camera_x1_clip{clip[0]:g}-{clip[1]:g}.yaml"), clip)
+    for k, sets in enumerate(tests.values()):
+        for j, (root, scene) in enumerate(sets):
+            scene = dict(scene)
+            generate(full, root, scene.pop("cycles"), 1, 100 + 10 * k + j, 1.0, logs, **scene)
 
 
 def validation_set(data: Path, cycles: int) -> tuple[Path, dict]:
@@ -132,11 +144,13 @@ def validation_set(data: Path, cycles: int) -> tuple[Path, dict]:
     return data / f"val_c{cycles}", {"bin_area": AREA, "bin_hole_size": size, "bin_hole_pitch": pitch, "cycles": cycles}
 
 
-def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str]) -> dict[str, Any]:
-    """``eval.py`` of ``ckpt`` on the datasets ``roots`` (one test split) with ``overrides``; its summary."""
+def evaluate(ckpt: Path, roots: list[Path], out: Path, overrides: list[str],
+             clip: tuple[float, float] = CLIP) -> dict[str, Any]:  # fmt: skip
+    """``eval.py`` of ``ckpt`` on the datasets ``roots`` (one test split, written within ``clip``) with
+    ``overrides``; its summary."""
     listed = "[" + ",".join(str(r) for r in roots) + "]"
     run([sys.executable, "eval.py", f"ckpt={ckpt}", f"data.root={listed}", f"data.test_root={listed}",
-         f"+data.clip=[{CLIP[0]},{CLIP[1]}]", "+data.cache=false", f"out={out}", "examples=2", *overrides],
+         f"+data.clip=[{clip[0]},{clip[1]}]", "+data.cache=false", f"out={out}", "examples=2", *overrides],
         out.with_suffix(".log"))  # the depth at the camera's resolution, for the network's crop and the search
     return json.loads((out / "summary.json").read_text())
 
@@ -391,6 +405,15 @@ def cell_file_clip(name: str) -> tuple[float, float]:
     return float(near), float(far)
 
 
+def piles_of(arm: str) -> dict[str, tuple[float, float]]:
+    """The test piles ``arm`` is scored on: {folder suffix: the planes they are written within}. Every model on
+    the study's (written within CLIP); a cell-file model also on the same piles written within its cell file's
+    planes, as the cell's frames reach it at prediction (the depth beyond the far plane at the far plane)."""
+    if arm not in CELL_FILE_ARMS:
+        return {"": CLIP}
+    return {"": CLIP, "_own_planes": cell_file_clip(CELL_FILE_ARMS[arm])}
+
+
 def arm_policy(arm: str) -> str:
     if arm == OLD_ARM:
         return f"fixed box {list(OLD_ROI)}"
@@ -499,10 +522,7 @@ def main(argv: list[str] | None = None) -> int:
         for root, cycles, scene in train_sets:
             scene = dict(scene)
             generate(half, root, cycles, args.views, scene.pop("seed"), args.scale, logs, **scene)
-        for k, sets in enumerate(tests.values()):
-            for j, (root, scene) in enumerate(sets):
-                scene = dict(scene)
-                generate(full, root, scene.pop("cycles"), 1, 100 + 10 * k + j, 1.0, logs, **scene)
+        generate_tests(args.data_dir, tests, CLIP, logs)
         root, scene = validation_set(args.data_dir, args.val_cycles)
         scene = dict(scene)
         generate(full, root, scene.pop("cycles"), 1, VALIDATION_SEED, 1.0, logs, **scene)
@@ -515,33 +535,40 @@ def main(argv: list[str] | None = None) -> int:
     if args.stage in ("all", "cell", "eval"):
         cell_arm = f"cell_{args.cell_file}" if args.cell_file else CELL_ARM
         arms = [cell_arm] if args.stage == "cell" else [*args.arms, OLD_ARM, CELL_ARM, *CELL_FILE_ARMS]
+        made: set[tuple[float, float]] = {CLIP} if args.stage == "all" else set()  # test piles made this run
         for arm in arms:
             ckpt = {OLD_ARM: OLD_MODEL, CELL_ARM: CELL_MODEL}.get(arm) or best_checkpoint(args.runs / arm)
             if ckpt is None or not ckpt.is_file():
                 continue  # not trained
             extra = [f"+data.roi=[{','.join(map(str, OLD_ROI))}]"] if arm == OLD_ARM else []
-            for placement, sets in tests.items():
-                for refine, overrides in REFINE.items():
-                    if arm not in REFINE_OF.get(refine, (arm,)) or refine not in args.refine:
-                        continue
-                    folder = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}"
-                    if (arm == OLD_ARM or not args.rescore) and (folder / "summary.json").is_file():
-                        continue  # scored before (the shipped model: once)
-                    evaluate(ckpt, [r for r, _ in sets], folder, [*extra, *overrides])
+            for suffix, clip in piles_of(arm).items():
+                arm_tests = datasets(args.data_dir, args.cycles, args.test_cycles, clip)[1]
+                if clip not in made:  # the piles made where missing (complete cycles are kept), once a run
+                    generate_tests(args.data_dir, arm_tests, clip, logs)
+                    made.add(clip)
+                for placement, sets in arm_tests.items():
+                    for refine, overrides in REFINE.items():
+                        if arm not in REFINE_OF.get(refine, (arm,)) or refine not in args.refine:
+                            continue
+                        folder = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}{suffix}"
+                        if (arm == OLD_ARM or not args.rescore) and (folder / "summary.json").is_file():
+                            continue  # scored before (the shipped model: once)
+                        evaluate(ckpt, [r for r, _ in sets], folder, [*extra, *overrides], clip)
     rows = []
     # a row whose evaluation is not on this machine (scored in another session) is kept as the page has it
     published = args.out / "cells.csv"
     kept = {(r["model"], r["placement"], r["refine"]): r
             for r in (csv.DictReader(published.open()) if published.is_file() else [])}  # fmt: skip
     whole = {placement: frame_required([r for r, _ in sets]) for placement, sets in tests.items()}
-    for arm in [OLD_ARM, *ARMS, CELL_ARM, *CELL_FILE_ARMS]:
+    for arm, (suffix, clip) in ((a, p) for a in [OLD_ARM, *ARMS, CELL_ARM, *CELL_FILE_ARMS] for p in piles_of(a).items()):
         for placement in tests:
             for refine in REFINE:
-                summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}" / "summary.json"
+                summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}{suffix}" / "summary.json"
                 model = {OLD_ARM: "models/fixed_box_ipd_plate.ckpt",
                          CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)",
                          **{a: f"{a} (experiment=cell cell={n}, seed 0)" for a, n in CELL_FILE_ARMS.items()}}.get(arm) or \
                     f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
+                model += f", piles within its planes {clip[0]:g}-{clip[1]:g} m" if suffix else ""
                 if summary.is_file():
                     rows.append(row(json.loads(summary.read_text()), policy=arm_policy(arm), model=model,
                                     placement=placement, refine=refine))

@@ -49,7 +49,7 @@ DENSE_DATA = REPO_ROOT / "outputs" / "data" / "dense"
 FIELDS = ("part", "lever", "arm", "seed", "steps", "split", "ap_decoded", "ap_refined", "ms_per_frame", "found",
           "found_refined", "no_hypothesis", "missed_lateral", "missed_depth", "missed_tilt", "missed_spin",
           "lateral_mm_p50", "depth_mm_p50", "tilt_deg_p50", "spin_deg_p50", "train_minutes", "train_val_ap",
-          "overrides")  # fmt: skip
+          "overrides", "ap_decoded_own_group", "ap_refined_own_group")  # fmt: skip
 
 #: the cell recipe's training (cells.py's "auto" arm): EVE, small preset, 128-pixel input over a 0.8 m square
 #: around the basket, 16 x 16 cells, 3000 steps
@@ -348,6 +348,17 @@ def dense_run(part: str, arm: str, seed: int) -> Path:
     return out
 
 
+def own_group_ap(part: str, scored: Path) -> float:
+    """The AP of the poses an evaluation wrote (``scored``/gt, ``scored``/results) under the symmetry of the
+    part's committed config (``opnet-evaluate --object <part>``)."""
+    dest = scored / "own_group.json"
+    if not dest.is_file():
+        run_logged([sys.executable, "-m", "opnet.cli.evaluate", "--gt", str(scored / "gt"), "--results",
+                    str(scored / "results"), "--object", part, "--quiet", "--out", str(dest)],
+                   scored.with_name(f"{scored.name}_own_group.log"))  # fmt: skip
+    return round(json.loads(dest.read_text())["ap"], 4)
+
+
 def dense_rows(part: str, arm: str, seed: int, refine: bool) -> list[dict[str, Any]]:
     """The held-out row of a trained dense arm: its test as decoded, and with the new-parts refinement."""
     _, spec = arm_spec(part, arm)
@@ -361,6 +372,12 @@ def dense_rows(part: str, arm: str, seed: int, refine: bool) -> list[dict[str, A
                         "refine=search_fast", "examples=0"], out / "test_refined.log")  # fmt: skip
         refined = json.loads((dest / "summary.json").read_text())
     row = row_of(part, arm, seed, "held_out", decoded, refined, spec.get("steps", DENSE_STEPS), spec.get("train", []))
+    if any(o.lstrip("~+").startswith("object.symmetry") for o in spec.get("train", [])):
+        # the arm declared another symmetry, which its own test scores with: the same poses under the group
+        # of conf/object/<part>.yaml too, so that the declaration's gain and the network's are told apart
+        row["ap_decoded_own_group"] = own_group_ap(part, out / "test")
+        if refined is not None:
+            row["ap_refined_own_group"] = own_group_ap(part, out / "test_refined")
     print(f"[{part} {arm} s{seed} held_out] AP {row['ap_decoded']}" + (f", refined {row['ap_refined']}" if refine else ""),
           flush=True)  # fmt: skip
     return [row]
@@ -415,24 +432,29 @@ def write_page(rows: list[dict[str, Any]]) -> None:
                           key=lambda k: order.index(k[3]) if k[3] in order else len(order))
             if not keys:
                 continue
+            # arms that declared another symmetry: their poses scored under the part's committed group too
+            own_group = any(r.get("ap_decoded_own_group") for k in keys for r in groups[k])
             lines += [f"## {part}, {split.replace('_', '-')} piles", "",
                       "| lever | arm | seeds | AP decoded | AP refined | found % | no hyp % | lateral % | depth % | "
-                      "tilt % | spin % | tilt p50 ° | spin p50 ° | refine ms/img | AP in training |",
-                      "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                      "tilt % | spin % | tilt p50 ° | spin p50 ° | refine ms/img | AP in training |"
+                      + (" AP decoded / refined, the part's own group |" if own_group else ""),
+                      "|---" * (16 if own_group else 15) + "|"]  # fmt: skip
             for key in keys:
                 g = groups[key]
 
                 def m(field: str, scale: float = 1.0, digits: int = 3, g: list = g) -> str:
-                    vals = [float(r[field]) * scale for r in g if r[field] not in ("", None)]
+                    vals = [float(r[field]) * scale for r in g if r.get(field) not in ("", None)]
                     if len(vals) == 1:  # one seed: no spread to give
                         return f"{vals[0]:.{digits}f}"
                     return mean_sd_text(vals, digits) if vals else "–"
 
+                own = ("–" if not any(r.get("ap_decoded_own_group") for r in g)  # the arm scored under its own group
+                       else f"{m('ap_decoded_own_group')} / {m('ap_refined_own_group')}")
                 lines.append(f"| {key[2]} | {key[3]} | {len(g)} | {m('ap_decoded')} | {m('ap_refined')} | "
                              f"{m('found', 100, 1)} | {m('no_hypothesis', 100, 1)} | {m('missed_lateral', 100, 1)} | "
                              f"{m('missed_depth', 100, 1)} | {m('missed_tilt', 100, 1)} | {m('missed_spin', 100, 1)} | "
                              f"{m('tilt_deg_p50', 1, 1)} | {m('spin_deg_p50', 1, 1)} | {m('ms_per_frame', 1, 0)} | "
-                             f"{m('train_val_ap')} |")  # fmt: skip
+                             f"{m('train_val_ap')} |" + (f" {own} |" if own_group else ""))  # fmt: skip
             lines.append("")
     lines += NOTES
     for part, levers in ARMS.items():  # what the script defines and has not scored yet
