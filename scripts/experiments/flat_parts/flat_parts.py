@@ -196,13 +196,16 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     # the new-parts recipe (experiment=dense, its budget). exact: the committed config's symmetry (the exact group
     # opnet-object finds); near_revolution: the declaration opnet-object --declare-near writes (every turn about
     # the main axis moves the surface by less than delta: a depth image cannot tell the spins apart)
+    # grid: the plate's kept lever (its D over twice the cells) on a part the recipe already frames at ~5.6 cells
     "itodd08": {
         "symmetry": {"exact": {},
                      "near_revolution": {"train": [*NEAR_REVOLUTION, "~object.symmetry.order"]}},
+        "grid": {"g32": {"train": ["parameterization.grid=32"]}},
     },
     "itodd27": {
         "symmetry": {"exact": {},
                      "near_revolution": {"train": NEAR_REVOLUTION}},
+        "grid": {"g32": {"train": ["parameterization.grid=32"]}},
     },
 }
 
