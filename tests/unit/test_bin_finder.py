@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from opnet.data.bin_finder import NoBinError, find_bin
-from opnet.data.roi import crop_record, parse_roi, resolve_box, roi_tag
+from opnet.data.roi import FINDER_REVISION, crop_record, parse_roi, resolve_box, roi_tag
 from opnet.datasets.record import SceneRecord
 from opnet.geometry.camera import Camera
 from opnet.synthesis.layout import BinGeometry, homogeneous, inverse_pose, rotation_about, tilted
@@ -85,7 +85,7 @@ def test_a_frame_without_a_bin_is_a_one_line_error_naming_it() -> None:
 @pytest.mark.parametrize(("value", "expected"), [("auto:0.75", "auto:0.75"), ("auto: 1.50", "auto:1.5"), ("auto", "auto")])
 def test_auto_values_parse_and_tag(value: str, expected: str) -> None:
     assert parse_roi(value) == expected
-    assert roi_tag(parse_roi(value)) == "_roi" + expected.replace(":", "")
+    assert roi_tag(parse_roi(value)) == "_roi" + expected.replace(":", "") + f"_f{FINDER_REVISION}"
 
 
 @pytest.mark.parametrize("value", ["auto:", "auto:-1", "auto:nan", "auto:abc", "auto:100"])
@@ -108,3 +108,20 @@ def test_an_auto_square_of_fewer_pixels_than_the_network_needs_is_refused_before
                                          r"depth .*at least 16"):
         resolve_box(parse_roi("auto:0.03"), depth, CAM)
     assert resolve_box(parse_roi("auto:0.06"), depth, CAM)[2] > 0  # 19 pixels: taken
+
+
+@pytest.mark.parametrize("share", [0.8, 0.95])
+def test_a_perforated_basket_counts_by_its_outline_against_a_solid_surface_in_the_volume(share: float) -> None:
+    # a floor or table reaching into the working volume at a corner of the frame (a tilted camera's far side),
+    # solid, a little smaller than the basket's outline but larger than its bars: the basket is the bin
+    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
+    z = CAM.clip_end - 0.03
+    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)  # the basket's outline, m^2
+    side = int(round(math.sqrt(share * footprint) * CAM.fx / z))
+    depth[-side:, -side:] = z
+    found = find_bin(depth, CAM, 0.75)
+    assert np.abs(found.centre[:2] - centre[:2]).max() < 0.015
+    # a solid surface clearly larger than the basket is what fills the volume most
+    big = int(round(1.5 * side))
+    depth[-big:, -big:] = z
+    assert find_bin(depth, CAM, 0.75).centre[2] > centre[2] + 0.1

@@ -17,7 +17,9 @@ from the depth alone, with no model of the cell.
 
 The bin's region, for both, is the largest connected region of working-volume depth, after closing the gaps
 of a wire basket's holes and the sensor's dropouts (3 cm) and opening away what is thinner than 8 cm (bars of
-the cell, cables, a neighbour's rim touching the bin); ``auto:S`` then centres on that region alone.
+the cell, cables, a neighbour's rim touching the bin), measured by the surface it covers with the gaps closed
+(a perforated floor by its outline: by its bars alone, a floor reaching into the volume at the far side of a
+tilted camera outweighed it); ``auto:S`` then centres on that region alone.
 
 Both look at the image subsampled to about :data:`GRID_PIXELS` pixels a side (fast on 2-megapixel frames)
 and raise :class:`NoBinError` (one line, naming the frame) where the clip planes hold no bin. NumPy and OpenCV
@@ -119,8 +121,14 @@ def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float) -> np.ndarra
     if not opened.any():  # all of it thinner than the opening: keep what closing made
         opened = closed
     n, labels = cv2.connectedComponents(opened, connectivity=8)
-    weight = np.where(ok, np.nan_to_num(d) ** 2, 0.0)  # surface per sample ~ z^2
-    area = np.bincount(labels.ravel(), weights=weight.ravel(), minlength=n)
+    # surface per sample ~ z^2; a gap the closing spanned (a wire basket's hole, a dropout) is the region's
+    # surface too, at the region's depth: a perforated floor counts by its outline, not by its bars alone
+    # (else a solid surface of two thirds its size, a floor or table reaching into the working volume, wins)
+    ids = labels.ravel()
+    z2 = np.where(ok, np.nan_to_num(d) ** 2, 0.0).ravel()
+    seen = np.bincount(ids, weights=ok.ravel().astype(np.float64), minlength=n)
+    depth2 = np.bincount(ids, weights=z2, minlength=n) / np.maximum(seen, 1.0)  # mean z^2 of the seen samples
+    area = np.bincount(ids, minlength=n) * depth2
     area[0] = 0.0
     return (labels == int(np.argmax(area))) & ok
 

@@ -105,13 +105,18 @@ def crop_record(record: Any, roi: Box | str | None) -> Any:
                                segmentation=seg, visibility=visibility)
 
 
+#: the bin finder's revision, in the tag of ``auto`` crops: a cache of crops an earlier finder made is not
+#: reused (2: a perforated basket counts by its outline)
+FINDER_REVISION = 2
+
+
 def roi_tag(roi: Box | str | None) -> str:
     """A file-name tag of the region of interest ("" for none): the cache of cropped scenes
-    lives apart from the uncropped one."""
+    lives apart from the uncropped one (and, for ``auto``, from crops of an earlier bin finder)."""
     if roi is None:
         return ""
     if is_auto(roi):
-        return "_roi" + str(roi).replace(":", "")
+        return "_roi" + str(roi).replace(":", "") + f"_f{FINDER_REVISION}"
     return "_roi" + "-".join(str(v) for v in roi)  # type: ignore[union-attr]
 
 
@@ -137,4 +142,4 @@ class ROIScenes:
         return getattr(self.source, name)
 
 
-__all__ = ["AUTO", "MAX_AUTO_SIDE", "MIN_BOX_SIDE", "ROIScenes", "auto_side", "crop_camera", "crop_image", "crop_record", "is_auto", "parse_roi", "resolve_box", "roi_tag"]
+__all__ = ["AUTO", "FINDER_REVISION", "MAX_AUTO_SIDE", "MIN_BOX_SIDE", "ROIScenes", "auto_side", "crop_camera", "crop_image", "crop_record", "is_auto", "parse_roi", "resolve_box", "roi_tag"]
