@@ -56,6 +56,10 @@ def test_the_seed_table_gives_mean_sd_and_the_gap_for_policies_with_seeds() -> N
     # two input sizes of one policy are no seeds of one arm
     sizes = [{**r, "model": f"frame{n} (input {n}, seed 0)"} for r, n in zip(rows[:4], (128, 256, 128, 256), strict=True)]
     assert cells.seed_table(sizes) == []
+    # one model scored on the study's piles and on the same piles written within its own planes: no seeds either
+    planes = [{**r, "model": m} for r, m in zip(rows[:4], ("cell_x (cell=x, seed 0)", "cell_x (cell=x, seed 0), piles "
+                                                           "within its planes 1.3-2.1 m") * 2, strict=True)]
+    assert cells.seed_table(planes) == []
     # an arm that changes the loss is no seed of the recipe's arm; the recipe's seeds are
     arms = [{**r, "model": m} for r, m in zip(rows[:4], ("auto (input 128, seed 0)", "auto_lz10 (input 128, seed 0)",
                                                           "auto (input 128, seed 0)", "auto_lz10 (input 128, seed 0)"), strict=True)]
