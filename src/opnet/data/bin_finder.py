@@ -123,7 +123,7 @@ def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float) -> np.ndarra
     n, labels = cv2.connectedComponents(opened, connectivity=8)
     # surface per sample ~ z^2; a gap the closing spanned (a wire basket's hole, a dropout) is the region's
     # surface too, at the region's depth: a perforated floor counts by its outline, not by its bars alone
-    # (else a solid surface of two thirds its size, a floor or table reaching into the working volume, wins)
+    # (else a solid surface of four fifths its outline, a floor or table reaching into the volume, wins)
     ids = labels.ravel()
     z2 = np.where(ok, np.nan_to_num(d) ** 2, 0.0).ravel()
     seen = np.bincount(ids, weights=ok.ravel().astype(np.float64), minlength=n)
