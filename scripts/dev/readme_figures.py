@@ -23,7 +23,7 @@ in the README, ``../results/...`` in a docs page):
 | real_ipd_seeds | ``results/real_ipd/seeds.csv`` (``scripts/experiments/real_ipd/real_ipd.py --seeds``) |
 | cells | ``results/cells/cells.csv`` (``scripts/experiments/cells/cells.py``), ``results/real_ipd/cell.csv`` (``--stage real``) |
 | verification | ``results/verification/verification.csv`` (``scripts/experiments/verification/verify_ab.py``) |
-| headline | the README's one table: ``results/quickstart/summary.json``, ``dense/dense.csv``, ``real_ipd/cell_ipd.csv``, ``new_parts/new_parts.csv``, ``table1/table1.csv`` |
+| headline | the README's one table: ``results/quickstart/summary.json``, ``dense/dense.csv``, ``real_ipd/<the cell-file model cell_headline picks>.csv``, ``new_parts/new_parts.csv``, ``table1/table1.csv`` |
 | pictures | the PNGs under ``results/`` (the ceiling chart is drawn here from its CSVs) |
 | pictures_data | the real frame's overlay and the sensor models' missing depth |
 | pictures_method | the ceiling chart |

@@ -109,6 +109,11 @@ def generate(camera: Path, out: Path, cycles: int, views: int, seed: int, scale:
          *(f"scene.{k}={value(v)}" for k, v in settings.items())], logs / f"generate_{out.name}.log")  # fmt: skip
 
 
+def planes_tag(clip: tuple[float, float]) -> str:
+    """The name tag of what is written within ``clip``: none for the study's planes."""
+    return "" if tuple(clip) == CLIP else f"_clip{clip[0]:g}-{clip[1]:g}"
+
+
 def datasets(data: Path, cycles: int, test_cycles: int, clip: tuple[float, float] = CLIP) -> tuple[list[tuple[Path, int, dict]], dict[str, list[tuple[Path, dict]]]]:
     """(training sets: (root, cycles, scene settings)), {placement: test sets (root, scene settings)}; the test
     piles written within ``clip`` (the study's working volume, or a cell file's: then in folders of their own)."""
@@ -119,7 +124,7 @@ def datasets(data: Path, cycles: int, test_cycles: int, clip: tuple[float, float
                       {"bin_area": AREA, "bin_hole_size": size, "bin_hole_pitch": pitch, "seed": k}))
     size, pitch = HOLES[0]
     holes = {"bin_hole_size": size, "bin_hole_pitch": pitch}
-    planes = "" if tuple(clip) == CLIP else f"_clip{clip[0]:g}-{clip[1]:g}"
+    planes = planes_tag(clip)
     tests = {"trained": [(data / f"test_trained_c{test_cycles}{planes}", {"bin_jitter_m": TRAINED_JITTER, **holes,
                                                                            "cycles": test_cycles})],
              "moved": [(data / f"test_moved{k}_c{test_cycles // 4}{planes}", {"bin_area": area, **holes, "cycles": test_cycles // 4})
@@ -130,7 +135,7 @@ def datasets(data: Path, cycles: int, test_cycles: int, clip: tuple[float, float
 def generate_tests(data: Path, tests: dict[str, list[tuple[Path, dict]]], clip: tuple[float, float], logs: Path) -> None:
     """The test piles of :func:`datasets` at the camera's full resolution, one view each, written within
     ``clip``: the same seeds (so the same piles) whatever the planes; cycles complete before are kept."""
-    full = camera_file(1.0, data / ("camera_x1.yaml" if tuple(clip) == CLIP else f"camera_x1_clip{clip[0]:g}-{clip[1]:g}.yaml"), clip)
+    full = camera_file(1.0, data / f"camera_x1{planes_tag(clip)}.yaml", clip)
     for k, sets in enumerate(tests.values()):
         for j, (root, scene) in enumerate(sets):
             scene = dict(scene)
