@@ -331,9 +331,10 @@ def block_cells(results: Path, prefix: str = "") -> str:
     """A cell whose bin moves: generated piles where the bin stood in training and where it did not
     (scripts/experiments/cells/cells.py), and the real frames scored by the recipe (results/real_ipd/cell.csv; its earlier
     scorings with the search, before its speed settings changed and before the refinement was made faster,
-    cell_first_scoring.csv and cell_second_scoring.csv) and by the one command's model (cell_one_command.csv)."""
+    cell_first_scoring.csv and cell_second_scoring.csv) and by the one command's model (cell_one_command.csv; the one it replaced, cell_one_command_grid16.csv)."""
     real = results / "real_ipd" / "cell.csv"
-    one_command = results / "real_ipd" / "cell_one_command.csv"  # the one command's model on the same frames
+    # the one command's model on the same frames, and the one it replaced
+    one_command = [results / "real_ipd" / f"cell_one_command{s}.csv" for s in ("_grid16", "")]
     cell_files = [results / "real_ipd" / f"{arm}.csv" for arm in CELL_FILE_ARMS]  # set up from opnet-cell's files
     earlier = [{**r, "refine": f"{r['refine']} ({label})"}
                for name, label in (("first", "first scoring, earlier speed settings"), ("second", "second scoring"))
@@ -343,7 +344,7 @@ def block_cells(results: Path, prefix: str = "") -> str:
              f"{100 * float(r['found']):.1f}", f"{100 * float(r['found_of_all']):.1f}" if r.get("found_of_all") else "–",
              f"{float(r['ms_per_frame']):.0f}" if r["ms_per_frame"] else "–"]
             for r in [*_csv(results / "cells" / "cells.csv"), *earlier, *(_csv(real) if real.is_file() else []),
-                      *(_csv(one_command) if one_command.is_file() else []), *(r for path in cell_files if path.is_file() for r in _csv(path))]]
+                      *(r for path in one_command if path.is_file() for r in _csv(path)), *(r for path in cell_files if path.is_file() for r in _csv(path))]]
     return _table(["input (data.roi)", "model", "basket", "refine", "frames", "**AP**", "found %",
                    "found % of the frame's parts", "refine ms / frame"], rows) + "\n"
 

@@ -90,3 +90,21 @@ def test_a_cell_file_model_is_scored_on_the_same_piles_written_within_its_own_pl
 
     assert (read_camera_file(calls[0][0]).clip_start, read_camera_file(calls[0][0]).clip_end) == cells.CLIP
     assert (read_camera_file(calls[-1][0]).clip_start, read_camera_file(calls[-1][0]).clip_end) == own
+
+
+def test_the_one_command_leaves_the_steps_to_the_recipe_and_is_scored_with_the_refinement_it_records(
+        shared: Path) -> None:  # fmt: skip
+    # the shipped model is the one command as a user runs it: no steps given, so the flat plate trains the flat
+    # part's steps and records its search; the study scores it with that search too
+    from opnet.cli.sizing import settings_for_flat_part
+    from opnet.cli.train import plain
+    from opnet.objects.config import object_from_config
+    from opnet.studies import compose_train
+
+    given = cells.cell_overrides(200, 2, 0.5, None)
+    assert not any(o.startswith("trainer.max_steps") for o in given)
+    assert "trainer.max_steps=3000" in cells.cell_overrides(200, 2, 0.5, 3000)
+    cfg = compose_train(given)
+    assert settings_for_flat_part(cfg, object_from_config(plain(cfg.object)).mesh) is not None
+    assert cfg.trainer.max_steps == cfg.flat_part.max_steps and cfg.deploy_refine == cells.CELL_REFINE
+    assert cells.CELL_ARM in cells.REFINE_OF[cells.CELL_REFINE]

@@ -284,8 +284,9 @@ def score_real_frames(run_dir: Path) -> int:
 
         shutil.copyfile(ckpt, shipped)
     ckpt = shipped
-    rows = score_real(ckpt, run_dir, CLIP, policy, [r for r in REFINE if r not in REFINE_OF])
-    stages = (json.loads((run_dir / "eval_real" / RECIPE_REFINE / "summary.json").read_text()).get("icp") or {}) \
+    rows = score_real(ckpt, run_dir, CLIP, policy, [r for r in REFINE if run_dir.name in REFINE_OF.get(r, (run_dir.name,))])
+    recorded = CELL_REFINE if one_command else RECIPE_REFINE
+    stages = (json.loads((run_dir / "eval_real" / recorded / "summary.json").read_text()).get("icp") or {}) \
         .get("ms_per_image_by_stage", {})  # fmt: skip
     head = ["# The real frames, scored by the cell recipe", "",
             f"`python scripts/experiments/cells/cells.py --stage real --real-arm {run_dir.name}` (every setting fixed on "
@@ -298,7 +299,7 @@ def score_real_frames(run_dir: Path) -> int:
             "(cell_first_scoring.md); its present ones, before `search_fast` existed: [cell_second_scoring.md]"
             "(cell_second_scoring.md)), then here, after the refinement was made faster; no setting was chosen on "
             "these frames.", ""]  # fmt: skip
-    notes = ["", f"`{RECIPE_REFINE}`'s milliseconds per frame by stage: " + ", ".join(f"{k} {v:.0f}" for k, v in stages.items())
+    notes = ["", f"`{recorded}`'s milliseconds per frame by stage: " + ", ".join(f"{k} {v:.0f}" for k, v in stages.items())
              + " (scene: the depth as points; icp: ICP of every hypothesis; search: the turn search of all of them; "
              "polish: ICP of the searched poses; rank: agreement and duplicates; a stage's time is its slowest "
              "thread's)."] if stages else []  # fmt: skip
@@ -310,9 +311,11 @@ def score_real_frames(run_dir: Path) -> int:
                 "experiment=cell` with the camera's own file, its pose, the working volume and area, the basket and its "
                 "three perforations as bin models; results/cells/README.md), nothing changed after it ran. The three "
                 "Photoneo frames of IPD object 18, official `visib_fract`, the whole frame given: the ROI, the clip "
-                f"planes and the refinement (`{RECIPE_REFINE}`, which eval.py runs by default) are the checkpoint's. "
-                "The frames' fourth scoring: the first three scored the study's own training of the same recipe "
-                "([cell.md](cell.md)); no setting was chosen on them.", ""]  # fmt: skip
+                f"planes and the refinement (`{CELL_REFINE}`, which eval.py runs by default) are the checkpoint's. "
+                "The model is the flat part's recipe (the grid sized to the plate, 6000 steps, threshold 0.05, "
+                "`search_flat`: results/flat_parts); the one it replaced (grid 16, 3000 steps, `search_fast`) scored "
+                "these frames before it ([cell_one_command_grid16.md](cell_one_command_grid16.md)). No setting was "
+                "chosen on them.", ""]  # fmt: skip
     write_table(REPO_ROOT / "results" / "real_ipd" / f"{stem}.csv", rows, head,
                 ("refine", "scenes", "required", "ap", "found", "t_err_mm_p50", "r_err_deg_p50", "ms_per_frame"))
     with (REPO_ROOT / "results" / "real_ipd" / f"{stem}.md").open("a") as f:
@@ -399,7 +402,11 @@ CELL_ARM = "cell"
 #: run name -> cell name
 CELL_FILE_ARMS = {"cell_ipd": "ipd", "cell_ipd_area": "ipd_area"}
 #: the refinements a model is scored with: search_flat only where the model records it (a flat part's recipe)
-REFINE_OF = {"search_flat": tuple(CELL_FILE_ARMS)}
+REFINE_OF = {"search_flat": (CELL_ARM, *CELL_FILE_ARMS)}
+#: the refinement the one command's model records (experiment=cell, a flat part: search_flat)
+CELL_REFINE = "search_flat"
+#: the shipped one-command model's name in the tables; the model it replaced keeps its rows under its own
+CELL_MODEL_LABEL = "models/real_ipd_plate.ckpt (experiment=cell, the flat part's recipe, seed 0)"
 
 
 def cell_file_clip(name: str) -> tuple[float, float]:
@@ -437,7 +444,12 @@ def perforations() -> str:
     return f"scene.bin_models=[{models}]"
 
 
-def cell_overrides(cycles: int, views: int, scale: float, steps: int) -> list[str]:
+def _steps(steps: int | None) -> list[str]:
+    """The training steps when given; None: the recipe's own (experiment=cell trains a flat part twice as long)."""
+    return [] if steps is None else [f"trainer.max_steps={steps}"]
+
+
+def cell_overrides(cycles: int, views: int, scale: float, steps: int | None) -> list[str]:
     """``python train.py experiment=cell`` for this cell as a user gives it: the camera's own file, its pose,
     the working volume and area, the basket's sizes and its three perforations as bin models, the ROI policy;
     the rest is the experiment's (its recorded refinement included)."""
@@ -446,21 +458,21 @@ def cell_overrides(cycles: int, views: int, scale: float, steps: int) -> list[st
             f"scene.camera_scale={scale:g}", f"scene.clip=[{CLIP[0]},{CLIP[1]}]",
             *(f"scene.{k}={v}" for k, v in CAMERA_POSE.items()), f"scene.bin_area=[{','.join(map(str, AREA))}]",
             *(f"scene.{k}={BASKET[k]}" for k in basket), perforations(), f"data.roi=auto:{roi_side():g}",
-            f"data.generate.cycles={cycles}", f"scene.views={views}", f"trainer.max_steps={steps}",
+            f"data.generate.cycles={cycles}", f"scene.views={views}", *_steps(steps),
             "trainer.enable_progress_bar=false"]  # fmt: skip
 
 
-def cell_file_overrides(name: str, cycles: int, views: int, scale: float, steps: int) -> list[str]:
+def cell_file_overrides(name: str, cycles: int, views: int, scale: float, steps: int | None) -> list[str]:
     """``python train.py experiment=cell cell=<name>`` as a user runs it after ``opnet-cell``: every measured key
     (the camera and its pose, the working volume and area, the basket's sizes, the crop side, the sensor preset)
     from the cell file; given as in :func:`cell_overrides` only what a depth frame does not show (the basket's
     three perforations) and the budget (cycles, views, the rendering scale, the steps)."""
     return ["experiment=cell", f"cell={name}", "object=ipd_plate", f"scene.camera_scale={scale:g}", perforations(),
             f"data.generate.cycles={cycles}", f"scene.views={views}",
-            f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false"]  # fmt: skip
+            *_steps(steps), "trainer.enable_progress_bar=false"]  # fmt: skip
 
 
-def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int, cell_file: str | None = None) -> Path:
+def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int | None, cell_file: str | None = None) -> Path:
     """The one command for the cell (generates its piles, trains, records the ROI policy, clip planes and
     refinement in the checkpoint), its best checkpoint shipped as ``models/real_ipd_plate.ckpt``."""
     import shutil
@@ -478,6 +490,10 @@ def train_cell(runs: Path, cycles: int, views: int, scale: float, steps: int, ce
         return ckpt
     shutil.copyfile(ckpt, CELL_MODEL)
     return CELL_MODEL
+
+
+#: the study's arms' training steps (the earlier recipe's)
+ARM_STEPS = 3000
 
 
 def train_arm(arm: str, train_sets: list, runs: Path, steps: int) -> None:
@@ -508,7 +524,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rescore", action="store_true", help="--stage eval: score again what was scored before")
     ap.add_argument("--refine", nargs="+", default=list(REFINE), choices=list(REFINE),
                     help="--stage cell / eval: the refinements to score with (default: all)")
-    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--steps", type=int, default=None,
+                    help=f"training steps (default: the study's arms {ARM_STEPS}; --stage cell: the recipe's own)")
     ap.add_argument("--scale", type=float, default=0.5, help="the training piles' resolution, x the camera's")
     ap.add_argument("--data-dir", type=Path, default=REPO_ROOT / "outputs" / "data" / "cells")
     ap.add_argument("--runs", type=Path, default=REPO_ROOT / "outputs" / "cells")
@@ -535,7 +552,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"generated in {(time.perf_counter() - started) / 60:.1f} min", flush=True)
     if args.stage in ("all", "train"):
         for arm in args.arms:
-            train_arm(arm, train_sets, args.runs, args.steps)
+            train_arm(arm, train_sets, args.runs, args.steps or ARM_STEPS)
     if args.stage in ("all", "cell"):
         train_cell(args.runs, args.cycles, args.views, args.scale, args.steps, args.cell_file)
     if args.stage in ("all", "cell", "eval"):
@@ -571,7 +588,7 @@ def main(argv: list[str] | None = None) -> int:
             for refine in REFINE:
                 summary = args.runs / "eval_generated" / f"{arm}_{placement}_{refine}{suffix}" / "summary.json"
                 model = {OLD_ARM: "models/fixed_box_ipd_plate.ckpt",
-                         CELL_ARM: "models/real_ipd_plate.ckpt (experiment=cell, input 128, seed 0)",
+                         CELL_ARM: CELL_MODEL_LABEL,
                          **{a: f"{a} (experiment=cell cell={n}, seed 0)" for a, n in CELL_FILE_ARMS.items()}}.get(arm) or \
                     f"{arm} (input {ARMS[arm]['input']}, seed {ARMS[arm]['seed']})"
                 model += f", piles within its planes {clip[0]:g}-{clip[1]:g} m" if suffix else ""
@@ -581,17 +598,22 @@ def main(argv: list[str] | None = None) -> int:
                     rows[-1]["found_of_all"] = round(rows[-1]["matched"] / max(whole[placement], 1), 4)
                 elif (model, placement, refine) in kept:
                     rows.append(kept[(model, placement, refine)])
+    # a model no longer made here (the one command's before the flat part's recipe) keeps its published rows
+    made_here = {(r["model"], r["placement"], r["refine"]) for r in rows}
+    rows += [r for k, r in kept.items() if k not in made_here]
     notes = ["Models: trained on piles whose basket stands anywhere in the working area (" f"{args.cycles} cycles, "
              f"{args.views} views per pile, three perforations, rendered at {args.scale:g} x the camera's pixels; EVE, "
-             f"small preset, {args.steps} steps). `auto:S`: the network's input is a square of S m at the basket's "
+             f"small preset, {args.steps or ARM_STEPS} steps). `auto:S`: the network's input is a square of S m at the basket's "
              "depth centred on the basket found in each image (`data.roi`, opnet.data.bin_finder); `working area`: "
              "the whole frame (here the working area is most of it) at the input size given. "
              f"`models/fixed_box_ipd_plate.ckpt`: the earlier recipe's model (the basket within 4 cm of the aim point "
              f"in training) with its fixed box {list(OLD_ROI)}. `models/real_ipd_plate.ckpt`: the one command for "
              "the cell (`--stage cell`: `python train.py experiment=cell` with the camera's own file rendered at "
              f"`scene.camera_scale={args.scale:g}`, its pose, the working volume and area, the basket's sizes and its "
-             "three perforations as `scene.bin_models` of one dataset, `data.roi=auto:S`; it records its "
-             "refinement, `search_fast`, which eval.py runs by default). `search`: `refine=search +decoding.averaging=false`; "
+             "three perforations as `scene.bin_models` of one dataset, `data.roi=auto:S`; the flat part's recipe: the "
+             "grid sized to the plate, 6000 steps, threshold 0.05; it records its refinement, `search_flat`, which "
+             "eval.py runs by default). The model it replaced (`earlier models/real_ipd_plate.ckpt`: grid 16, 3000 "
+             "steps, `search_fast` recorded) keeps its rows. `search`: `refine=search +decoding.averaging=false`; "
              "`search_fast` (the recipe's): `refine=search_fast +decoding.averaging=false`, the first ICP projective "
              "and ICP stopping sooner (docs/deployment.md). The `search` rows' ms/frame are from the refinement's "
              "code when they were scored (seed 0's fixed-box and whole-frame rows the oldest); `search_fast`'s from "
