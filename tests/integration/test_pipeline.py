@@ -284,7 +284,7 @@ def test_the_bin_finder_roi_is_trained_on_moved_bins_and_kept_by_the_checkpoint_
                                  bin_yaw_deg=[0.0, 90.0])  # fmt: skip
     out = tmp_path / "run"
     train_cli.run(_train_cfg(data, out, ["data.roi=auto:0.2", "test=false"]))
-    assert list(data.glob("cache_*_roiauto0.2_f2"))
+    assert list(data.glob("cache_*_roiauto0.2_f3"))
     ckpt = out / "checkpoints" / "last.ckpt"
     system = eval_cli.load_checkpoint(ckpt)[0]
     assert system.config["data"]["roi"] == "auto:0.2"

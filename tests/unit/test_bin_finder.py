@@ -125,3 +125,20 @@ def test_a_perforated_basket_counts_by_its_outline_against_a_solid_surface_in_th
     big = int(round(1.5 * side))
     depth[-big:, -big:] = z
     assert find_bin(depth, CAM, 0.75).centre[2] > centre[2] + 0.1
+
+
+def test_a_surface_wider_than_the_crop_gives_way_to_the_basket_however_large() -> None:
+    # the ground reaching into the working volume across the far side of the frame (a tilted camera), more
+    # surface than the basket's outline: a bin fits in its crop (auto:S), a band wider than S is no bin
+    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
+    z = CAM.clip_end - 0.03
+    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)
+    rows = int(math.ceil(2.0 * footprint / (CAM.width * z / CAM.fx) * CAM.fy / z))  # twice the outline's surface
+    depth[:rows] = z
+    assert rows * CAM.width * (z / CAM.fx) ** 2 > 1.9 * footprint and CAM.width * z / CAM.fx > 0.75
+    found = find_bin(depth, CAM, 0.75)
+    assert np.abs(found.centre[:2] - centre[:2]).max() < 0.015
+    # without a basket the band is what there is (the largest region stays): found, not refused
+    empty = np.full_like(depth, 2.4)
+    empty[:rows] = z
+    assert find_bin(empty, CAM, 0.75).centre[2] > centre[2] + 0.1

@@ -95,5 +95,5 @@ def test_cropped_datasets_keep_their_keys_and_cache_apart(scene: SceneRecord) ->
     wrapped = ROIScenes(Source([scene]), (10, 20, 110, 220))
     assert wrapped.scenes() == ["a"] and len(wrapped) == 1
     assert wrapped.camera == wrapped[0].camera and wrapped.camera.width == 100 and wrapped.camera.cx == CAM.cx - 10
-    assert roi_tag(None) == "" and roi_tag((10, 20, 110, 220)) == "_roi10-20-110-220" and roi_tag("auto") == "_roiauto_f2"
+    assert roi_tag(None) == "" and roi_tag((10, 20, 110, 220)) == "_roi10-20-110-220" and roi_tag("auto") == "_roiauto_f3"
     assert parse_roi("10,20,110,220") == (10, 20, 110, 220)

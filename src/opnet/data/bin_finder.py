@@ -19,7 +19,9 @@ The bin's region, for both, is the largest connected region of working-volume de
 of a wire basket's holes and the sensor's dropouts (3 cm) and opening away what is thinner than 8 cm (bars of
 the cell, cables, a neighbour's rim touching the bin), measured by the surface it covers with the gaps closed
 (a perforated floor by its outline: by its bars alone, a floor reaching into the volume at the far side of a
-tilted camera outweighed it); ``auto:S`` then centres on that region alone.
+tilted camera outweighed it); with ``auto:S`` a region wider than S (the bin fits in its crop), a floor
+reaching into the volume across the frame, gives way to the largest region that fits. ``auto:S`` then
+centres on that region alone.
 
 Both look at the image subsampled to about :data:`GRID_PIXELS` pixels a side (fast on 2-megapixel frames)
 and raise :class:`NoBinError` (one line, naming the frame) where the clip planes hold no bin. NumPy and OpenCV
@@ -50,6 +52,12 @@ MIN_FILL = 0.005
 CLOSE_M = 0.03
 #: what is thinner than this is opened away from the bin's region (bars, cables), metres
 OPEN_M = 0.08
+#: a region that fits in the crop (auto:S) wins over a larger one that does not where it covers at least
+#: this share of the crop's area (a bin's outline fills about a third of a square 1.1 x its diagonal; what
+#: covers less is no bin, and the largest region stays)
+MIN_FIT_SHARE = 0.05
+#: regions tried, largest first, after the largest
+MAX_REGIONS = 8
 #: margin of the connected-region box, share of the image's longer side
 REGION_MARGIN = 0.02
 Box = tuple[int, int, int, int]
@@ -101,16 +109,27 @@ def find_bin(depth: np.ndarray, camera: Camera, side: float | None, where: str =
     ok = np.isfinite(d)
     if ok.sum() < 16:
         raise _no_bin(where, frame, f"{int(ok.sum())} of {d.size} sampled pixels in the working volume")
-    sel = _largest_region(d, ok, camera.fx / float(np.median(d[ok])) / s)
+    fit = None if side is None else (_metric_xy(d, u, v, camera), float(side), s / camera.fx)
+    sel = _largest_region(d, ok, camera.fx / float(np.median(d[ok])) / s, fit)
     if side is None:
         return _region(d, sel, u, v, s, camera)
     return _centred(d, sel, u, v, s, camera, float(side), where, frame)
 
 
-def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float) -> np.ndarray:
+def _metric_xy(d: np.ndarray, u: np.ndarray, v: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Camera x and y (metres) of every sample (h, w); NaN where the depth is."""
+    return (u[None, :] - camera.cx) * d / camera.fx, (v[:, None] - camera.cy) * d / camera.fy
+
+
+def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float,
+                    fit: tuple[tuple[np.ndarray, np.ndarray], float, float] | None = None) -> np.ndarray:  # fmt: skip
     """The samples (h, w) bool of the largest connected region (by surface) of working-volume depth, after
     closing gaps up to :data:`CLOSE_M` (a wire basket's holes, the sensor's dropouts) and opening away what
-    is thinner than :data:`OPEN_M` (bars of the cell, cables, a neighbour's rim touching the bin)."""
+    is thinner than :data:`OPEN_M` (bars of the cell, cables, a neighbour's rim touching the bin). With
+    ``fit`` (the samples' camera x and y, the crop's side S and a sample's side per metre of depth), a region
+    wider than S (the bin fits in its crop) gives way to the largest one that fits, where that one covers at
+    least :data:`MIN_FIT_SHARE` of S x S: a floor or table reaching into the volume across the frame is no
+    bin, however large."""
 
     def kernel(metres: float) -> np.ndarray:
         k = int(min(max(3, metres * px_per_m), max(3, min(d.shape) // 8)))
@@ -130,7 +149,25 @@ def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float) -> np.ndarra
     depth2 = np.bincount(ids, weights=z2, minlength=n) / np.maximum(seen, 1.0)  # mean z^2 of the seen samples
     area = np.bincount(ids, minlength=n) * depth2
     area[0] = 0.0
-    return (labels == int(np.argmax(area))) & ok
+    best = int(np.argmax(area))
+    if fit is not None:
+        xy, side, sample_m = fit
+        for label in np.argsort(-area)[: 1 + MAX_REGIONS]:
+            if area[label] * sample_m**2 < MIN_FIT_SHARE * side * side:
+                break  # this one and the rest are too small to be the bin: the largest stays
+            if _fits(labels == label, ok, xy, side):
+                best = int(label)
+                break
+    return (labels == best) & ok
+
+
+def _fits(region: np.ndarray, ok: np.ndarray, xy: tuple[np.ndarray, np.ndarray], side: float) -> bool:
+    """Whether the region's seen samples span at most ``side`` in camera x and in camera y (1st to 99th
+    percentile: a few stray samples do not widen it)."""
+    seen = region & ok
+    if seen.sum() < 4:
+        return False
+    return all(float(np.subtract(*np.percentile(c[seen], [99.0, 1.0]))) <= side for c in xy)
 
 
 def _region(d: np.ndarray, sel: np.ndarray, u: np.ndarray, v: np.ndarray, s: int, camera: Camera) -> FoundBin:

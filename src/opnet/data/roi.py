@@ -106,8 +106,8 @@ def crop_record(record: Any, roi: Box | str | None) -> Any:
 
 
 #: the bin finder's revision, in the tag of ``auto`` crops: a cache of crops an earlier finder made is not
-#: reused (2: a perforated basket counts by its outline)
-FINDER_REVISION = 2
+#: reused (2: a perforated basket counts by its outline; 3: with auto:S, a region wider than S is no bin)
+FINDER_REVISION = 3
 
 
 def roi_tag(roi: Box | str | None) -> str:
