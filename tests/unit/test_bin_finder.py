@@ -142,3 +142,14 @@ def test_a_surface_wider_than_the_crop_gives_way_to_the_basket_however_large() -
     empty = np.full_like(depth, 2.4)
     empty[:rows] = z
     assert find_bin(empty, CAM, 0.75).centre[2] > centre[2] + 0.1
+
+
+def test_of_a_basket_and_a_patch_of_floor_about_as_large_the_nearer_is_the_bin() -> None:
+    # a compact patch of the floor at the far plane with a little more surface than the basket's outline (the
+    # basket at the far side of a tilted camera): the bin stands above the floor, nearer the camera
+    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
+    z = CAM.clip_end - 0.03
+    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)
+    side = int(round(math.sqrt(1.15 * footprint) * CAM.fx / z))
+    depth[-side:, -side:] = z
+    assert np.abs(find_bin(depth, CAM, 0.75).centre[:2] - centre[:2]).max() < 0.015

@@ -20,8 +20,9 @@ of a wire basket's holes and the sensor's dropouts (3 cm) and opening away what 
 the cell, cables, a neighbour's rim touching the bin), measured by the surface it covers with the gaps closed
 (a perforated floor by its outline: by its bars alone, a floor reaching into the volume at the far side of a
 tilted camera outweighed it); with ``auto:S`` a region wider than S (the bin fits in its crop), a floor
-reaching into the volume across the frame, gives way to the largest region that fits. ``auto:S`` then
-centres on that region alone.
+reaching into the volume across the frame, gives way to the largest region that fits, and of fitting
+regions about as large the nearer is the bin (it stands above the floor, whose patch in the volume lies at
+the far plane). ``auto:S`` then centres on that region alone.
 
 Both look at the image subsampled to about :data:`GRID_PIXELS` pixels a side (fast on 2-megapixel frames)
 and raise :class:`NoBinError` (one line, naming the frame) where the clip planes hold no bin. NumPy and OpenCV
@@ -56,6 +57,8 @@ OPEN_M = 0.08
 #: this share of the crop's area (a bin's outline fills about a third of a square 1.1 x its diagonal; what
 #: covers less is no bin, and the largest region stays)
 MIN_FIT_SHARE = 0.05
+#: of fitting regions with at least this share of the largest fitting one's surface, the nearest is the bin
+NEAR_TIE = 0.75
 #: regions tried, largest first, after the largest
 MAX_REGIONS = 8
 #: margin of the connected-region box, share of the image's longer side
@@ -152,12 +155,13 @@ def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float,
     best = int(np.argmax(area))
     if fit is not None:
         xy, side, sample_m = fit
-        for label in np.argsort(-area)[: 1 + MAX_REGIONS]:
-            if area[label] * sample_m**2 < MIN_FIT_SHARE * side * side:
-                break  # this one and the rest are too small to be the bin: the largest stays
-            if _fits(labels == label, ok, xy, side):
-                best = int(label)
-                break
+        fitting = [int(label) for label in np.argsort(-area)[: 1 + MAX_REGIONS]
+                   if area[label] * sample_m**2 >= MIN_FIT_SHARE * side * side and _fits(labels == label, ok, xy, side)]
+        if fitting:  # else none is the bin's size: the largest stays
+            # of regions about as large, the nearest: the bin stands above the floor, whose patch reaching
+            # into the volume lies at its far plane
+            near = [label for label in fitting if area[label] >= NEAR_TIE * area[fitting[0]]]
+            best = min(near, key=lambda label: float(np.median(d[(labels == label) & ok])))
     return (labels == best) & ok
 
 

@@ -106,7 +106,8 @@ def crop_record(record: Any, roi: Box | str | None) -> Any:
 
 
 #: the bin finder's revision, in the tag of ``auto`` crops: a cache of crops an earlier finder made is not
-#: reused (2: a perforated basket counts by its outline; 3: with auto:S, a region wider than S is no bin)
+#: reused (2: a perforated basket counts by its outline; 3: with auto:S, a region wider than S is no bin, and of
+#: regions about as large the nearer is)
 FINDER_REVISION = 3
 
 
