@@ -637,7 +637,7 @@ def main(argv: list[str] | None = None) -> int:
                  "as the cell's frames reach it. `cell_ipd` was trained with the earlier bin finder, which counted a "
                  "perforated basket by its bars alone: within a cell file's wider volume the ground under the stand, "
                  "reaching into it at the tilted camera's far side, outweighed the basket (75 % of `cell_ipd_area`'s "
-                 "training frames before, 4 % since); `cell_ipd_area` is re-made with today's finder.")
+                 "training frames before, 4 % after it counted the outline, none since a region wider than the crop, or a patch of floor beyond a region about as large, gives way); `cell_ipd_area` was re-made with the outline rule (crops `_f2`).")
     notes.insert(1, "`found % of the frame's parts`: matched parts over every part the metric requires in the whole "
                  "frames (visibility >= 0.5). A fixed box's own `required`, `found` and AP count only the parts "
                  "inside it (the crop scales each part's visibility by its share inside), so where the basket moved "
