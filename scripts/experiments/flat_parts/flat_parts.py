@@ -394,7 +394,10 @@ NOTES = [
     "- *Grid* (kept; chosen on val): the plate's D spans 3.5 cells of the recipe's 16 over the 0.8 m crop; at "
     "`parameterization.grid=32` (7 cells, the same 128-pixel input and budget) the plate's AP as decoded is "
     "0.341 ± 0.029 on val (base 0.081 ± 0.031) and 0.316 ± 0.015 held-out (base 0.082 ± 0.024), 2 seeds. The cell "
-    "recipe sizes its grid to the part (`part_cells: 5` in `experiment=cell`; `part_cells=null`: the grid as given).",
+    "recipe sizes its grid to the part (`part_cells: 5` in `experiment=cell`; `part_cells=null`: the grid as given). "
+    "On the ITODD parts, which the new-parts recipe already frames at about 5.6 cells of 16, grid 32 (seed 0, the "
+    "same piles and budget) gains nothing: ITODD 08 0.253 against 0.256, ITODD 27 0.372 against 0.445 as decoded. "
+    "More cells help a part that spans too few, not one that spans five.",
     "- *Steps* (on top of grid 32): twice the steps (`g32_s6000`, 6000, the cosine schedule stretched over them; "
     "3 seeds) lift the plate as decoded to 0.435 ± 0.024 on val and 0.416 ± 0.014 held-out (grid 32 at 3000, 2 "
     "seeds: 0.341 / 0.316), found 52 % (54 %), and with the recorded search to 0.663 / 0.610. The in-training AP "
