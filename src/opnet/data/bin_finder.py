@@ -132,7 +132,8 @@ def _largest_region(d: np.ndarray, ok: np.ndarray, px_per_m: float,
     ``fit`` (the samples' camera x and y, the crop's side S and a sample's side per metre of depth), a region
     wider than S (the bin fits in its crop) gives way to the largest one that fits, where that one covers at
     least :data:`MIN_FIT_SHARE` of S x S: a floor or table reaching into the volume across the frame is no
-    bin, however large."""
+    bin, however large; and of fitting regions with :data:`NEAR_TIE` of the largest fitting one's surface, the
+    nearest (median depth) is the bin. Where none fits, the largest region stays."""
 
     def kernel(metres: float) -> np.ndarray:
         k = int(min(max(3, metres * px_per_m), max(3, min(d.shape) // 8)))
