@@ -110,13 +110,19 @@ def test_an_auto_square_of_fewer_pixels_than_the_network_needs_is_refused_before
     assert resolve_box(parse_roi("auto:0.06"), depth, CAM)[2] > 0  # 19 pixels: taken
 
 
+def _basket_and_far_plane() -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The basket alone (no bar), its centre, a depth just inside the far plane (where a floor reaching into
+    the working volume lies) and the basket's outline, m^2."""
+    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
+    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)
+    return depth, centre, CAM.clip_end - 0.03, footprint
+
+
 @pytest.mark.parametrize("share", [0.8, 0.95])
 def test_a_perforated_basket_counts_by_its_outline_against_a_solid_surface_in_the_volume(share: float) -> None:
     # a floor or table reaching into the working volume at a corner of the frame (a tilted camera's far side),
     # solid, a little smaller than the basket's outline but larger than its bars: the basket is the bin
-    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
-    z = CAM.clip_end - 0.03
-    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)  # the basket's outline, m^2
+    depth, centre, z, footprint = _basket_and_far_plane()
     side = int(round(math.sqrt(share * footprint) * CAM.fx / z))
     depth[-side:, -side:] = z
     found = find_bin(depth, CAM, 0.75)
@@ -130,9 +136,7 @@ def test_a_perforated_basket_counts_by_its_outline_against_a_solid_surface_in_th
 def test_a_surface_wider_than_the_crop_gives_way_to_the_basket_however_large() -> None:
     # the ground reaching into the working volume across the far side of the frame (a tilted camera), more
     # surface than the basket's outline: a bin fits in its crop (auto:S), a band wider than S is no bin
-    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
-    z = CAM.clip_end - 0.03
-    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)
+    depth, centre, z, footprint = _basket_and_far_plane()
     rows = int(math.ceil(2.0 * footprint / (CAM.width * z / CAM.fx) * CAM.fy / z))  # twice the outline's surface
     depth[:rows] = z
     assert rows * CAM.width * (z / CAM.fx) ** 2 > 1.9 * footprint and CAM.width * z / CAM.fx > 0.75
@@ -147,9 +151,7 @@ def test_a_surface_wider_than_the_crop_gives_way_to_the_basket_however_large() -
 def test_of_a_basket_and_a_patch_of_floor_about_as_large_the_nearer_is_the_bin() -> None:
     # a compact patch of the floor at the far plane with a little more surface than the basket's outline (the
     # basket at the far side of a tilted camera): the bin stands above the floor, nearer the camera
-    depth, centre = _frame(0.0, 0.0, 0.0, distractor=False)
-    z = CAM.clip_end - 0.03
-    footprint = math.prod(side + 2 * BASKET.thickness for side in BASKET.sides)
+    depth, centre, z, footprint = _basket_and_far_plane()
     side = int(round(math.sqrt(1.15 * footprint) * CAM.fx / z))
     depth[-side:, -side:] = z
     assert np.abs(find_bin(depth, CAM, 0.75).centre[:2] - centre[:2]).max() < 0.015

@@ -112,11 +112,11 @@ def find_bin(depth: np.ndarray, camera: Camera, side: float | None, where: str =
     ok = np.isfinite(d)
     if ok.sum() < 16:
         raise _no_bin(where, frame, f"{int(ok.sum())} of {d.size} sampled pixels in the working volume")
-    fit = None if side is None else (_metric_xy(d, u, v, camera), float(side), s / camera.fx)
-    sel = _largest_region(d, ok, camera.fx / float(np.median(d[ok])) / s, fit)
     if side is None:
-        return _region(d, sel, u, v, s, camera)
-    return _centred(d, sel, u, v, s, camera, float(side), where, frame)
+        return _region(d, _largest_region(d, ok, camera.fx / float(np.median(d[ok])) / s), u, v, s, camera)
+    xy = _metric_xy(d, u, v, camera)
+    sel = _largest_region(d, ok, camera.fx / float(np.median(d[ok])) / s, (xy, float(side), s / camera.fx))
+    return _centred(d, sel, xy, s, camera, float(side), where, frame)
 
 
 def _metric_xy(d: np.ndarray, u: np.ndarray, v: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -188,17 +188,17 @@ def _region(d: np.ndarray, sel: np.ndarray, u: np.ndarray, v: np.ndarray, s: int
     return FoundBin(centre, (max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)))
 
 
-def _centred(d: np.ndarray, sel: np.ndarray, u: np.ndarray, v: np.ndarray, s: int, camera: Camera, side: float,
-             where: str, frame: str | None) -> FoundBin:  # fmt: skip
+def _centred(d: np.ndarray, sel: np.ndarray, xy: tuple[np.ndarray, np.ndarray], s: int, camera: Camera,
+             side: float, where: str, frame: str | None) -> FoundBin:  # fmt: skip
     """The square box of ``side`` metres centred on the bin: the plateau of the best windows over the
-    region's points (a window the whole region fits in slides over it without changing its sum)."""
+    region's points (``xy``: every sample's camera x and y; a window the whole region fits in slides over it
+    without changing its sum)."""
     z = d[sel]
     pixels = side * min(camera.fx, camera.fy) / float(np.median(z))
     if pixels < MIN_BOX_SIDE:  # before the search, whose grid grows as the square shrinks
         raise ValueError(f"{where}: the {side:g} m square spans {pixels:.1f} pixels at the bin's depth "
                          f"({float(np.median(z)):.2f} m); the network needs at least {MIN_BOX_SIDE} a side: a larger S")
-    x = (np.broadcast_to(u, d.shape)[sel] - camera.cx) * z / camera.fx
-    y = (np.broadcast_to(v[:, None], d.shape)[sel] - camera.cy) * z / camera.fy
+    x, y = xy[0][sel], xy[1][sel]
     area = (s * z) ** 2 / (camera.fx * camera.fy)  # the surface each sample stands for, m^2 (facing the camera)
     k = WINDOW_CELLS
     cell = side / k
