@@ -41,6 +41,11 @@
 #      parameterization x 3 seeds, 1350 steps each, ARMS_JOBS = 18 at once on the one GPU, each tuned on its validation
 #      split; scripts/experiments/table1/table1.py --jobs) -> arms_<object>.tar.gz, which `scripts/experiments/table1/table1.py --collect --runs-dir <the
 #      unpacked folder> --objects <object>` turns into a table here.
+#   8. budget, when CELL_DATA is given: experiment=cell at CELL_MULTIPLES (1 2 4) times its steps, all at once
+#      (scripts/experiments/cells/cells.py --stage budget), stopped within CELL_S (480 s) -> budget_x<m>.ckpt (each
+#      budget's best) and budget.tar.gz (learning curves, configs, consoles), which `cells.py --stage budget-report`
+#      scores here (results/cells/budget.md). CELL_DATA: the cell's training piles packed by `carry_dataset.py
+#      pack-cache` as <dataset>.tar.xz; CELL_SHARED: the reference-data folder with the cell's camera and mesh.
 # ONLY="install unpack arms" (step names, a prefix before "_" included) runs just those steps.
 # Files written (at most 8, for $OUT): gpu_check.log (the tests' output included), summary.md, latency.csv,
 # infer.csv, train_throughput.csv, quickstart.csv, table1.csv. The exit status is the number of failed steps.
@@ -482,6 +487,43 @@ if [ -n "${ARMS_DATA:-}" ]; then
             | tar czf "$DEST/arms_$ARMS_OBJECT.tar.gz" -T -)
         say "arms: $(find "$ARMS_RUNS" -path '*/test/summary.json' | wc -l) arm(s) scored -> arms_$ARMS_OBJECT.tar.gz"
     fi
+fi
+
+# ---- 8. budget: the cell's one command at several times its steps (cells.py --stage budget), all at once ---------
+# CELL_DATA: its training piles with their scene cache (a carry_dataset.py pack-cache archive named as the dataset,
+# <dataset>.tar.xz, unpacked into a folder of that name, or the folder);
+# CELL_SHARED: the reference-data folder (OPNET_SHARED) holding data/ipd_real_obj18: the camera file and the mesh.
+# Each budget's best checkpoint comes back as budget_x<m>.ckpt, the runs' small files as budget.tar.gz; then, here:
+# `cells.py --stage budget-report --runs <the unpacked folder>` scores them on the test piles.
+if [ -n "${CELL_DATA:-}" ]; then
+    if [ -f "$CELL_DATA" ]; then
+        name=$(basename "$CELL_DATA" .tar.xz)
+        step unpack_cell 120 "$PY" scripts/dev/carry_dataset.py unpack "$CELL_DATA" "$WORK/cell_data/$name"
+        CELL_DATA=$WORK/cell_data/$name
+    fi
+    CELL_S=${CELL_S:-480}
+    if [ "$MODE" = gpu ]; then  # fitting stops 60 s before the step's limit, so that every budget saves its best
+        read -r -a multiples <<<"${CELL_MULTIPLES:-1 2 4}"
+        CELL_EXTRA=(trainer=gpu "+trainer.max_time=\"$(max_time $((CELL_S - 60)))\""
+                    "data.num_workers=$(((${CELL_CORES:-16} - ${#multiples[@]}) / ${#multiples[@]}))")
+    else  # six steps of each budget on the first two piles (epochs of three steps: each validates, then saves)
+        CELL_EXTRA=(trainer.max_steps=6 +trainer.limit_val_batches=2 data.train_groups=2 data.num_workers=0
+                    data.cache_workers=1)
+        CELL_VAL_EVERY=${CELL_VAL_EVERY:-1}
+        read -r -a multiples <<<"${CELL_MULTIPLES:-1 2}"
+    fi
+    step budget "$CELL_S" env OPNET_SHARED="$(cd "${CELL_SHARED:?CELL_SHARED: the folder of the camera file and mesh of the cell}" && pwd)" \
+        "$PY" scripts/experiments/cells/cells.py --stage budget --multiples "${multiples[@]}" --jobs "${#multiples[@]}" \
+        --val-every "${CELL_VAL_EVERY:-2}" --runs "$WORK/cells" --extra "data.root=$CELL_DATA" data.generate=null \
+        data.check=off "${CELL_EXTRA[@]}"
+    for run in "$WORK"/cells/budget/x*; do
+        [ -d "$run" ] || continue
+        best=$("$PY" -c "import sys; from opnet.paths import best_checkpoint; print(best_checkpoint(sys.argv[1]) or '')" "$run")
+        [ -n "$best" ] && cp "$best" "$DEST/budget_$(basename "$run").ckpt"
+        say "budget $(basename "$run"): $(tail -n 1 "$run/learning_curve.csv" 2>/dev/null) best ${best##*/}"
+    done
+    [ -d "$WORK/cells/budget" ] && (cd "$WORK/cells" && find budget \( -path '*/.hydra/*' -o -name learning_curve.csv \
+        -o -name '*.log' \) -type f -print | tar czf "$DEST/budget.tar.gz" -T -)
 fi
 
 say "== done in $(elapsed) s of ${BUDGET_S}, ${FAILED} failed step(s); results in $DEST"

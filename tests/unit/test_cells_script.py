@@ -108,3 +108,66 @@ def test_the_one_command_leaves_the_steps_to_the_recipe_and_is_scored_with_the_r
     assert settings_for_flat_part(cfg, object_from_config(plain(cfg.object)).mesh) is not None
     assert cfg.trainer.max_steps == cfg.flat_part.max_steps and cfg.deploy_refine == cells.CELL_REFINE
     assert cells.CELL_ARM in cells.REFINE_OF[cells.CELL_REFINE]
+
+
+def test_the_budget_trains_the_recipe_at_each_multiple_of_its_steps_validating_as_often(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    import subprocess
+
+    from opnet.studies import compose_train
+
+    # the 1 x budget is the one command's own: experiment=cell's steps for a flat part
+    assert compose_train(cells.cell_overrides(200, 2, 0.5, None)).flat_part.max_steps == cells.RECIPE_STEPS
+    seen = []
+    monkeypatch.setattr(subprocess, "run", lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 0))
+    assert cells.train_budget(tmp_path, [1, 2, 4], 3, 200, 2, 0.5, ["trainer=gpu"], val_every=2) == []
+    by_dir = {Path(next(a for a in cmd if a.startswith("hydra.run.dir=")).split("=", 1)[1]).name: cmd for cmd in seen}
+    assert sorted(by_dir) == ["x1", "x2", "x4"]
+    for m in (1, 2, 4):
+        cmd = by_dir[f"x{m}"]
+        assert f"trainer.max_steps={cells.RECIPE_STEPS * m}" in cmd
+        assert f"trainer.check_val_every_n_epoch={2 * m}" in cmd
+        assert cmd.index("trainer=gpu") > cmd.index(f"trainer.max_steps={cells.RECIPE_STEPS * m}")  # extra comes last
+        cfg = compose_train([a for a in cmd[2:] if not a.startswith("hydra.")])
+        assert cfg.trainer.max_steps == cells.RECIPE_STEPS * m and cfg.trainer.accelerator == "gpu"
+
+
+def test_the_budget_page_scores_each_best_checkpoint_and_keeps_what_was_scored(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    import csv
+    import json
+
+    runs = tmp_path / "runs"
+    for m, aps in ((1, [0.2, 0.5, 0.4]), (2, [0.1, 0.3, 0.6])):
+        run = runs / "budget" / f"x{m}"
+        (run / "checkpoints").mkdir(parents=True)
+        (run / "checkpoints" / "epoch001-ap0.5000.ckpt").write_bytes(b"")
+        rows = [f"{k},{200 * m * (k + 1)},{k},0,{ap}," for k, ap in enumerate(aps)]
+        (run / "learning_curve.csv").write_text("epoch,step,train_minutes,images,val_ap,test_ap\n" + "\n".join(rows) + "\n")
+    summary = {"num_scenes": 3, "ap": 0.42, "diagnostics": {"to_find": 10, "matched": 5, "t_err_mm_p50": 2.0,
+                                                            "r_err_deg_p50": 3.0}}  # fmt: skip
+    scored = []
+
+    def evaluate(ckpt: Path, roots: list, out: Path, overrides: list) -> dict:
+        scored.append(out.name)
+        out.mkdir(parents=True)
+        (out / "summary.json").write_text(json.dumps(summary))
+        return summary
+
+    monkeypatch.setattr(cells, "evaluate", evaluate)
+    out = tmp_path / "results"
+    assert cells.budget_report(runs, tmp_path / "data", 200, 12, out, "here") == 0
+    assert len(scored) == 2 * len(cells.BUDGET_REFINES) * 2  # budgets x placements x refinements
+    rows = list(csv.DictReader((out / "budget.csv").open()))
+    best = {r["multiple"]: (r["best_val_ap"], r["best_step"], r["steps_done"]) for r in rows}
+    assert best == {"1": ("0.5", "400", "600"), "2": ("0.6", "1200", "1200")}
+    assert len(list(csv.DictReader((out / "budget_curve.csv").open()))) == 6
+    assert "| 2 x | 1200 of 12000 | 0.600 (1200) |" in (out / "budget.md").read_text()
+    scored.clear()
+    assert cells.budget_report(runs, tmp_path / "data", 200, 12, out, "here") == 0 and scored == []  # kept
+
+
+def test_a_budget_without_whole_numbers_is_one_line_exit_2(shared: Path, capsys: pytest.CaptureFixture) -> None:
+    assert cells.main(["--stage", "budget", "--jobs", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: --jobs 0") and "\n" not in err
