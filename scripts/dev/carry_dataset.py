@@ -19,10 +19,10 @@ files except its images, each kept with its modification time to the nanosecond.
 (``*.png``, which the cache holds already) come back as empty stand-ins of their size and
 modification time, what the cache's fingerprint reads, so the cache is opened as it is, but for the
 first image of each top-level folder (the first scene's, which the loader's checks read: whether the
-dataset has a segmentation); train with ``data.check=off`` there (the stand-ins have no image headers). Unpack into a folder of the dataset's
-own name (a reader may name the part by it, and the fingerprint holds that name). Other caches are
-left behind.
-``unpack`` tells the two kinds of archive apart.
+dataset has a segmentation). Train with ``data.check=off`` there (the stand-ins have no image
+headers), and unpack into a folder of the dataset's own name (a reader may name the part by it, and
+the fingerprint holds that name). Other caches are left behind. ``unpack`` tells the two kinds of
+archive apart; ``verify`` is for ``pack``'s.
 """
 
 from __future__ import annotations

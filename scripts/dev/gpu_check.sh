@@ -42,8 +42,8 @@
 #      split; scripts/experiments/table1/table1.py --jobs) -> arms_<object>.tar.gz, which `scripts/experiments/table1/table1.py --collect --runs-dir <the
 #      unpacked folder> --objects <object>` turns into a table here.
 #   8. budget, when CELL_DATA is given: experiment=cell at CELL_MULTIPLES (1 2 4) times its steps, all at once
-#      (scripts/experiments/cells/cells.py --stage budget), stopped within CELL_S (480 s) -> budget_x<m>.ckpt (each
-#      budget's best) and budget.tar.gz (learning curves, configs, consoles), which `cells.py --stage budget-report`
+#      (scripts/experiments/cells/cells.py --stage budget), stopped within CELL_S (480 s) -> budget_x<m>_<name>.ckpt
+#      (each budget's best) and budget.tar.gz (learning curves, configs, consoles), which `cells.py --stage budget-report --collect <dir>`
 #      scores here (results/cells/budget.md). CELL_DATA: the cell's training piles packed by `carry_dataset.py
 #      pack-cache` as <dataset>.tar.xz; CELL_SHARED: the reference-data folder with the cell's camera and mesh.
 # ONLY="install unpack arms" (step names, a prefix before "_" included) runs just those steps.
@@ -493,8 +493,8 @@ fi
 # CELL_DATA: its training piles with their scene cache (a carry_dataset.py pack-cache archive named as the dataset,
 # <dataset>.tar.xz, unpacked into a folder of that name, or the folder);
 # CELL_SHARED: the reference-data folder (OPNET_SHARED) holding data/ipd_real_obj18: the camera file and the mesh.
-# Each budget's best checkpoint comes back as budget_x<m>.ckpt, the runs' small files as budget.tar.gz; then, here:
-# `cells.py --stage budget-report --runs <the unpacked folder>` scores them on the test piles.
+# Each budget's best checkpoint comes back as budget_x<m>_<its name>, the runs' small files as budget.tar.gz; then,
+# here: `cells.py --stage budget-report --collect <the folder of those files>` scores them on the test piles.
 if [ -n "${CELL_DATA:-}" ]; then
     if [ -f "$CELL_DATA" ]; then
         name=$(basename "$CELL_DATA" .tar.xz)
@@ -519,7 +519,7 @@ if [ -n "${CELL_DATA:-}" ]; then
     for run in "$WORK"/cells/budget/x*; do
         [ -d "$run" ] || continue
         best=$("$PY" -c "import sys; from opnet.paths import best_checkpoint; print(best_checkpoint(sys.argv[1]) or '')" "$run")
-        [ -n "$best" ] && cp "$best" "$DEST/budget_$(basename "$run").ckpt"
+        [ -n "$best" ] && cp "$best" "$DEST/budget_$(basename "$run")_$(basename "$best")"
         say "budget $(basename "$run"): $(tail -n 1 "$run/learning_curve.csv" 2>/dev/null) best ${best##*/}"
     done
     [ -d "$WORK/cells/budget" ] && (cd "$WORK/cells" && find budget \( -path '*/.hydra/*' -o -name learning_curve.csv \

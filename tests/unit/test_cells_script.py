@@ -120,6 +120,9 @@ def test_the_budget_trains_the_recipe_at_each_multiple_of_its_steps_validating_a
     assert compose_train(cells.cell_overrides(200, 2, 0.5, None)).flat_part.max_steps == cells.RECIPE_STEPS
     seen = []
     monkeypatch.setattr(subprocess, "run", lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 0))
+    last = cells.budget_dir(tmp_path, 2) / "checkpoints" / "last.ckpt"  # x2 stopped part-way before: it resumes
+    last.parent.mkdir(parents=True)
+    last.write_bytes(b"")
     assert cells.train_budget(tmp_path, [1, 2, 4], 3, 200, 2, 0.5, ["trainer=gpu"], val_every=2) == []
     by_dir = {Path(next(a for a in cmd if a.startswith("hydra.run.dir=")).split("=", 1)[1]).name: cmd for cmd in seen}
     assert sorted(by_dir) == ["x1", "x2", "x4"]
@@ -128,7 +131,8 @@ def test_the_budget_trains_the_recipe_at_each_multiple_of_its_steps_validating_a
         assert f"trainer.max_steps={cells.RECIPE_STEPS * m}" in cmd
         assert f"trainer.check_val_every_n_epoch={2 * m}" in cmd
         assert cmd.index("trainer=gpu") > cmd.index(f"trainer.max_steps={cells.RECIPE_STEPS * m}")  # extra comes last
-        cfg = compose_train([a for a in cmd[2:] if not a.startswith("hydra.")])
+        assert (f"ckpt_path={last}" in cmd) == (m == 2)
+        cfg = compose_train([a for a in cmd[2:] if not a.startswith(("hydra.", "ckpt_path="))])
         assert cfg.trainer.max_steps == cells.RECIPE_STEPS * m and cfg.trainer.accelerator == "gpu"
 
 
@@ -171,3 +175,22 @@ def test_a_budget_without_whole_numbers_is_one_line_exit_2(shared: Path, capsys:
     assert cells.main(["--stage", "budget", "--jobs", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: --jobs 0") and "\n" not in err
+
+
+def test_what_a_gpu_call_brought_back_is_placed_where_the_budget_page_reads_it(tmp_path: Path) -> None:
+    import tarfile
+
+    from opnet.paths import best_checkpoint
+
+    back, runs = tmp_path / "back", tmp_path / "runs"
+    (back / "budget" / "x2").mkdir(parents=True)
+    (back / "budget" / "x2" / "learning_curve.csv").write_text("epoch,step,train_minutes,images,val_ap,test_ap\n")
+    with tarfile.open(back / "budget.tar.gz", "w:gz") as tar:
+        tar.add(back / "budget", arcname="budget")
+    (back / "budget_x2_epoch007-ap0.5500.ckpt").write_bytes(b"weights")
+    placed = cells.collect_budget(back, runs)
+    assert placed == [cells.budget_dir(runs, 2) / "checkpoints" / "epoch007-ap0.5500.ckpt"]
+    assert best_checkpoint(cells.budget_dir(runs, 2)) == placed[0] and placed[0].read_bytes() == b"weights"
+    assert (cells.budget_dir(runs, 2) / "learning_curve.csv").is_file()
+    with pytest.raises(SystemExit, match="budget.tar.gz"):
+        cells.collect_budget(tmp_path / "nothing", runs)

@@ -511,9 +511,9 @@ def train_budget(runs: Path, multiples: list[int], jobs: int, cycles: int, views
                  extra: list[str], val_every: int = 1) -> list[int]:  # fmt: skip
     """The one command at ``m`` x its steps for each ``m`` (its learning-rate schedule spanning them), ``jobs``
     at once (several share one GPU well), each validated every ``val_every`` x ``m`` epochs (as many validations
-    each) into
-    ``budget/x<m>/``; ``extra``: overrides after the recipe's (``trainer=gpu``, the loader's workers, an
-    existing dataset). Returns the multiples whose training failed."""
+    each) into ``budget/x<m>/``, a run stopped part-way resuming from its last checkpoint; ``extra``: overrides
+    after the recipe's (``trainer=gpu``, the loader's workers, an existing dataset). Returns the multiples whose
+    training failed."""
     from concurrent.futures import ThreadPoolExecutor
     import subprocess
 
@@ -523,8 +523,10 @@ def train_budget(runs: Path, multiples: list[int], jobs: int, cycles: int, views
     def one(m: int) -> int | None:
         out = budget_dir(runs, m)
         out.mkdir(parents=True, exist_ok=True)
-        cmd = train_command([*cell_overrides(cycles, views, scale, RECIPE_STEPS * m), f"trainer.check_val_every_n_epoch={val_every * m}",
-                             "test=false", *extra], out)
+        last = out / "checkpoints" / "last.ckpt"
+        cmd = train_command([*cell_overrides(cycles, views, scale, RECIPE_STEPS * m),
+                             f"trainer.check_val_every_n_epoch={val_every * m}", "test=false", *extra,
+                             *([f"ckpt_path={last}"] if last.is_file() else [])], out)
         started = time.perf_counter()
         with (out / "console.log").open("w") as log:
             code = subprocess.run(cmd, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT, env=env, check=False).returncode
@@ -538,6 +540,29 @@ def train_budget(runs: Path, multiples: list[int], jobs: int, cycles: int, views
 
 BUDGET_FIELDS = ("multiple", "steps", "steps_done", "placement", "refine", "scenes", "ap", "found", "t_err_mm_p50",
                  "r_err_deg_p50", "ms_per_frame", "best_val_ap", "best_step", "train_minutes")
+
+
+def collect_budget(files: Path, runs: Path) -> list[Path]:
+    """Put what a GPU call brought back (scripts/dev/gpu_check.sh, step budget: ``budget.tar.gz`` and each
+    budget's best checkpoint as ``budget_x<m>_<its name>``) where :func:`budget_report` reads them; returns the
+    checkpoints placed."""
+    import re
+    import shutil
+    import tarfile
+
+    archive = files / "budget.tar.gz"
+    if not archive.is_file():
+        raise SystemExit(f"error: {archive}: no such file (the budget step's runs)")
+    with tarfile.open(archive) as tar:
+        tar.extractall(runs, filter="data")
+    placed = []
+    for ckpt in sorted(files.glob("budget_x*_*.ckpt")):
+        m, name = re.fullmatch(r"budget_x(\d+)_(.+\.ckpt)", ckpt.name).groups()
+        dest = budget_dir(runs, int(m)) / "checkpoints" / name
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ckpt, dest)
+        placed.append(dest)
+    return placed
 
 
 def budget_report(runs: Path, data_dir: Path, cycles: int, test_cycles: int, out: Path, where: str) -> int:
@@ -599,7 +624,7 @@ def write_budget_page(rows: list[dict[str, Any]], curve: list[dict[str, Any]], p
     by = {(r["multiple"], r["placement"], r["refine"]): r for r in rows}
     lines = ["# The cell's one command at several times its training budget", "",
              "Made by `python scripts/experiments/cells/cells.py --stage budget` (" + where + ") and `--stage "
-             "budget-report` (scoring here). `experiment=cell`'s recipe for the plate (`models/real_ipd_plate.ckpt`'s) at "
+             "budget-report --collect <what the call brought back>` (scoring here). `experiment=cell`'s recipe for the plate (`models/real_ipd_plate.ckpt`'s) at "
              "1, 2 and 4 times its 6000 steps, the schedule spanning them, seed 0; each budget's best checkpoint on "
              f"validation, scored on the study's test piles as decoded and with its recorded `{CELL_REFINE}`.", "",
              "| budget | steps | best val AP (step) | " + " | ".join(f"{p} {'as decoded' if f == 'none' else f}" for p, f in cols)
@@ -651,6 +676,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--val-every", type=int, default=1, help="--stage budget: validate every this x m epochs")
     ap.add_argument("--extra", nargs="*", default=[], help="--stage budget: train.py overrides after the recipe's")
     ap.add_argument("--where", default="here", help="--stage budget-report: where the budgets trained (the page says)")
+    ap.add_argument("--collect", type=Path, default=None,
+                    help="--stage budget-report: first place the files a GPU call brought back (gpu_check.sh's budget step)")
     ap.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
     ap.add_argument("--real-arm", default="auto", choices=[*ARMS, CELL_ARM, *CELL_FILE_ARMS])
     ap.add_argument("--cell-file", default=None, help="--stage cell: train with cell=<this> (opnet-cell's file) "
@@ -682,6 +709,8 @@ def main(argv: list[str] | None = None) -> int:
                               args.val_every)
         return 1 if failed else 0
     if args.stage == "budget-report":
+        if args.collect is not None:
+            print(f"{len(collect_budget(args.collect, args.runs))} checkpoint(s) placed under {args.runs / 'budget'}")
         return budget_report(args.runs, args.data_dir, args.cycles, args.test_cycles, args.out, args.where)
     train_sets, tests = datasets(args.data_dir, args.cycles, args.test_cycles)
     if args.stage == "real":
