@@ -410,8 +410,9 @@ NOTES = [
     "16 cells (`in256_st8`, the part 40 pixels instead of 20): pixels per part are not what the plate lacked, cells "
     "per part are. Pose averaging helps a little (no averaging: 0.052 against 0.065 held-out, seed 0). The orientation's "
     "loss weighted 3× (`lori3`, the new-parts budget, seed 0, the same piles) leaves ITODD 27's spin misses where they "
-    "were (30 %) and scores 0.385 as decoded against the recipe's 0.445 (refined 0.652 against 0.640): weighting the "
-    "whole orientation does not teach the spin.",
+    "were (30 %) and scores 0.385 as decoded against the recipe's 0.445 (refined 0.652 against 0.640); ITODD 08 scores "
+    "0.281 against 0.256 (spin misses 28 % against 37 %, position misses up; refined 0.382 against 0.396). One seed "
+    "each, in opposite directions: not kept.",
     "- *Refinement* (the kept network; chosen on val, seeds 0 and 1, then 3 seeds): at 0.04 D a pose across two "
     "stacked plates agrees with both (`tol04`: 0.590 ± 0.011); a flat part's own `turn_tolerance` of 0.02 D (the "
     "default since) 0.672 ± 0.011, held-out 0.610 ± 0.010. More of the network's cells and every hypothesis searched "
