@@ -503,6 +503,16 @@ RECIPE_STEPS = 6000
 BUDGET_REFINES = ("none", CELL_REFINE)
 
 
+def learning_curve(run: Path) -> list[dict[str, str]]:
+    """The rows of a train.py run's ``learning_curve.csv`` (step, train_minutes, val_ap, ...); none before its
+    first validation."""
+    curve = run / "learning_curve.csv"
+    if not curve.is_file():
+        return []
+    with curve.open() as f:
+        return list(csv.DictReader(f))
+
+
 def budget_dir(runs: Path, multiple: int) -> Path:
     return runs / "budget" / f"x{multiple}"
 
@@ -573,7 +583,7 @@ def budget_report(runs: Path, data_dir: Path, cycles: int, test_cycles: int, out
     for m in sorted(int(d.name[1:]) for d in (runs / "budget").glob("x*") if d.name[1:].isdigit()):
         run_dir = budget_dir(runs, m)
         ckpt = best_checkpoint(run_dir)
-        points = list(csv.DictReader((run_dir / "learning_curve.csv").open())) if (run_dir / "learning_curve.csv").is_file() else []
+        points = learning_curve(run_dir)
         if ckpt is None or not points:
             print(f"x{m}: no checkpoint or learning curve in {run_dir}: skipped", flush=True)
             continue

@@ -20,7 +20,6 @@ Writes ``results/flat_parts/flat_parts.csv`` (a row per part, lever, arm and see
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib.util
 import json
 import os
@@ -232,14 +231,7 @@ def trained_to(out: Path, steps: int) -> bool:
     return bool(rows) and int(rows[-1]["step"]) >= steps
 
 
-def learning_curve(out: Path) -> list[dict[str, str]]:
-    """The rows of the run's ``learning_curve.csv`` (train.py's: step, train_minutes, val_ap, ...); none
-    before its first validation."""
-    curve = out / "learning_curve.csv"
-    if not curve.is_file():
-        return []
-    with curve.open() as f:
-        return list(csv.DictReader(f))
+learning_curve = CELLS.learning_curve
 
 
 # ---------------------------------------------------------------------------------------------- the plate
