@@ -76,9 +76,10 @@ def time_frames(ckpt: Path, records: list, refine: str, changes: tuple[list[str]
         depth, cam = crop_image(record.depth, camera, framing.roi, f"{record.name}: roi")
         net_in, net_cam = to_network_input(depth, cam, size=framing.size, interpolation=cv2.INTER_AREA, fit=framing.fit)
         t1 = time.perf_counter()
-        output = system.infer(torch.from_numpy(net_in)[None, None])
+        x = torch.from_numpy(net_in)[None, None]
+        output = system.infer(x)
         t2 = time.perf_counter()
-        hyps = system.decode(output, [net_cam])[0]
+        hyps = system.decode(output, [net_cam], x)[0]  # with the decoding's turns, their passes count here
         t3 = time.perf_counter()
         inside: dict[str, float] = {}
         if refiner is not None:

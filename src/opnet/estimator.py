@@ -17,6 +17,7 @@ from torch import nn
 
 from opnet.metrics.records import HypothesisSet
 from opnet.parameterizations.base import Parameterization
+from opnet.parameterizations.turns import quarters
 from opnet.run_settings import DecodingSettings, RunSettings
 
 log = logging.getLogger(__name__)
@@ -85,12 +86,26 @@ class PoseEstimator(nn.Module):
     def predict_poses(self, batch: Any) -> list[HypothesisSet]:
         """Pose hypotheses per image of a :class:`~opnet.data.sample.Batch`, camera frame, metres (through the
         fast inference path when :meth:`configure_inference` set one and the module is not training)."""
-        return self.decode(self.infer(batch.images), batch.cameras)
+        return self.decode(self.infer(batch.images), batch.cameras, batch.images)
 
-    def decode(self, output: torch.Tensor, cameras: Any) -> list[HypothesisSet]:
+    def decode(self, output: torch.Tensor, cameras: Any, images: torch.Tensor | None = None) -> list[HypothesisSet]:
         """The parameterization's hypotheses of a network output, averaged on the model's device
-        or on the host as :attr:`device_side` says."""
-        return self.parameterization.decode(output, cameras, device_side=self.device_side)
+        or on the host as :attr:`device_side` says. With the decoding's ``turns`` 2 or 4 the network also
+        runs on ``images`` (the input ``output`` was made of) turned by each other quarter turn, and the
+        hypotheses of every turn are pooled before the averaging (:mod:`opnet.parameterizations.turns`).
+
+        Raises:
+            ValueError: ``turns`` above 1 and no ``images``.
+        """
+        param = self.parameterization
+        turned = None
+        if param.turns > 1:
+            if images is None:
+                raise ValueError(f"decoding.turns={param.turns} runs the network on the turned input: "
+                                 "PoseEstimator.decode needs the images the output was made of")  # fmt: skip
+            turned = [(q, self.infer(torch.rot90(images, q, dims=(-2, -1)).contiguous()))
+                      for q in quarters(param.turns)[1:]]  # fmt: skip
+        return param.decode(output, cameras, device_side=self.device_side, turned=turned)
 
     @property
     def device_side(self) -> bool:
@@ -126,9 +141,11 @@ class PoseEstimator(nn.Module):
         """The whole prediction of one image of ``camera`` as one CUDA graph
         (:class:`opnet.inference.GraphedPipeline`, made at the first image of each camera and
         framing), where :meth:`configure_inference` asked for a CUDA graph and device-side decoding
-        on a CUDA device; else None."""
+        on a CUDA device and the decoding runs one pass (``turns`` 1); else None."""
         settings = getattr(self, "_settings", None)
         if settings is None or self.training or not settings.graphed(self.device) or not self.device_side:
+            return None
+        if self.parameterization.turns > 1:  # the graph holds one pass of the network
             return None
         key = (camera, size, fit)
         if key not in self._pipelines:

@@ -100,7 +100,7 @@ def evaluate(system: Any, batches: Iterable[Batch], evaluators: Sequence[Evaluat
     for batch in batches:
         batch = batch.to(system.device)
         output = system.infer(batch.images)
-        hyps = system.decode(output, batch.cameras) if decodes else None
+        hyps = system.decode(output, batch.cameras, batch.images) if decodes else None
         for e in evaluators:
             e.process(batch, output, hyps)
         if hyps is not None:

@@ -50,7 +50,7 @@ CHECKPOINT_KEY = "opnet_settings"
 FORMAT = 1
 
 #: the settings of the decoding and of the input, by their schema names
-DECODING_NAMES = ("threshold", "min_visibility", "score", "averaging", "averaging.eps", "averaging.min_samples",
+DECODING_NAMES = ("threshold", "min_visibility", "score", "turns", "averaging", "averaging.eps", "averaging.min_samples",
                   "averaging.cluster_score", "averaging.keep_noise")  # fmt: skip
 INPUT_NAMES = ("input_size", "fit", "interpolation", "roi", "trained_clip")
 #: the top-level keys of the checkpoint entry
@@ -100,16 +100,20 @@ class DecodingSettings:
         min_visibility: decode only cells whose predicted visibility reaches this (0: all).
         score: a hypothesis' score: "p", "p*v" or "v".
         averaging: the pose averaging, or None (every cell's hypothesis kept).
+        turns: 1, or the 2 or 4 quarter-turned copies of the input whose hypotheses are pooled before the
+            averaging (:mod:`opnet.parameterizations.turns`).
     """
 
     threshold: float = 0.1
     min_visibility: float = 0.0
     score: str = "p"
     averaging: AveragingSettings | None = None
+    turns: int = 1
 
     def __post_init__(self) -> None:
-        _checked(self, {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score},
-                 {"threshold": "threshold", "min_visibility": "min_visibility", "score": "score"})
+        _checked(self, {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score,
+                        "turns": self.turns},
+                 {"threshold": "threshold", "min_visibility": "min_visibility", "score": "score", "turns": "turns"})
         if self.averaging is not None and not isinstance(self.averaging, AveragingSettings):
             raise SettingError("decoding.averaging", self.averaging, "expected None or AveragingSettings")
 
@@ -120,12 +124,12 @@ class DecodingSettings:
         if s.get("averaging"):
             given = {name.split(".")[1]: value for name, value in s.items() if name.startswith("averaging.")}
             averaging = AveragingSettings(**given)
-        return cls(**{k: s[k] for k in ("threshold", "min_visibility", "score") if k in s}, averaging=averaging)
+        return cls(**{k: s[k] for k in ("threshold", "min_visibility", "score", "turns") if k in s}, averaging=averaging)
 
     def _values(self) -> dict[str, Any]:
         """The settings by schema name (the averaging's only when it is on)."""
         values: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility,
-                                  "score": self.score}
+                                  "score": self.score, "turns": self.turns}
         if self.averaging is None:
             values["averaging"] = None
         else:
@@ -150,11 +154,12 @@ class DecodingSettings:
         avg = parameterization.averaging
         averaging = None if avg is None else AveragingSettings(avg.eps, avg.min_samples, avg.cluster_score,
                                                               avg.keep_noise)
-        return cls(parameterization.threshold, parameterization.min_visibility, parameterization.score, averaging)
+        return cls(parameterization.threshold, parameterization.min_visibility, parameterization.score, averaging,
+                   parameterization.turns)
 
     def with_overrides(self, overrides: Any, source: str = "") -> DecodingSettings:
         """These settings with eval.py's / predict.py's ``decoding=`` overrides: ``threshold``,
-        ``min_visibility``, ``score`` and ``averaging`` (false, true, or a mapping of ``eps``,
+        ``min_visibility``, ``score``, ``turns`` and ``averaging`` (false, true, or a mapping of ``eps``,
         ``min_samples``, ``cluster_score``, ``keep_noise`` over the current ones, which turns it on); None
         or empty: unchanged.
 
@@ -165,9 +170,9 @@ class DecodingSettings:
             return self
         if not isinstance(overrides, Mapping):
             raise SettingError("decoding", overrides, "expected a mapping of threshold, score, min_visibility, "
-                               "averaging", source)  # fmt: skip
+                               "turns, averaging", source)  # fmt: skip
         given = read_settings({"decoding": overrides}, OVERRIDE, source, closed=("decoding", "decoding.averaging"))
-        changes = {k: given[k] for k in ("threshold", "min_visibility", "score") if k in given}
+        changes = {k: given[k] for k in ("threshold", "min_visibility", "score", "turns") if k in given}
         if given.get("averaging") is False:
             changes["averaging"] = None
         elif given.get("averaging"):
@@ -182,7 +187,8 @@ class DecodingSettings:
 
     def overrides(self) -> dict[str, Any]:
         """These settings as ``decoding=`` overrides spell them (``Parameterization.with_decoding``)."""
-        out: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score}
+        out: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score,
+                               "turns": self.turns}
         avg = self.averaging
         out["averaging"] = False if avg is None else dataclasses.asdict(avg)
         return out

@@ -29,6 +29,8 @@ CANVAS_FITS = ("pad", "crop", "image", "image_crop")
 SCORES = ("p", "p*v", "v")
 #: a cluster's score from its members' scores
 CLUSTER_SCORES = ("max", "sum", "mean")
+#: the input's quarter-turned copies the decoding may pool (:mod:`opnet.parameterizations.turns`)
+TURNS = (1, 2, 4)
 #: the resize the exported network's input is made with
 INTERPOLATIONS = ("area",)
 #: the largest network input side
@@ -128,6 +130,17 @@ class Whole(Spec):
 
 
 @dataclass(frozen=True)
+class Turns(Spec):
+    """How many quarter-turned copies of the input the decoding pools: 1 (the image alone), 2 (and its half
+    turn) or 4 (its four quarter turns)."""
+
+    def parse(self, value: Any) -> int:
+        if not (is_whole(value) and value in TURNS):
+            raise Refused("expected 1, 2 or 4 (the image alone, with its half turn, or its four quarter turns)")
+        return int(value)
+
+
+@dataclass(frozen=True)
 class Choice(Spec):
     """One of a few names."""
 
@@ -223,6 +236,7 @@ class RegionOfInterest(Spec):
 SETTINGS: dict[str, Spec] = {
     "threshold": Number(0.0, 1.0, high_open=True),
     "min_visibility": Number(0.0, 1.0, high_open=True),
+    "turns": Turns(),
     "min_target_visibility": Number(0.0, 1.0, high_open=True),
     "score": Choice(SCORES),
     "averaging": Flag(),
@@ -243,7 +257,7 @@ SETTINGS: dict[str, Spec] = {
 TRAINING = {
     "threshold": "parameterization.threshold", "min_visibility": "parameterization.min_visibility",
     "min_target_visibility": "parameterization.min_target_visibility",
-    "score": "parameterization.score", "averaging": "parameterization.averaging",
+    "score": "parameterization.score", "averaging": "parameterization.averaging", "turns": "parameterization.turns",
     "averaging.eps": "parameterization.averaging_eps", "averaging.min_samples": "parameterization.averaging_min_samples",
     "averaging.cluster_score": "parameterization.averaging_score", "grid": "parameterization.grid",
     "slots": "parameterization.slots", "input_size": "data.input_size", "fit": "data.fit", "roi": "data.roi",
@@ -252,6 +266,7 @@ TRAINING = {
 #: the keys of eval.py's and predict.py's ``+decoding.*`` overrides
 OVERRIDE = {
     "threshold": "decoding.threshold", "min_visibility": "decoding.min_visibility", "score": "decoding.score",
+    "turns": "decoding.turns",
     "averaging": "decoding.averaging", "averaging.eps": "decoding.averaging.eps",
     "averaging.min_samples": "decoding.averaging.min_samples",
     "averaging.cluster_score": "decoding.averaging.cluster_score",
@@ -260,6 +275,7 @@ OVERRIDE = {
 #: the keys of an ONNX export's opnet metadata (:mod:`opnet.deploy.metadata`)
 METADATA = {
     "threshold": "decoding.threshold", "min_visibility": "decoding.min_visibility", "score": "decoding.score",
+    "turns": "decoding.turns",
     "averaging": "decoding.averaging", "averaging.eps": "decoding.averaging.eps",
     "averaging.min_samples": "decoding.averaging.min_samples",
     "averaging.cluster_score": "decoding.averaging.cluster_score",

@@ -103,7 +103,7 @@ class OPNetSystem(PoseEstimator, L.LightningModule):
         output = self(batch.images)
         losses = self._losses(batch, output)
         self.log_dict({f"{stage}/{k}": v for k, v in losses.items()}, batch_size=len(batch))
-        hyps = self.decode(output, batch.cameras)
+        hyps = self.decode(output, batch.cameras, batch.images)
         metric.update(hyps, batch.gt_sets)
         return hyps
 

@@ -116,6 +116,37 @@ print("torch-free ok")
         assert d.max() < 1e-4  # metres, symmetry-aware: 0.1 mm
 
 
+def test_the_runtime_pools_the_turned_inputs_as_pytorch_does(checkpoint: Path, tiny_dataset: Path,
+                                                            tmp_path: Path) -> None:
+    """An export whose decoding pools four quarter turns: the runtime runs the graph on each turned input with
+    its turned camera and gives the hypotheses PyTorch's decoding gives, which differ from one pass's."""
+    system, cfg = load_checkpoint(checkpoint)
+    system.parameterization = system.parameterization.with_decoding(
+        threshold=0.0, score="p*v", averaging={"eps": 0.5, "min_samples": 1, "cluster_score": "sum"}, turns=4)
+    export_onnx(system, cfg, checkpoint, tmp_path / "turns.onnx")
+    est = OnnxPoseEstimator(tmp_path / "turns.onnx", icp=None)
+    assert est.decoding.turns == 4
+    space = system.parameterization.obj.pose_space
+    for record in (IPADataset(tiny_dataset)[i] for i in (2, 7)):
+        got = est.predict(record.depth, record.camera)
+        net_in, net_cam = to_network_input(record.depth, record.camera, size=128, interpolation=cv2.INTER_AREA)
+        x = torch.from_numpy(net_in)[None, None]
+        with torch.no_grad():
+            ref = system.decode(system(x), [net_cam], x)[0]
+            alone = system.parameterization.with_decoding(turns=1).decode(system(x), [net_cam])[0]
+        assert len(ref) == len(got) > 0
+        assert (len(ref), round(float(ref.score.sum()), 6)) != (len(alone), round(float(alone.score.sum()), 6))
+        # each of PyTorch's hypotheses is one of the runtime's: the same score and translation (ties in score make
+        # an order by score differ between the two), and the same pose under the symmetry
+        same = (abs(ref.score[:, None] - got.score[None]) < 1e-5) & (
+            np.linalg.norm(ref.t[:, None] - got.t[None], axis=-1) < 1e-4)
+        assert same.any(1).all() and same.any(0).all()
+        i, j = np.nonzero(same)
+        assert pose_distance(space, ref.R[i], ref.t[i], got.R[j], got.t[j]).min(initial=0.0) < 1e-4
+        first = np.unique(i, return_index=True)[1]  # one match of each
+        assert pose_distance(space, ref.R[i[first]], ref.t[i[first]], got.R[j[first]], got.t[j[first]]).max() < 1e-4
+
+
 def test_numpy_pose_space_equals_the_metrics_torch_code() -> None:
     rng = np.random.default_rng(0)
     for name in ("zbracket", "shaft", "bracket"):

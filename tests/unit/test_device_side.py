@@ -256,7 +256,8 @@ def test_the_system_decodes_where_the_setting_says(pile: list, monkeypatch: pyte
     seen: list[bool] = []
     decode = type(system.parameterization).decode
     monkeypatch.setattr(type(system.parameterization), "decode",
-                        lambda self, out, cams, device_side=False: seen.append(device_side) or decode(self, out, cams, device_side))
+                        lambda self, out, cams, device_side=False, turned=None: seen.append(device_side)
+                        or decode(self, out, cams, device_side, turned))
     samples = [make_sample(r, 128, fit="image") for r in pile[:2]]
     batch, loader = collate(samples), torch.utils.data.DataLoader(samples, batch_size=2, collate_fn=collate)
     trainer = L.Trainer(accelerator="cpu", logger=False, enable_checkpointing=False, enable_progress_bar=False,

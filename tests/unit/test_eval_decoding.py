@@ -23,7 +23,7 @@ def test_decoding_overrides_replace_the_checkpoints_settings() -> None:
 
 
 @pytest.mark.parametrize(("overrides", "message"), [
-    ({"treshold": 0.05}, r"^decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, averaging$"),
+    ({"treshold": 0.05}, r"^decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, turns, averaging$"),
     ({"score": "q"}, "decoding.score=.q.: expected one of"),
     ({"averaging": {"radius": 2}}, r"^decoding.averaging.radius=2: unknown setting; expected one of eps, min_samples, cluster_score, keep_noise$"),
 ])

@@ -25,7 +25,7 @@ class StubSystem:
     def infer(self, images: torch.Tensor) -> torch.Tensor:
         return 2 * images
 
-    def decode(self, output: torch.Tensor, cameras: Any) -> list[str]:
+    def decode(self, output: torch.Tensor, cameras: Any, images: torch.Tensor | None = None) -> list[str]:
         self.decoded += 1
         return [f"h{float(o.flatten()[0]):g}" for o in output]
 

@@ -36,7 +36,7 @@ CKPT = REPO_ROOT / "models" / "dense_bunny.ckpt"
 EXAMPLES = [
     RunSettings(),
     RunSettings(InputSettings(256, "image", (8, 4, 120, 116), "area", (0.5, 1.5)),
-                DecodingSettings(0.3, 0.2, "p*v", AveragingSettings(1.5, 2, "sum", True)),
+                DecodingSettings(0.3, 0.2, "p*v", AveragingSettings(1.5, 2, "sum", True), turns=4),
                 ObjectSettings({"name": "bunny", "mesh": "/m/bunny.obj", "symmetry": {"kind": "none"},
                                 "model_rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]})),
     RunSettings(InputSettings(roi="auto:0.8", trained_clip=(1.55, 2.05)), DecodingSettings(averaging=AveragingSettings()),
@@ -57,7 +57,7 @@ def test_the_entry_spells_the_keys_as_the_onnx_metadata() -> None:
     d = EXAMPLES[1].to_dict()
     assert d["input"] == {"size": 256, "fit": "image", "interpolation": "area", "roi": [8, 4, 120, 116]}
     assert d["trained_clip"] == [0.5, 1.5]
-    assert d["decoding"] == {"threshold": 0.3, "min_visibility": 0.2, "score": "p*v",
+    assert d["decoding"] == {"threshold": 0.3, "min_visibility": 0.2, "score": "p*v", "turns": 4,
                              "averaging": {"eps": 1.5, "min_samples": 2, "cluster_score": "sum", "keep_noise": True}}
     assert DecodingSettings.from_metadata(d) == EXAMPLES[1].decoding
     assert InputSettings.from_metadata(d) == EXAMPLES[1].input
@@ -159,10 +159,10 @@ def test_the_command_lines_override_and_the_typed_one_decode_alike(overrides: di
 
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"treshold": 0.05}, ("decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, "
-                          "averaging")),
+                          "turns, averaging")),
     ({"averaging": {"eps": 1e6}}, "decoding.averaging.eps=1000000.0: expected a fraction of delta in (0, 100]"),
     ({"score": "best"}, "decoding.score='best': expected one of p, p*v, v"),
-    (0.3, "decoding=0.3: expected a mapping of threshold, score, min_visibility, averaging"),
+    (0.3, "decoding=0.3: expected a mapping of threshold, score, min_visibility, turns, averaging"),
 ])  # fmt: skip
 def test_a_bad_override_is_the_same_line_either_way(overrides: Any, message: str) -> None:
     param = VanillaParameterization(builtin_object("zbracket"), grid=8, averaging=True)

@@ -157,7 +157,7 @@ def test_a_good_value_is_taken_from_every_source(key: str, value: Any, saved: di
 
 def test_a_misspelt_override_is_named_as_written() -> None:
     assert _command_line("decoding.treshold", 0.05) == (
-        "decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, averaging")
+        "decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, turns, averaging")
     assert _command_line("decoding.averaging.radius", 2) == (
         "decoding.averaging.radius=2: unknown setting; expected one of eps, min_samples, cluster_score, keep_noise")
 

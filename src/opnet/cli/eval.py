@@ -162,13 +162,14 @@ def write_examples(
 
 def with_decoding_overrides(param: Any, overrides: Any) -> Any:
     """The checkpoint's parameterization with the decoding settings of ``decoding=`` overridden
-    (threshold, score, min_visibility; averaging: false, or a mapping of eps, min_samples,
+    (threshold, score, min_visibility, turns; averaging: false, or a mapping of eps, min_samples,
     cluster_score); nothing given: unchanged. A bad value or an unknown key is one ``SettingError`` naming
     it as written (``decoding.averaging.eps``, :mod:`opnet.settings_schema`)."""
     if not overrides:
         return param
     if not isinstance(overrides, Mapping):
-        raise SettingError("decoding", overrides, "expected a mapping of threshold, score, min_visibility, averaging")
+        raise SettingError("decoding", overrides, "expected a mapping of threshold, score, min_visibility, turns, "
+                           "averaging")
     settings = OmegaConf.to_container(overrides) if isinstance(overrides, DictConfig) else dict(overrides)
     return param.with_decoding(**settings)
 
@@ -185,16 +186,17 @@ def apply_decoding_overrides(system: PoseEstimator, overrides: Any) -> None:
 def model_settings(system: PoseEstimator, refine: Any, decoding: Any) -> ICPSettings | None:
     """eval.py's and predict.py's refinement and decoding for ``system``: ``refine=model`` (their
     default) is the refinement the checkpoint records (none if it records none); the search decodes
-    without pose averaging (every hypothesis is refined and verified on its own) unless
-    ``+decoding.averaging`` says otherwise. Applies the decoding; returns the refinement's settings."""
+    without pose averaging (every hypothesis is refined and verified on its own) and the image alone (``turns``
+    1: the turns' hypotheses would multiply the search's work) unless ``+decoding.averaging`` /
+    ``+decoding.turns`` say otherwise. Applies the decoding; returns the refinement's settings."""
     if isinstance(refine, DictConfig):
         refine = OmegaConf.to_container(refine, resolve=True)
     refine, by_model = model_refinement(refine, system.settings.refine)
     icp = settings_from_config(refine)
     if isinstance(decoding, DictConfig):
         decoding = OmegaConf.to_container(decoding)
-    if by_model and icp is not None and icp.search is not None and "averaging" not in (decoding or {}):
-        decoding = {**(decoding or {}), "averaging": False}
+    if by_model and icp is not None and icp.search is not None:
+        decoding = {"averaging": False, "turns": 1, **(decoding or {})}
     apply_decoding_overrides(system, decoding)
     if by_model:
         log.info("refinement: %s, the one the checkpoint records (refine=none: the poses as decoded)",

@@ -95,7 +95,7 @@ def predict_image(system: PoseEstimator, image: DepthImage, roi: Any = "checkpoi
     if not bool(torch.isfinite(output).all()):  # would decode to "0 objects" without a word
         raise ValueError(f"{image.path}: the network's output holds NaN or inf (diverged weights or an input it "
                          "cannot take); no poses written for it")
-    return system.decode(output, [net_cam])[0]
+    return system.decode(output, [net_cam], x)[0]
 
 
 def write_prediction(out: Path, name: Path, image: DepthImage, hyps: HypothesisSet, system: PoseEstimator,

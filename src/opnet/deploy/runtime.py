@@ -33,6 +33,7 @@ from opnet.geometry.frames import BASE_POSE_KEY
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.metrics.records import HypothesisSet
 from opnet.parameterizations.averaging import PoseAveraging
+from opnet.parameterizations.turns import quarters, turned_back, turned_camera
 from opnet.refine import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.run_settings import REFINE_NAMES, DecodingSettings, InputSettings
 
@@ -66,7 +67,9 @@ class OnnxPoseEstimator:
             the region of interest ("model": the exported one). averaging: False decodes without the
             exported DBSCAN averaging (as ``eval.py +decoding.averaging=false``; with the search, every
             hypothesis is a start), True with it, None (the default) as the model is meant to run:
-            without it where the refinement the export records is the search, else with it. clip: the clip planes an input's depth is normalized with: "model" (the
+            without it where the refinement the export records is the search, else with it (the decoding's
+            ``turns`` the same way: the image alone before that search, else the exported turns). clip: the
+            clip planes an input's depth is normalized with: "model" (the
             training scenes' planes the export records; the camera's if it records none), "camera"
             (each camera's own) or (near, far) metres.
     Raises:
@@ -117,8 +120,11 @@ class OnnxPoseEstimator:
         self.camera: tuple[float, ...] | None = s["camera"]
         by_model = isinstance(icp, str) and icp == "model"
         icp = recorded_refinement(self.recorded_refine) if by_model else icp
+        searched = by_model and icp is not None and icp.search is not None
         if averaging is None:
-            averaging = not (by_model and icp is not None and icp.search is not None)
+            averaging = not searched
+        #: the input's turns pooled (the decoding's; 1 before the recorded search, as eval.py decodes for it)
+        self.turns = 1 if searched else self.decoding.turns
         avg = d.averaging
         self.averaging = None if avg is None or not averaging else PoseAveraging(space, avg.eps, avg.min_samples,
                                                                 avg.cluster_score, avg.keep_noise)
@@ -164,25 +170,42 @@ class OnnxPoseEstimator:
         image, cam = to_network_input(depth, camera, size=self.input_size,
                                       interpolation=_INTERPOLATION[self.input.interpolation],
                                       fit=self.fit)
-        row = [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
-        return image[None, None].astype(np.float32), np.asarray([row], dtype=np.float64)
+        return image[None, None].astype(np.float32), np.asarray([_camera_row(cam)], dtype=np.float64)
 
     def run(self, images: np.ndarray, cameras: np.ndarray) -> tuple[np.ndarray, ...]:
-        """The graph on a batch: (presence, visibility, translation, rotation) of every cell."""
-        return tuple(self.session.run(None, {"depth": images, "camera": cameras}))
+        """The graph on a batch: (presence, visibility, translation, rotation) of every cell. With the decoding's
+        ``turns`` 2 or 4, the graph also runs on the images turned by each other quarter turn (their cameras
+        turned with them, :mod:`opnet.parameterizations.turns`), and each image's cells of every turn follow
+        one another, their poses turned back into the image's camera."""
+        outs = [tuple(self.session.run(None, {"depth": images, "camera": cameras}))]
+        for q in quarters(self.turns)[1:]:
+            turned = np.ascontiguousarray(np.rot90(images, q, axes=(-2, -1)))
+            rows = np.asarray([_camera_row(turned_camera(_row_camera(r), q)) for r in cameras], dtype=np.float64)
+            presence, visibility, t, R = self.session.run(None, {"depth": turned, "camera": rows})
+            R, t = turned_back(R, t, q)
+            outs.append((presence, visibility, t, R))
+        return tuple(np.concatenate(x, axis=1) for x in zip(*outs, strict=True))
 
     def decode(self, presence: np.ndarray, visibility: np.ndarray, t: np.ndarray, R: np.ndarray) -> HypothesisSet:
-        """Hypotheses of one image from its dense outputs (N,), (N,), (N, 3), (N, 3, 3)."""
+        """Hypotheses of one image from its dense outputs (N,), (N,), (N, 3), (N, 3, 3) (with ``turns``, the
+        cells of each turn one after the other, as :meth:`run` gives them)."""
+        passes = len(quarters(self.turns))
+        keep = np.concatenate([self._kept(p, v) for p, v in zip(np.split(presence, passes),
+                                                                  np.split(visibility, passes), strict=True)])
+        p, v = presence[keep], visibility[keep]
+        score = {"p": p, "p*v": p * v, "v": v}[self.score]
+        hyps = HypothesisSet(R[keep], t[keep], score, v)
+        return self.averaging(hyps) if self.averaging is not None else hyps
+
+    def _kept(self, presence: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+        """The cells of one pass that become hypotheses: presence above the threshold, visibility enough."""
         keep = presence > self.threshold
         if self.settings["slot_conditional"]:  # slot l + 1 counts only where slots 1..l are present (slot-major cells)
             slots = self.settings["slots"]
             keep = np.minimum.accumulate(keep.reshape(slots, -1), axis=0).reshape(-1)
         if self.min_visibility > 0:
             keep &= visibility >= self.min_visibility
-        p, v = presence[keep], visibility[keep]
-        score = {"p": p, "p*v": p * v, "v": v}[self.score]
-        hyps = HypothesisSet(R[keep], t[keep], score, v)
-        return self.averaging(hyps) if self.averaging is not None else hyps
+        return keep
 
     def predict(self, depth: np.ndarray, camera: Camera) -> HypothesisSet:
         """Pose hypotheses of one depth image ((H, W) metres, NaN = missing) in its camera frame."""
@@ -204,3 +227,12 @@ class OnnxPoseEstimator:
         outs = self.run(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]))
         return [self.refine(self.decode(*(o[i] for o in outs)), depths[i], cameras[i]) for i in range(len(pairs))]
 
+
+def _camera_row(cam: Camera) -> list[float]:
+    """The graph's camera input of one image: fx, fy, cx, cy, width, height, clip_start, clip_end."""
+    return [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
+
+
+def _row_camera(row: np.ndarray) -> Camera:
+    """The camera of one row of :func:`_camera_row`."""
+    return Camera(*map(float, row[:4]), int(row[4]), int(row[5]), *map(float, row[6:8]))

@@ -38,6 +38,7 @@ from opnet.parameterizations.averaging_torch import average_batch
 from opnet.parameterizations.batch import POSE_CHANNEL_NAMES, ChannelLayout, GroundTruthBatch
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import RotationCodec
+from opnet.parameterizations.turns import quarters, turned_back, turned_camera
 from opnet.parameterizations.positions import (
     CameraBatch,
     CellIndex,
@@ -100,8 +101,10 @@ class Parameterization(abc.ABC):
         slots: int = 1,
         min_visibility: float = 0.0,
         min_target_visibility: float = 0.0,
+        turns: int = 1,
     ) -> None:
         check_settings({"grid": grid, "slots": slots, "threshold": threshold, "min_visibility": min_visibility,
+                        "turns": turns,
                         "score": score, "averaging": averaging, "averaging.eps": averaging_eps,
                         "averaging.min_samples": averaging_min_samples, "averaging.cluster_score": averaging_score,
                         "min_target_visibility": min_target_visibility}, TRAINING)  # fmt: skip
@@ -112,6 +115,7 @@ class Parameterization(abc.ABC):
         self.threshold = float(threshold)
         self.score = score
         self.min_visibility = float(min_visibility)
+        self.turns = int(turns)
         self.min_target_visibility = float(min_target_visibility)
         self.rotation = rotation if rotation is not None else EulerCodec(obj.symmetry, euler)
         if self.rotation.revolution != obj.symmetry.is_revolution:
@@ -242,7 +246,8 @@ class Parameterization(abc.ABC):
 
     # ---- decoding ----------------------------------------------------------------------------
     def decode(
-        self, output: torch.Tensor, camera: Camera | Sequence[Camera], device_side: bool = False
+        self, output: torch.Tensor, camera: Camera | Sequence[Camera], device_side: bool = False,
+        turned: Sequence[tuple[int, torch.Tensor]] | None = None,
     ) -> list[HypothesisSet]:
         """Pose hypotheses of every image.
 
@@ -253,11 +258,20 @@ class Parameterization(abc.ABC):
                 (:mod:`opnet.parameterizations.averaging_torch`), and bring the result to the host
                 in one transfer; False: each image's hypotheses averaged on the host in numpy. The
                 same hypotheses either way (to float rounding).
+            turned: with ``turns`` 2 or 4, the network's outputs of the same images turned by each other
+                quarter turn of :func:`~opnet.parameterizations.turns.quarters` as ``(q, output)`` pairs
+                (:meth:`opnet.estimator.PoseEstimator.decode` makes them): their hypotheses, turned back,
+                are pooled with the image's before the averaging.
         Returns:
             B hypothesis sets, camera frame, metres (averaged per image when ``averaging`` is set).
+
+        Raises:
+            ValueError: ``turns`` above 1 without the outputs of exactly its other turns.
         """
         b, R, t, score, v_hat = self.decode_cells(output, camera)
         B = output.shape[0]
+        if self.turns > 1 or turned:
+            b, R, t, score, v_hat = self._pool_turns((b, R, t, score, v_hat), camera, B, turned or ())
         if B == 0:
             return []
         if device_side:
@@ -268,6 +282,23 @@ class Parameterization(abc.ABC):
         )
         hyps = [HypothesisSet(*arrays) for arrays in per_image]
         return [self.averaging(h) for h in hyps] if self.averaging is not None else hyps
+
+    def _pool_turns(self, cells: tuple[torch.Tensor, ...], camera: Camera | Sequence[Camera], B: int,
+                    turned: Sequence[tuple[int, torch.Tensor]]) -> tuple[torch.Tensor, ...]:  # fmt: skip
+        """:meth:`decode_cells` of the image and of each turned output, turned back, ordered by image."""
+        wanted = quarters(self.turns)[1:]
+        if sorted(q for q, _ in turned) != list(wanted):
+            raise ValueError(f"decoding.turns={self.turns} pools the outputs of the input turned by {list(wanted)} "
+                             f"quarter turns; given {sorted(q for q, _ in turned)}")  # fmt: skip
+        cams = list(camera) if isinstance(camera, Sequence) else [camera] * B
+        parts = [cells]
+        for q, out in turned:
+            b, R, t, score, v_hat = self.decode_cells(out, [turned_camera(c, q) for c in cams])
+            R, t = turned_back(R, t, q)
+            parts.append((b, R, t, score, v_hat))
+        pooled = [torch.cat(x) for x in zip(*parts, strict=True)]
+        order = torch.argsort(pooled[0], stable=True)
+        return tuple(x[order] for x in pooled)
 
     def decode_cells(
         self, output: torch.Tensor, camera: Camera | Sequence[Camera]
@@ -326,13 +357,13 @@ class Parameterization(abc.ABC):
     def with_decoding(self, **settings: Any) -> Parameterization:
         """A copy with other decoding settings (the encoding is unchanged), for tuning on data.
 
-        Keys: ``threshold``, ``score``, ``min_visibility``, and ``averaging`` (False, or a dict of
+        Keys: ``threshold``, ``score``, ``min_visibility``, ``turns``, and ``averaging`` (False, or a dict of
         ``eps``, ``min_samples``, ``cluster_score``, overriding the current ones), checked by the schema
         (:mod:`opnet.settings_schema`): a bad or unknown one raises a ``SettingError`` naming ``decoding.<key>``.
         """
         given = read_settings({"decoding": settings}, OVERRIDE, closed=("decoding", "decoding.averaging"))
         new = copy.copy(self)
-        for key in ("threshold", "score", "min_visibility"):
+        for key in ("threshold", "score", "min_visibility", "turns"):
             if key in given:
                 setattr(new, key, given[key])
         if given.get("averaging") is False:

@@ -1,9 +1,10 @@
-"""Tune the decoding of a trained model on its validation split: score, minimum visibility and the
-pose-averaging settings (DBSCAN eps, min_samples, cluster score), measured, not guessed.
+"""Tune the decoding of a trained model on its validation split: score, minimum visibility, the input's turns
+pooled and the pose-averaging settings (DBSCAN eps, min_samples, cluster score), measured, not guessed.
 
     opnet-tune-decoding --ckpt <run>/checkpoints/last.ckpt [--split val] [--out <dir>]
 
-The network runs once over the split; every setting then only re-decodes the stored outputs and
+The network runs once over the split and once over each quarter turn of it (``turns``, :mod:`opnet.parameterizations.turns`;
+``--no-turns``: the configured turns kept, the network run only as they need); every setting then only re-decodes the stored outputs and
 re-scores them with the Brégier AP. The search is coordinate-wise (each setting in turn over its
 candidates, the others at their current best; two rounds). Prints a table and writes
 ``decoding_sweep.csv`` and ``decoding_sweep.md`` to ``--out`` (default: the run's
@@ -46,6 +47,7 @@ from opnet.fileio.atomic import write_errors_named, write_text_atomic  # noqa: E
 from opnet.metrics.records import GroundTruthSet  # noqa: E402
 from opnet.parameterizations.averaging import PoseAveraging  # noqa: E402
 from opnet.parameterizations.base import Parameterization  # noqa: E402
+from opnet.parameterizations.turns import quarters  # noqa: E402
 from opnet.run_settings import CHECKPOINT_KEY, RunSettings
 
 SEARCH: dict[str, list[Any]] = {
@@ -55,6 +57,7 @@ SEARCH: dict[str, list[Any]] = {
     "eps": [0.25, 0.5, 0.75, 1.0, 1.5, 2.0],
     "min_samples": [1, 2, 3],
     "cluster_score": ["max", "sum", "mean"],
+    "turns": [1, 2, 4],
 }
 AVERAGING_KEYS = ("eps", "min_samples", "cluster_score")
 #: the most rounds of the search (each round tries every candidate of every setting once more)
@@ -70,23 +73,31 @@ class RecordedSplit:
     cameras: list[list[Any]]
     gts: list[list[GroundTruthSet]]
     max_occlusion: float
+    #: quarter turn q (1-3) -> the outputs of each batch's images turned by it (the turns recorded)
+    turned: dict[int, list[torch.Tensor]] = dataclasses.field(default_factory=dict)
 
     @classmethod
-    def record(cls, ckpt: str, split: str, stride: int = 1) -> RecordedSplit:
-        """Run the checkpoint's network once over every ``stride``-th scene of ``split``
-        (:func:`opnet.evaluation.evaluate` with an :class:`Outputs` evaluator: nothing decoded)."""
+    def record(cls, ckpt: str, split: str, stride: int = 1, turns: tuple[int, ...] | None = None) -> RecordedSplit:
+        """Run the checkpoint's network once over every ``stride``-th scene of ``split``, and over each of
+        them turned by each quarter turn of ``turns`` (None: those its configured decoding pools; (1, 2, 3):
+        every turn, so that the search tries ``turns`` too) (:func:`opnet.evaluation.evaluate` with an
+        :class:`Outputs` evaluator: nothing decoded)."""
         system, cfg = load_checkpoint(ckpt)
+        if turns is None:
+            turns = quarters(system.parameterization.turns)[1:]
         dm = build_datamodule(cfg, system.parameterization.obj, train=False)
         dm.setup("test")
-        recorded, = evaluate(system, every_kth(getattr(dm, f"{split}_dataloader")(), stride), [Outputs()])
-        return cls(system.parameterization, *recorded, system.max_occlusion)
+        recorder = Outputs(system, turns)
+        outputs, cameras, gts = evaluate(system, every_kth(getattr(dm, f"{split}_dataloader")(), stride), [recorder])[0]
+        return cls(system.parameterization, outputs, cameras, gts, system.max_occlusion, recorder.turned)
 
     def scenes(self, settings: dict[str, Any]) -> dict[str, tuple[GroundTruthSet, Any]]:
         """Scene name -> (ground truth, hypotheses) decoded with ``settings``."""
         param = decoder(self.parameterization, settings)
         scenes = {}
-        for out, cams, gt in zip(self.outputs, self.cameras, self.gts, strict=True):
-            for h, g in zip(param.decode(out, cams), gt, strict=True):
+        for i, (out, cams, gt) in enumerate(zip(self.outputs, self.cameras, self.gts, strict=True)):
+            turned = [(q, self.turned[q][i]) for q in quarters(param.turns)[1:]]
+            for h, g in zip(param.decode(out, cams, turned=turned), gt, strict=True):
                 scenes[f"s{len(scenes):06d}"] = (g, h)
         return scenes
 
@@ -97,16 +108,21 @@ class RecordedSplit:
 
 class Outputs(Evaluator):
     """The evaluator of :meth:`RecordedSplit.record`: keeps each batch's network output, cameras and
-    ground truth, decoding nothing; its result is (outputs, cameras, ground truths), one entry a batch."""
+    ground truth, decoding nothing; its result is (outputs, cameras, ground truths), one entry a batch. With a
+    ``system`` and quarter ``turns``, also the system's outputs of the batch's images turned by each (``turned``)."""
 
     decodes = False
 
-    def __init__(self) -> None:
+    def __init__(self, system: Any = None, turns: tuple[int, ...] = ()) -> None:
         self.outputs: list[torch.Tensor] = []
         self.cameras: list[list[Any]] = []
         self.gts: list[list[GroundTruthSet]] = []
+        self.system = system
+        self.turned: dict[int, list[torch.Tensor]] = {q: [] for q in turns}
 
     def process(self, batch: Batch, output: torch.Tensor, hyps: Any) -> None:
+        for q, outs in self.turned.items():
+            outs.append(self.system.infer(torch.rot90(batch.images, q, dims=(-2, -1)).contiguous()))
         self.outputs.append(output)
         self.cameras.append(list(batch.cameras))
         self.gts.append(list(batch.gt_sets))
@@ -158,7 +174,8 @@ def current_settings(param: Parameterization) -> dict[str, Any]:
     """The configured decoding (averaging settings at their defaults where averaging is off)."""
     averaging = param.averaging or PoseAveraging(param.obj.pose_space)
     return {"averaging": param.averaging is not None, "score": param.score, "min_visibility": param.min_visibility,
-            "eps": averaging.eps, "min_samples": averaging.min_samples, "cluster_score": averaging.cluster_score}
+            "eps": averaging.eps, "min_samples": averaging.min_samples, "cluster_score": averaging.cluster_score,
+            "turns": param.turns}
 
 
 def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -170,7 +187,8 @@ def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any]
     if rounds < 1:
         raise ValueError(f"--rounds {rounds}: expected a whole number >= 1 (0 rounds tune nothing)")
     best = current_settings(splits[0].parameterization)
-    keys = [k for k in SEARCH if k in best]
+    recorded = set.intersection(*(set(s.turned) for s in splits))  # the quarter turns every split has outputs of
+    keys = [k for k in SEARCH if k in best and (k != "turns" or recorded == {1, 2, 3})]
     rows: list[dict[str, Any]] = []
     seen: dict[tuple[Any, ...], float] = {}
 
@@ -194,7 +212,7 @@ def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any]
 
 #: the saved config's keys (conf/decoding/tuned.yaml) of each setting of :data:`SEARCH`
 CONFIG_KEYS = {"averaging": "averaging", "score": "score", "min_visibility": "min_visibility", "eps": "averaging_eps",
-               "min_samples": "averaging_min_samples", "cluster_score": "averaging_score"}
+               "min_samples": "averaging_min_samples", "cluster_score": "averaging_score", "turns": "turns"}
 
 
 def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]) -> None:
@@ -254,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write", type=Path, default=None,
                         help="save a copy of the (first) checkpoint that decodes with the tuned settings")
     parser.add_argument("--force", action="store_true", help="replace an existing --write file")
+    parser.add_argument("--no-turns", action="store_true",
+                        help="keep the configured turns (the network run only on the turns they pool)")
     args = parser.parse_args(argv)
     return tool_main(lambda: tune(args))
 
@@ -269,7 +289,7 @@ def tune(args: argparse.Namespace) -> int:
     splits = []
     for ckpt in args.ckpt:
         print(f"recording {args.split} outputs of {ckpt}", flush=True)
-        splits.append(RecordedSplit.record(ckpt, args.split, args.stride))
+        splits.append(RecordedSplit.record(ckpt, args.split, args.stride, None if args.no_turns else (1, 2, 3)))
     best, rows = search(splits, args.rounds)
     write_table(rows, out)
     print(f"written {out}/decoding_sweep.csv, {out}/decoding_sweep.md")
