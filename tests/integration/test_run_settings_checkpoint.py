@@ -160,3 +160,34 @@ def test_the_export_carries_the_recorded_refinement_and_the_runtime_runs_it(chec
     with pytest.raises(SystemExit) as refused:  # one refinement flag: argparse's one-line refusal
         deploy_main([str(tmp_path / "m.onnx"), str(tmp_path), "--out", str(tmp_path / "o"), "--no-refine", "--search"])
     assert refused.value.code == 2
+
+
+def test_a_search_decodes_the_image_alone_and_icp_keeps_the_turns(checkpoint: Path, tmp_path: Path) -> None:
+    """A model recording four turns: before a search (recorded or named) eval.py and the runtime decode one pass,
+    unless +decoding.turns says otherwise; ICP and the poses as decoded keep the turns."""
+    from opnet.cli.eval import model_settings
+    from opnet.refine import refine_config
+
+    ckpt = read_checkpoint(checkpoint)
+    ckpt[CHECKPOINT_KEY]["refine"] = "search_fast"
+    ckpt[CHECKPOINT_KEY]["decoding"]["turns"] = 4
+    torch.save(ckpt, tmp_path / "turns.ckpt")
+
+    def turns_with(refine: Any, decoding: Any = None) -> int:
+        system, _ = load_checkpoint(tmp_path / "turns.ckpt")
+        assert system.parameterization.turns == 4
+        model_settings(system, refine, decoding)
+        return system.parameterization.turns
+
+    assert turns_with({"method": "model"}) == 1
+    assert turns_with(refine_config("search")) == 1
+    assert turns_with(refine_config("search"), {"turns": 2}) == 2
+    assert turns_with(refine_config("icp")) == 4
+    assert turns_with({"method": "none"}) == 4
+    pytest.importorskip("onnxruntime")
+    from opnet.deploy.runtime import OnnxPoseEstimator
+
+    system, cfg = load_checkpoint(tmp_path / "turns.ckpt")
+    export_onnx(system, cfg, tmp_path / "turns.ckpt", tmp_path / "turns.onnx")
+    assert OnnxPoseEstimator(tmp_path / "turns.onnx").turns == 1  # the recorded search
+    assert OnnxPoseEstimator(tmp_path / "turns.onnx", icp=None).turns == 4

@@ -185,18 +185,18 @@ def apply_decoding_overrides(system: PoseEstimator, overrides: Any) -> None:
 
 def model_settings(system: PoseEstimator, refine: Any, decoding: Any) -> ICPSettings | None:
     """eval.py's and predict.py's refinement and decoding for ``system``: ``refine=model`` (their
-    default) is the refinement the checkpoint records (none if it records none); the search decodes
-    without pose averaging (every hypothesis is refined and verified on its own) and the image alone (``turns``
-    1: the turns' hypotheses would multiply the search's work) unless ``+decoding.averaging`` /
-    ``+decoding.turns`` say otherwise. Applies the decoding; returns the refinement's settings."""
+    default) is the refinement the checkpoint records (none if it records none); that search decodes
+    without pose averaging (every hypothesis is refined and verified on its own) unless ``+decoding.averaging``
+    says otherwise, and every search the image alone (``turns`` 1: the turns' hypotheses would multiply its
+    work) unless ``+decoding.turns`` does. Applies the decoding; returns the refinement's settings."""
     if isinstance(refine, DictConfig):
         refine = OmegaConf.to_container(refine, resolve=True)
     refine, by_model = model_refinement(refine, system.settings.refine)
     icp = settings_from_config(refine)
     if isinstance(decoding, DictConfig):
         decoding = OmegaConf.to_container(decoding)
-    if by_model and icp is not None and icp.search is not None:
-        decoding = {"averaging": False, "turns": 1, **(decoding or {})}
+    if icp is not None and icp.search is not None:
+        decoding = {"turns": 1, **({"averaging": False} if by_model else {}), **(decoding or {})}
     apply_decoding_overrides(system, decoding)
     if by_model:
         log.info("refinement: %s, the one the checkpoint records (refine=none: the poses as decoded)",

@@ -68,7 +68,7 @@ class OnnxPoseEstimator:
             exported DBSCAN averaging (as ``eval.py +decoding.averaging=false``; with the search, every
             hypothesis is a start), True with it, None (the default) as the model is meant to run:
             without it where the refinement the export records is the search, else with it (the decoding's
-            ``turns`` the same way: the image alone before that search, else the exported turns). clip: the
+            ``turns``: the image alone before any search, else the exported turns). clip: the
             clip planes an input's depth is normalized with: "model" (the
             training scenes' planes the export records; the camera's if it records none), "camera"
             (each camera's own) or (near, far) metres.
@@ -120,10 +120,10 @@ class OnnxPoseEstimator:
         self.camera: tuple[float, ...] | None = s["camera"]
         by_model = isinstance(icp, str) and icp == "model"
         icp = recorded_refinement(self.recorded_refine) if by_model else icp
-        searched = by_model and icp is not None and icp.search is not None
+        searched = icp is not None and icp.search is not None
         if averaging is None:
-            averaging = not searched
-        #: the input's turns pooled (the decoding's; 1 before the recorded search, as eval.py decodes for it)
+            averaging = not (by_model and searched)
+        #: the input's turns pooled (the decoding's; 1 before a search, as eval.py decodes for it)
         self.turns = 1 if searched else self.decoding.turns
         avg = d.averaging
         self.averaging = None if avg is None or not averaging else PoseAveraging(space, avg.eps, avg.min_samples,
