@@ -470,7 +470,9 @@ NOTES = [
     "mean (0.499 against 0.494) and is what `experiment=dense` and `experiment=cell` now record. Held-out, scored "
     "once after: ITODD 27 0.445 → 0.538, ITODD 08 0.256 → 0.254, the plate where the bin moved 0.389 → 0.432. "
     "ITODD 27's spin misses fall from 30 % to 26 %; ITODD 08's stay at 38 %: a spin the network does not see in one "
-    "turn it does not see in another.",
+    "turn it does not see in another. A compact part loses nothing: the shipped dense bunny model on the official "
+    "Siléane piles (`sileane_rerender.py --fitted`, then `eval.py ckpt=models/dense_bunny.ckpt data.root=<them> "
+    "data.test_root=<them> +decoding.turns=4`) scores 0.965 against 0.947 with one pass.",
     "- *Symmetry* (ITODD 08, seed 0, the new-parts budget): declared as the near-revolution opnet-object names "
     "(every turn about the main axis moves 98 % of its surface by at most 2.67 mm, under its delta of 7.03 mm; "
     "`--declare-near`), the part scores 0.744 held-out as decoded, 0.782 refined, no spin misses left. Under its "
