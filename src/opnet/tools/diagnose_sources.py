@@ -62,10 +62,11 @@ def run_name(ckpt: Path) -> str:
 
 @torch.no_grad()
 def record(ckpt: Path, split: str) -> dict[str, Any]:
-    """Network outputs, cameras, ground truth and the target cells of every batch of a split."""
+    """Network outputs, cameras, ground truth and the target cells of every batch of a split (the image's own
+    pass: a decoding that pools the input's turns is diagnosed as one pass, ``turns`` 1, each cell its own)."""
     system, cfg = load_checkpoint(str(ckpt))
     system.eval()
-    param = system.parameterization
+    param = system.parameterization.with_decoding(turns=1)
     dm = build_datamodule(cfg, param.obj, train=False)
     dm.setup("test")
     batches = []
