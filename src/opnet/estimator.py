@@ -103,9 +103,12 @@ class PoseEstimator(nn.Module):
             if images is None:
                 raise ValueError(f"decoding.turns={param.turns} runs the network on the turned input: "
                                  "PoseEstimator.decode needs the images the output was made of")  # fmt: skip
-            turned = [(q, self.infer(torch.rot90(images, q, dims=(-2, -1)).contiguous()))
-                      for q in quarters(param.turns)[1:]]  # fmt: skip
+            turned = self.turned_outputs(images, quarters(param.turns)[1:])
         return param.decode(output, cameras, device_side=self.device_side, turned=turned)
+
+    def turned_outputs(self, images: torch.Tensor, turns: Any) -> list[tuple[int, torch.Tensor]]:
+        """``(q, output)`` of ``images`` turned by each quarter turn ``q`` of ``turns`` (:meth:`infer`'s output)."""
+        return [(q, self.infer(torch.rot90(images, q, dims=(-2, -1)).contiguous())) for q in turns]
 
     @property
     def device_side(self) -> bool:

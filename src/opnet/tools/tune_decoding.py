@@ -121,8 +121,9 @@ class Outputs(Evaluator):
         self.turned: dict[int, list[torch.Tensor]] = {q: [] for q in turns}
 
     def process(self, batch: Batch, output: torch.Tensor, hyps: Any) -> None:
-        for q, outs in self.turned.items():
-            outs.append(self.system.infer(torch.rot90(batch.images, q, dims=(-2, -1)).contiguous()))
+        if self.turned:
+            for q, out in self.system.turned_outputs(batch.images, self.turned):
+                self.turned[q].append(out)
         self.outputs.append(output)
         self.cameras.append(list(batch.cameras))
         self.gts.append(list(batch.gt_sets))
