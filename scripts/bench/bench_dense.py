@@ -86,10 +86,11 @@ def tests_of(obj: str, specs: list[str]) -> list[str]:
     return out
 
 
-def evaluate(ckpt: Path, dest: Path, test_root: str | None = None) -> dict[str, Any]:
-    """eval.py's summary of ``ckpt`` on its own test split, or on all scenes of ``test_root``."""
+def evaluate(ckpt: Path, dest: Path, test_root: str | None = None, extra: list[str] | None = None) -> dict[str, Any]:
+    """eval.py's summary of ``ckpt`` (with the arguments ``extra``) on its own test split, or on all scenes of
+    ``test_root``."""
     cmd = [sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={ckpt}", f"out={dest}", "examples=2",
-           *([f"data.test_root={Path(test_root).resolve()}"] if test_root else [])]
+           *([f"data.test_root={Path(test_root).resolve()}"] if test_root else []), *(extra or [])]
     with open(dest.with_suffix(".log"), "w") as log:
         subprocess.run(cmd, check=True, cwd=REPO_ROOT, stdout=log, stderr=subprocess.STDOUT)
     return json.loads((dest / "summary.json").read_text())
@@ -109,14 +110,56 @@ def extra_tests(ckpt: Path, run_dir: Path, tests: list[str], tag: str = "") -> s
     return "; ".join(out)
 
 
-def tuned_decoding(run_dir: Path, tests: list[str], stride: int = 8) -> str:
-    """The decoding tuned on the run's validation split (every ``stride``-th scene;
-    ``opnet-tune-decoding``); where it differs from the configured one, ``checkpoints/tuned.ckpt``
-    decodes with it and is scored on the test split and ``tests``. A line for the table."""
+def recipe_tuning(run_dir: Path) -> dict[str, Any] | None:
+    """What the run's recipe chose when it tuned its decoding after training (train.py's ``tune_decoding``;
+    :func:`opnet.tools.tune_decoding.tune_in_place`), None where it does not tune. A run trained before its
+    recipe tuned (and so not trained again) is tuned now, as train.py would have, and its test scored again."""
+    from opnet.tools import tune_decoding as td
+
+    record = run_dir / "tune_val" / td.TUNED_RECORD
+    if record.is_file():
+        return json.loads(record.read_text())
+    stride = recipe_setting(run_dir, "tune_decoding")
+    if stride is None:
+        return None
+    ckpt = best_checkpoint(run_dir)
+    assert ckpt is not None
+    print(f"  {run_dir}: tuning the decoding after training, as its recipe now does", flush=True)
+    tuned = td.tune_in_place(ckpt, int(stride), run_dir / "tune_val")
+    evaluate(ckpt, run_dir / "test")
+    return tuned
+
+
+def recipe_setting(run_dir: Path, key: str) -> Any:
+    """The run's config value of ``key``: as saved, or (a key its config predates) as its overrides compose now."""
+    import yaml
+    from hydra import compose, initialize_config_dir
+
+    from opnet.paths import config_dir
+
+    saved = yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text())
+    if key in saved:
+        return saved[key]
+    overrides = [o for o in yaml.safe_load((run_dir / ".hydra" / "overrides.yaml").read_text())
+                 if not o.startswith("hydra.")]
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        return compose(config_name="train", overrides=overrides).get(key)
+
+
+def tuned_decoding(run_dir: Path, tests: list[str], recipe: dict[str, Any] | None, stride: int = 8) -> str:
+    """A line for the table. Where the recipe tuned its decoding (``recipe``, :func:`recipe_tuning`): what it
+    changed, and the test AP of the decoding as configured. Elsewhere the decoding tuned on the run's validation
+    split (every ``stride``-th scene; ``opnet-tune-decoding``): where it differs from the configured one,
+    ``checkpoints/tuned.ckpt`` decodes with it and is scored on the test split and ``tests``."""
     from opnet.tools import tune_decoding as td
 
     ckpt = best_checkpoint(run_dir)
     assert ckpt is not None
+    if recipe is not None:
+        if not recipe["changed"]:
+            return "the recipe's tuning kept the configured decoding"
+        s = evaluate(ckpt, run_dir / "test_configured", extra=td.decoding_arguments(recipe["configured"]))
+        return f"the recipe tuned {recipe['changed']} on validation (configured decoding: AP {s['ap']:.3f})"
     split = td.RecordedSplit.record(str(ckpt), "val", stride)
     best, rows = td.search([split])
     td.write_table(rows, run_dir / "tune_val")
@@ -282,6 +325,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = args.runs_dir / f"{obj}_{args.config}"
         print(f"[{obj}] training {args.config}: {steps} steps -> {run_dir}", flush=True)
         train(overrides, run_dir, steps, test_every=4, validations=args.validations)
+        recipe = recipe_tuning(run_dir)
         row, _ = summarize(obj, args.config, run_dir, steps)
         summary = read_summary(run_dir)
         row.update(gen_minutes=gen_minutes, total_minutes=gen_minutes + float(row["train_minutes"]),
@@ -290,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
                    views=args.views, test_scenes=summary["num_scenes"], target=TARGET,
                    budget_minutes="" if args.steps else args.minutes, test_curve=test_curve(run_dir), command=command,
                    extra_tests="; ".join(filter(None, [extra_tests(best_checkpoint(run_dir), run_dir, tests), *unmade])),
-                   tuned=tuned_decoding(run_dir, tests) if args.tune else "")
+                   tuned=tuned_decoding(run_dir, tests, recipe) if args.tune or recipe else "")
         print(f"[{obj}] test AP {row['ap']:.4f} ({row['gen_minutes']:.1f} generation + {row['train_minutes']:.1f} "
               f"training minutes)", flush=True)
         rows.append(row)

@@ -279,15 +279,14 @@ def block_dense(results: Path, prefix: str = "") -> str:
 
 def block_new_parts(results: Path, prefix: str = "") -> str:
     """The new-parts benchmark: held-out AP per part against its target (results/new_parts/new_parts.csv)."""
-    from opnet.studies.results import fill_cell, other_engine_cell, refined_cell, symmetry_cell
+    from opnet.studies.results import decoding_cell, fill_cell, other_engine_cell, refined_cell, symmetry_cell
 
     rows = [[r["object"], symmetry_cell(r), f"{float(r['d_mm']):.0f}", fill_cell(r),
-             f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f}",
-             f"**{float(r['ap']):.3f}**" + (f" ({float(r['ap_tuned']):.3f})" if r["ap_tuned"] else ""),
+             f"{float(r['gen_minutes']):.1f} + {float(r['train_minutes']):.1f}", decoding_cell(r),
              other_engine_cell(r), refined_cell(r), r["reason"]]
             for r in _csv(results / "new_parts" / "new_parts.csv")]
     return _table(["part", "symmetry (opnet-object)", "D mm", "bin fill", "generation + training min",
-                   "**held-out AP** (decoding tuned on validation)", "other engine's piles (AP)",
+                   "**held-out AP** (the other decoding)", "other engine's piles (AP)",
                    "refined against the depth: held-out (other engine)", "target AP >= 0.6"], rows) + "\n"
 
 

@@ -64,3 +64,80 @@ def test_the_turns_are_searched_from_the_turned_outputs_recorded(checkpoint: Pat
     assert {r["turns"] for r in rows} == {1, 2, 4}
     _, rows = tune.search([tune.RecordedSplit.record(str(checkpoint), "val")], rounds=1)
     assert {r["turns"] for r in rows} == {1}
+
+
+def _copy(src: Path, dest: Path) -> Path:
+    dest.write_bytes(src.read_bytes())
+    return dest
+
+
+def test_tuning_in_place_writes_a_better_decoding_into_the_checkpoint_and_keeps_a_worse_one_out(
+        checkpoint: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """What a recipe's ``tune_decoding`` does after training: the checkpoint itself decodes with the setting the
+    validation search found better, its weights untouched; a search that finds nothing better leaves it as it was."""
+    import json
+
+    system, _ = load_checkpoint(checkpoint)
+    configured = tune.current_settings(system.parameterization)
+    better = {**configured, "averaging": True, "eps": 0.75, "min_visibility": 0.3}
+    rows = [{**configured, "ap": 0.40}, {**better, "ap": 0.55}]
+    monkeypatch.setattr(tune, "search", lambda splits, verbose=True: (better, rows))
+    ckpt = _copy(checkpoint, tmp_path / "epoch001-ap0.4000.ckpt")
+    record = tune.tune_in_place(ckpt, 2, tmp_path / "tune_val")
+    tuned, _ = load_checkpoint(ckpt)
+    assert tune.current_settings(tuned.parameterization) == better
+    for name, value in system.state_dict().items():
+        assert (tuned.state_dict()[name] == value).all(), name
+    assert record == json.loads((tmp_path / "tune_val" / tune.TUNED_RECORD).read_text())
+    assert record["changed"] == {k: v for k, v in better.items() if configured[k] != v} and record["ap_chosen"] == 0.55
+    assert (tmp_path / "tune_val" / "decoding_sweep.md").is_file() and sorted(tmp_path.glob("*.tuning")) == []
+    assert "validation AP 0.400 -> 0.550" in tune.tuned_line(record)
+
+    rows = [{**configured, "ap": 0.40}, {**better, "ap": 0.40}]  # a tie: the configured decoding stays
+    kept = _copy(checkpoint, tmp_path / "epoch002-ap0.4000.ckpt")
+    record = tune.tune_in_place(kept, 2, tmp_path / "tune_kept")
+    assert record["changed"] == {} and kept.read_bytes() == checkpoint.read_bytes()
+    assert "kept as configured" in tune.tuned_line(record)
+
+
+def test_train_py_tunes_the_best_checkpoint_before_its_test(tiny_dataset: Path, tmp_path: Path) -> None:
+    """``tune_decoding=K``: train.py searches the decoding on its validation split after training and tests the
+    checkpoint as tuned; a bad value stops before any training, naming the key."""
+    import json
+
+    from omegaconf import OmegaConf
+
+    from opnet.cli import train as train_cli
+
+    from conftest import tiny_train_cfg
+
+    out = tmp_path / "run"
+    result = train_cli.run(tiny_train_cfg(tiny_dataset, out, ["parameterization=vanilla", "trainer.precision=32",
+                                                              "tune_decoding=1"]))
+    record = json.loads((out / "tune_val" / tune.TUNED_RECORD).read_text())
+    assert record["scenes"] > 0 and record["checkpoint"] == Path(result["checkpoint"]).name
+    tested, _ = load_checkpoint(result["checkpoint"])
+    assert tune.current_settings(tested.parameterization) == (record["chosen"] if record["changed"]
+                                                              else record["configured"])
+    for bad in (0, True, 1.5):
+        cfg = tiny_train_cfg(tiny_dataset, tmp_path / f"bad{bad}", [])
+        OmegaConf.update(cfg, "tune_decoding", bad)
+        with pytest.raises(ValueError, match=r"tune_decoding=.*expected null .* whole number >= 1"):
+            train_cli.run(cfg)
+        assert not (tmp_path / f"bad{bad}" / "checkpoints").exists()
+
+
+@pytest.mark.parametrize("averaging", [True, False])
+def test_the_decoding_arguments_give_eval_py_the_settings_they_spell(checkpoint: Path, averaging: bool) -> None:
+    """``decoding_arguments``: what a benchmark passes eval.py to score a decoding; read as eval.py reads its
+    ``+decoding.*`` overrides, they decode with those settings."""
+    from omegaconf import OmegaConf
+
+    system, _ = load_checkpoint(checkpoint)
+    settings = {**tune.current_settings(system.parameterization), "averaging": averaging, "eps": 0.75,
+                "min_samples": 2, "cluster_score": "max", "min_visibility": 0.3, "score": "p*v", "turns": 2}
+    given = OmegaConf.to_container(OmegaConf.from_dotlist([a.lstrip("+") for a in tune.decoding_arguments(settings)]))
+    system.set_decoding(system.settings.decoding.with_overrides(given["decoding"]))
+    got = tune.current_settings(system.parameterization)
+    assert {k: got[k] for k in settings if averaging or k not in tune.AVERAGING_KEYS} == \
+        {k: v for k, v in settings.items() if averaging or k not in tune.AVERAGING_KEYS}

@@ -80,7 +80,8 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
             "confident_fp_per_scene": 9.1, "steps": 21700, "gen_minutes": 20, "train_minutes": 41}
     rows = [{**base, "object": "tless20", "ap": 0.41, "tuned": "{'eps': 1.0}: test AP 0.452; pybullet 0.300 (found",
              "extra_tests": "pybullet 0.355 (found 40 %, 72 scenes)"},
-            {**base, "object": "pepper", "ap": 0.71, "tuned": "", "extra_tests": ""},
+            {**base, "object": "pepper", "ap": 0.71, "extra_tests": "",
+             "tuned": "the recipe tuned {'min_visibility': 0.3} on validation (configured decoding: AP 0.654)"},
             {**base, "object": "itodd27", "ap": 0.31, "tuned": "", "orientation": 0.4, "run": str(tmp_path / "run27"),
              "extra_tests": "pybullet not made: parts kept leaving the bin after 10 re-drops"},
             {**base, "object": "bunny", "ap": 0.83, "tuned": "", "extra_tests": ""},  # not a new part
@@ -110,17 +111,20 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     assert table["pepper"]["met"] == "1" and table["pepper"]["reason"] == "met"
     t = table["tless20"]
     assert t["met"] == "0" and float(t["ap_tuned"]) == 0.452 and float(t["ap_pybullet"]) == 0.355
+    assert t["ap_configured"] == "" and table["pepper"]["ap_tuned"] == ""  # tuned by the recipe: its configured AP
+    assert float(table["pepper"]["ap_configured"]) == 0.654
     assert t["symmetry"] == "cyclic 2"  # as conf/object/tless20.yaml states it
     assert "missed on position most" in t["reason"] and "found 50.0 %" in t["reason"]
     # no AP on the other engine's piles: why, in the table and in the CSV
     assert table["pepper"]["pybullet_note"] == "not run" and t["pybullet_note"] == ""
     assert table["itodd27"]["pybullet_note"] == "not made: parts kept leaving the bin after 10 re-drops"
     page = (tmp_path / "README.md").read_text()
-    assert "Not run yet: itodd08, itodd13" in page and "| **0.410** |" in page
-    assert "| **0.310** |  | not made |" in page and "*Other engine* for itodd27: not made: parts kept" in page
-    assert "| 0.70 (0.82 as made) | **0.410** |" in page and "| 0.30 | **0.710** |" in page
+    assert "Not run yet: itodd08, itodd13" in page and "| **0.410** (0.452 tuned) |" in page
+    assert "| **0.310** | not made |" in page and "*Other engine* for itodd27: not made: parts kept" in page
+    assert "| 0.70 (0.82 as made) | **0.410** (0.452 tuned) |" in page
+    assert "| 0.30 | **0.710** (0.654 configured) |" in page
     assert "| 0.68 | **0.310** |" in page  # its piles not here: no bracket
-    assert "| **0.310** |  | not made | 0.450 |" in page and "| 0.355 | – |" in page  # refined; tless20 not
+    assert "| **0.310** | not made | 0.450 |" in page and "| 0.355 | – |" in page  # refined; tless20 not
     assert float(table["itodd27"]["ap_refined"]) == 0.45 and table["itodd27"]["ap_pybullet_refined"] == ""
     assert "| itodd27 | none (near: 180° about [+0.00, +0.00, +1.00], 2.92 mm) |" in page  # opnet-object's near-symmetry
     assert "| tless20 | cyclic 2 |" in page
@@ -189,6 +193,7 @@ def test_bench_dense_goes_on_without_the_other_engines_piles_it_could_not_make(t
     monkeypatch.setattr(bench_dense, "generate", generate)
     monkeypatch.setattr(bench_dense, "extra_tests", extra_tests)
     monkeypatch.setattr(bench_dense, "train", lambda *a, **k: None)
+    monkeypatch.setattr(bench_dense, "recipe_tuning", lambda run_dir: None)
     monkeypatch.setattr(bench_dense, "summarize", lambda obj, config, run_dir, steps: (
         {"object": obj, "config": config, "ap": 0.5, "train_minutes": 1.0}, None))
     monkeypatch.setattr(bench_dense, "read_summary", lambda run_dir: {"num_scenes": 72})
@@ -222,3 +227,49 @@ def test_refine_probe_reads_the_seconds_per_scene_from_the_evaluation_log(tmp_pa
     assert refine_probe.seconds_per_scene(log) == pytest.approx(0.25)
     log.write_text("crashed before the summary\n")
     assert refine_probe.seconds_per_scene(log) == "" and refine_probe.seconds_per_scene(tmp_path / "none.log") == ""
+
+
+def test_bench_dense_tunes_a_run_trained_before_its_recipe_tuned_and_reads_one_that_did(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run its recipe now tunes after training, but that was not trained again, is tuned as train.py would have
+    and its test scored again; a run that tuned is read; a recipe that does not tune leaves the run alone. The
+    row then scores the decoding as configured (tuning and scoring replaced by recorders here)."""
+    import yaml
+
+    from opnet.tools import tune_decoding as td
+
+    bench_dense = _script("bench/bench_dense.py")
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "epoch003-ap0.5000.ckpt").write_bytes(b"")
+    configured = {"averaging": True, "score": "p*v", "min_visibility": 0.0, "eps": 1.5, "min_samples": 1,
+                  "cluster_score": "sum", "turns": 4}
+    record = {"scenes": 12, "configured": configured, "changed": {"eps": 1.0}}
+    calls: list[tuple] = []
+    monkeypatch.setattr(td, "tune_in_place", lambda ckpt, stride, out: calls.append(("tune", Path(ckpt).name, stride))
+                        or record)
+    monkeypatch.setattr(bench_dense, "evaluate", lambda ckpt, dest, test_root=None, extra=None:
+                        calls.append(("eval", dest.name, extra)) or {"ap": 0.5})
+    # the run's saved config predates the key: its overrides composed now say what the recipe does
+    (run / ".hydra").mkdir()
+    (run / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"seed": 0}))
+    (run / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(["experiment=dense", "object=bunny",
+                                                                    "hydra.run.dir=x"]))
+    assert bench_dense.recipe_setting(run, "tune_decoding") == 8
+    (run / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(["experiment=dense", "tune_decoding=null"]))
+    assert bench_dense.recipe_setting(run, "tune_decoding") is None
+    assert bench_dense.recipe_tuning(run) is None and calls == []
+
+    (run / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"tune_decoding": 8}))
+    assert bench_dense.recipe_tuning(run) == record
+    assert calls == [("tune", "epoch003-ap0.5000.ckpt", 8), ("eval", "test", None)]
+    calls.clear()
+    line = bench_dense.tuned_decoding(run, [], record)
+    assert calls == [("eval", "test_configured", td.decoding_arguments(configured))]
+    assert line == "the recipe tuned {'eps': 1.0} on validation (configured decoding: AP 0.500)"
+    assert bench_dense.tuned_decoding(run, [], {**record, "changed": {}}) == "the recipe's tuning kept the configured decoding"
+
+    (run / "tune_val").mkdir()
+    (run / "tune_val" / td.TUNED_RECORD).write_text(json.dumps({**record, "changed": {"eps": 0.75}}))
+    calls.clear()
+    assert bench_dense.recipe_tuning(run)["changed"] == {"eps": 0.75} and calls == []

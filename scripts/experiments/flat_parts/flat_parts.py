@@ -91,11 +91,15 @@ def _before(*refined: str) -> dict[str, Any]:
 #: hypotheses pooled before the averaging) on the recipe's network of a dense part
 TURN_ARMS = {**{f"turns{n}": {"from": "exact", "eval": [f"+decoding.turns={n}"]} for n in (2, 4)},
              # ... and on the networks of two other arms: does the gain hold for another network?
-             **{f"{arm}_turns4": {"from": arm, "eval": ["+decoding.turns=4"]} for arm in ("g32", "lori3")}}
+             **{f"{arm}_turns4": {"from": arm, "eval": ["+decoding.turns=4"]} for arm in ("g32", "lori3")},
+             # the recipe's decoding (four turns) tuned after training on every 8th validation scene, as
+             # experiment=dense does (tune_decoding: 8)
+             "turns4_tuned": {"from": "exact", "start": {"turns": 4}, "tune": 8}}
 
 #: part -> lever -> arm -> the overrides of train.py it adds to the part's recipe ("steps": its step count;
 #: "from": scored with another arm's network (and trained its steps), "eval" adding eval.py overrides, "refined" only
-#: to the refined scoring)
+#: to the refined scoring, "tune": a copy of the network's checkpoint decoding as tuned after training on every
+#: such-th validation scene (train.py's tune_decoding), from its decoding with "start" changed)
 ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     "plate": {
         "recipe": {"base": {}},
@@ -119,7 +123,9 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                      "eps05": {"from": "base", "eval": ["+decoding.averaging_eps=0.5"]},
                      # the shipped model (the one command for the cell: experiment=cell) decoding the input's turns;
                      # val: its own training piles' validation cycles
-                     **{f"cell_turns{n}": {"model": "cell", "eval": [f"+decoding.turns={n}"]} for n in (1, 2, 4)}},
+                     **{f"cell_turns{n}": {"model": "cell", "eval": [f"+decoding.turns={n}"]} for n in (1, 2, 4)},
+                     # ... its decoding tuned on every validation scene of its training piles (they hold few)
+                     "cell_tuned": {"model": "cell", "tune": 1}},
         # each the kept arm's network (g32_s6000) with the recorded search changed, in its refined scoring only
         "refinement": {
             # the searched poses polished by projective ICP instead of nearest-point ICP
@@ -295,7 +301,7 @@ def plate_steps(arm: str) -> int:
 
 def plate_eval(arm: str, seed: int, split: str, refine: str) -> dict[str, Any]:
     _, spec = arm_spec("plate", arm)
-    if refine == "none" and "from" in spec and not spec.get("eval"):  # as decoded, the other arm's scoring
+    if refine == "none" and "from" in spec and not spec.get("eval") and "tune" not in spec:  # the other arm's
         return plate_eval(spec["from"], seed, split, refine)
     out = run_dir("plate", arm, seed) / "eval" / f"{split}_{refine}"
     if not (out / "summary.json").is_file():
@@ -303,6 +309,7 @@ def plate_eval(arm: str, seed: int, split: str, refine: str) -> dict[str, Any]:
         ckpt = CELLS.CELL_MODEL if "model" in spec else best_checkpoint(trained)
         if ckpt is None:
             raise SystemExit(f"error: {trained}: not trained")
+        ckpt = tuned_copy(ckpt, run_dir("plate", arm, seed), spec)
         refined = spec.get("refined", []) if refine != "none" else []
         overrides = [*CELLS.REFINE[refine], *spec.get("eval", []), *refined]
         if "model" in spec and split == "val":  # its own training piles' validation cycles
@@ -311,6 +318,25 @@ def plate_eval(arm: str, seed: int, split: str, refine: str) -> dict[str, Any]:
         else:
             CELLS.evaluate(ckpt, plate_sets()[split], out, overrides)
     return json.loads((out / "summary.json").read_text())
+
+
+def tuned_copy(ckpt: Path, out: Path, spec: dict[str, Any]) -> Path:
+    """``ckpt`` itself, or for an arm with "tune" a copy in ``out``/checkpoints decoding with "start" and then as
+    tuned after training on its validation split (:func:`opnet.tools.tune_decoding.tune_in_place`, its record in
+    ``out``/tune_val: made once)."""
+    if "tune" not in spec:
+        return ckpt
+    from opnet.cli.build import load_checkpoint
+    from opnet.tools import tune_decoding as td
+
+    dest = out / "checkpoints" / Path(ckpt).name
+    if not (out / "tune_val" / td.TUNED_RECORD).is_file():
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        configured = td.current_settings(load_checkpoint(ckpt)[0].parameterization)
+        td.write_tuned_checkpoint(ckpt, dest, {**configured, **spec.get("start", {})})
+        record = td.tune_in_place(dest, spec["tune"], out / "tune_val")
+        print(f"[{out.name}] {td.tuned_line(record)}", flush=True)
+    return dest
 
 
 def row_of(part: str, arm: str, seed: int, split: str, decoded: dict[str, Any], refined: dict[str, Any] | None,
@@ -392,11 +418,12 @@ def dense_eval(part: str, arm: str, seed: int, split: str) -> dict[str, Any]:
     the network it is scored with (its own, or the ``from`` arm's) with its ``eval`` overrides."""
     _, spec = arm_spec(part, arm)
     trained = dense_run(part, spec.get("from", arm), seed)
-    if split == "held_out" and not spec.get("eval"):
+    if split == "held_out" and not spec.get("eval") and "tune" not in spec:
         return json.loads((trained / "test" / "summary.json").read_text())
     out = run_dir(part, arm, seed) / "eval" / f"{split}_none"
     if not (out / "summary.json").is_file():
-        run_logged([sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={best_checkpoint(trained)}", f"out={out}",
+        ckpt = tuned_copy(best_checkpoint(trained), run_dir(part, arm, seed), spec)
+        run_logged([sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={ckpt}", f"out={out}",
                     f"split={'test' if split == 'held_out' else 'val'}", "refine=none", "examples=0",
                     *spec.get("eval", [])], out.with_suffix(".log"))  # fmt: skip
     return json.loads((out / "summary.json").read_text())

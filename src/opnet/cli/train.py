@@ -78,6 +78,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     L.seed_everything(cfg.seed, workers=True)
     output_dir = Path(cfg.paths.output_dir)
     check_scene_address(cfg)
+    tune_stride = tune_decoding_stride(cfg.get("tune_decoding"))
     if any(cfg.get(key) is not None for key in ("part_pixels", "part_cells", "flat_part")):
         from opnet.cli.sizing import command_line_keys, settings_for_flat_part, size_to_part
         from opnet.objects.config import object_from_config
@@ -94,8 +95,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     trainer.fit(comps.system, datamodule=datamodule, ckpt_path=resolve_ckpt_path(cfg.get("ckpt_path"), output_dir),
                 weights_only=True)  # explicit: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
     result: dict[str, Any] = {}
+    best = _best_checkpoint(trainer) if trainer.is_global_zero else None
+    if best and tune_stride is not None:
+        from opnet.tools.tune_decoding import tune_in_place, tuned_line
+
+        report([tuned_line(tune_in_place(best, tune_stride, output_dir / "tune_val"))])
     if cfg.get("test", True) and trainer.is_global_zero:
-        best = _best_checkpoint(trainer)
         system = comps.system
         if best:
             system, _ = load_checkpoint(best)
@@ -114,6 +119,21 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         report(["", f"trained in {format_duration(time.monotonic() - started)} (test=false)",
                 f"run directory : {output_dir}", f"checkpoints   : {output_dir}/checkpoints/"])
     return result
+
+
+def tune_decoding_stride(value: Any) -> int | None:
+    """``tune_decoding`` checked: None (the decoding as configured) or K >= 1 (tuned after training on every K-th
+    validation scene).
+
+    Raises:
+        ValueError: anything else, one line naming the key.
+    """
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"tune_decoding={value!r}: expected null (the decoding as configured) or a whole number "
+                         ">= 1 (tune it after training on every K-th validation scene)")
+    return value
 
 
 def _best_checkpoint(trainer: L.Trainer) -> str | None:

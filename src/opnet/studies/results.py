@@ -73,6 +73,16 @@ def refined_cell(row: dict[str, Any]) -> str:
     return fmt(row["ap_refined"]) + ("" if other in ("", None) else f" ({fmt(other)})")
 
 
+def decoding_cell(row: dict[str, Any]) -> str:
+    """A new part's held-out AP in bold, and in brackets the other decoding scored: the one its recipe was
+    configured with where the recipe tuned its own after training (``ap_configured``), else the one tuned on
+    validation after the recipe (``ap_tuned``)."""
+    for key, what in (("ap_configured", "configured"), ("ap_tuned", "tuned")):
+        if row.get(key) not in ("", None):
+            return f"**{fmt(row['ap'])}** ({fmt(row[key])} {what})"
+    return f"**{fmt(row['ap'])}**"
+
+
 def other_engine_cell(row: dict[str, Any]) -> str:
     """A new part's AP on the other engine's piles, or why there is none: ``not made``, ``not run``."""
     if row.get("ap_pybullet") not in ("", None):

@@ -27,6 +27,7 @@ import csv
 import dataclasses
 import io
 import itertools
+import json
 import os
 import sys
 from collections.abc import Iterable, Iterator
@@ -166,6 +167,17 @@ def decoding_overrides(settings: dict[str, Any]) -> dict[str, Any]:
     return plain
 
 
+def decoding_arguments(settings: dict[str, Any]) -> list[str]:
+    """The decoding ``settings`` (keys of :data:`SEARCH`) as eval.py's and predict.py's ``+decoding.*`` arguments."""
+    args = []
+    for key, value in decoding_overrides(settings).items():
+        if isinstance(value, dict):
+            args += [f"+decoding.{key}.{k}={v}" for k, v in value.items()]
+        else:
+            args.append(f"+decoding.{key}={str(value).lower() if isinstance(value, bool) else value}")
+    return args
+
+
 def decoder(param: Parameterization, settings: dict[str, Any]) -> Parameterization:
     """The parameterization with the decoding ``settings`` (keys of :data:`SEARCH`)."""
     return param.with_decoding(**decoding_overrides(settings))
@@ -179,8 +191,10 @@ def current_settings(param: Parameterization) -> dict[str, Any]:
             "turns": param.turns}
 
 
-def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """Coordinate-wise search from the configured settings, ``rounds`` >= 1; returns (best settings, every row).
+def search(splits: list[RecordedSplit], rounds: int = 2,
+           verbose: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Coordinate-wise search from the configured settings, ``rounds`` >= 1; returns (best settings, every row);
+    ``verbose``: each setting tried printed as it is scored.
 
     Raises:
         ValueError: ``rounds`` < 1 (nothing would be tuned).
@@ -199,7 +213,8 @@ def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any]
             aps = [s.ap(settings) for s in splits]
             seen[key] = sum(aps) / len(aps)
             rows.append({**settings, "ap": seen[key], **{f"ap_{i}": a for i, a in enumerate(aps)}})
-            print("  " + "  ".join(f"{k}={settings[k]}" for k in keys) + f"  ->  AP {seen[key]:.4f}", flush=True)
+            if verbose:
+                print("  " + "  ".join(f"{k}={settings[k]}" for k in keys) + f"  ->  AP {seen[key]:.4f}", flush=True)
         return seen[key]
 
     default_ap = score(best)
@@ -207,7 +222,8 @@ def search(splits: list[RecordedSplit], rounds: int = 2) -> tuple[dict[str, Any]
         candidates = [{**best, key: value} for value in SEARCH[key]]
         best = max(candidates, key=score)
     rows[0]["default"] = True
-    print(f"configured: AP {default_ap:.4f};  best: AP {score(best):.4f}  {best}")
+    if verbose:
+        print(f"configured: AP {default_ap:.4f};  best: AP {score(best):.4f}  {best}")
     return best, rows
 
 
@@ -243,6 +259,54 @@ def write_tuned_checkpoint(src: str | Path, dest: Path, settings: dict[str, Any]
     if any(loaded[k] != settings[k] for k in compared):
         dest.unlink()
         raise ValueError(f"{dest}: the written checkpoint does not decode with the tuned settings {settings}")
+
+
+#: the file beside the sweep that records what a recipe's tuning after training chose (:func:`tune_in_place`)
+TUNED_RECORD = "tuned.json"
+
+
+@torch.no_grad()
+def tune_in_place(ckpt: str | Path, stride: int, out: Path) -> dict[str, Any]:
+    """What a recipe with ``tune_decoding`` does after training: the decoding of ``ckpt`` searched on every
+    ``stride``-th scene of its validation split (the turns its decoding pools recorded), and written into ``ckpt``
+    itself (atomically, the weights untouched) where it scores a higher validation AP than the configured one.
+
+    Writes the sweep (:func:`write_table`) and :data:`TUNED_RECORD` (the configured and the chosen decoding with
+    their validation AP; ``changed``: the settings written, empty where the configured one stayed) to ``out``.
+    Returns that record.
+    """
+    ckpt = Path(ckpt)
+    split = RecordedSplit.record(str(ckpt), "val", stride)
+    configured = current_settings(split.parameterization)
+    record: dict[str, Any] = {"checkpoint": ckpt.name, "stride": stride, "configured": configured,
+                              "scenes": sum(len(g) for g in split.gts), "changed": {}}
+    if record["scenes"]:
+        best, rows = search([split], verbose=False)
+        write_table(rows, out)
+        chosen_ap, configured_ap = max(r["ap"] for r in rows), rows[0]["ap"]
+        record.update(ap_configured=configured_ap, chosen=best, ap_chosen=chosen_ap)
+        if chosen_ap > configured_ap:
+            record["changed"] = {k: v for k, v in best.items() if configured[k] != v}
+            scratch = ckpt.with_name(ckpt.name + ".tuning")
+            try:
+                write_tuned_checkpoint(ckpt, scratch, best)
+                os.replace(scratch, ckpt)
+            finally:
+                scratch.unlink(missing_ok=True)
+    with write_errors_named(out / TUNED_RECORD):
+        write_text_atomic(out / TUNED_RECORD, json.dumps(record, indent=2) + "\n")
+    return record
+
+
+def tuned_line(record: dict[str, Any]) -> str:
+    """One line for the console of what :func:`tune_in_place` did."""
+    if not record["scenes"]:
+        return "decoding      : kept as configured (no validation scenes to tune it on)"
+    if not record["changed"]:
+        return f"decoding      : kept as configured (validation AP {record['ap_configured']:.3f}, the best of the search)"
+    changed = ", ".join(f"{k} {v}" for k, v in record["changed"].items())
+    return (f"decoding      : tuned on validation ({record['scenes']} scenes): {changed}; "
+            f"validation AP {record['ap_configured']:.3f} -> {record['ap_chosen']:.3f}")
 
 
 def write_table(rows: list[dict[str, Any]], out: Path) -> None:
