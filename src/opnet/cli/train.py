@@ -96,10 +96,11 @@ def run(cfg: DictConfig) -> dict[str, Any]:
                 weights_only=True)  # explicit: TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD cannot turn it off
     result: dict[str, Any] = {}
     best = _best_checkpoint(trainer) if trainer.is_global_zero else None
-    if best and tune_stride is not None:
+    if tune_stride is not None and trainer.is_global_zero:
         from opnet.tools.tune_decoding import tune_in_place, tuned_line
 
-        report([tuned_line(tune_in_place(best, tune_stride, output_dir / "tune_val"))])
+        report([tuned_line(tune_in_place(best, tune_stride, output_dir / "tune_val")) if best else
+                "decoding      : kept as configured (no checkpoint was kept to tune it in)"])
     if cfg.get("test", True) and trainer.is_global_zero:
         system = comps.system
         if best:
