@@ -370,9 +370,7 @@ class RunSettings:
             values = tuple(float(x) for x in given)
             if len(values) != len(CAMERA_KEYS) or not all(math.isfinite(x) for x in values):
                 raise ValueError
-            if not (values[4].is_integer() and values[5].is_integer()):
-                raise ValueError
-            Camera(*values[:4], int(values[4]), int(values[5]), *values[6:])
+            Camera.from_row(values)
         except (TypeError, ValueError):
             raise SettingError(key, value, f"expected a camera: {', '.join(CAMERA_KEYS)} (pixels, metres)",
                                source) from None
@@ -380,7 +378,7 @@ class RunSettings:
 
     def with_camera(self, camera: Any) -> RunSettings:
         """The settings with the training scenes' camera (a :class:`~opnet.geometry.camera.Camera`, or None)."""
-        values = None if camera is None else tuple(float(getattr(camera, k)) for k in CAMERA_KEYS)
+        values = None if camera is None else tuple(camera.row())
         return dataclasses.replace(self, camera=values)
 
     def camera_entry(self) -> dict[str, Any]:

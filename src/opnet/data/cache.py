@@ -59,7 +59,6 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 MISSING = 65535
 _CODE_MAX = 65534
-_CAMERA_FIELDS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
 
 
 def scene_keys(source: Any) -> list[Any]:
@@ -232,7 +231,7 @@ def _write_shard(source: Any, path: Path, shard: int, info: CacheInfo) -> None:
         rec = canvas_record(source[i], info.size, info.fit)
         depth[k] = encode_depth(rec.depth, rec.camera)
         segs.append(np.zeros((info.size, info.size), np.int64) if rec.segmentation is None else rec.segmentation)
-        cams.append([getattr(rec.camera, f) for f in _CAMERA_FIELDS])
+        cams.append(rec.camera.row())
         counts.append(rec.num_objects)
         names.append(rec.name)
         R.append(rec.R_cam_obj.reshape(-1, 9))
@@ -371,8 +370,7 @@ class SceneCache:
             raise IndexError(f"scene {i} outside the cache's {len(self)} scenes")
         shard, k = divmod(i, self.info.shard_scenes)
         gt = self._shard_gt(shard)
-        c = [float(x) for x in gt["cameras"][k]]
-        camera = Camera(c[0], c[1], c[2], c[3], int(c[4]), int(c[5]), c[6], c[7])
+        camera = Camera.from_row(gt["cameras"][k])
         depth = decode_depth(self._read(shard, "depth", k, np.dtype(np.uint16)), camera)
         seg = self._read(shard, "seg", k, np.dtype(str(gt["seg_dtype"]))).astype(np.int32)
         a, b = gt["offsets"][k], gt["offsets"][k + 1]

@@ -19,10 +19,10 @@ import yaml
 
 from opnet._repr import short_repr
 from opnet.fileio.files import read_json, read_text
-from opnet.geometry.camera import Camera
+from opnet.geometry.camera import CAMERA_FIELDS, Camera
 from opnet.geometry.frames import BASE_POSE_KEY, rigid_transform
 
-YAML_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
+YAML_CAMERA_KEYS = CAMERA_FIELDS
 YAML_EXTRA_KEYS = ("depth_scale",)
 
 

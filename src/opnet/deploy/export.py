@@ -31,6 +31,7 @@ import torch
 
 from opnet import __version__
 from opnet.fileio.atomic import temporary_beside, write_errors_named
+from opnet.geometry.camera import CAMERA_FIELDS
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
 from opnet.parameterizations.base import Parameterization
@@ -101,7 +102,7 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "out_channels": param.out_channels,
         "input": {**framing["input"],
                   "layout": "NCHW float32, (z - clip_start) / (clip_end - clip_start), missing depth filled"},
-        "camera_input": ["fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"],
+        "camera_input": list(CAMERA_FIELDS),
         # the training scenes' clip planes: the runtime normalizes an input's depth with them
         "trained_clip": framing["trained_clip"],
         "outputs": list(OUTPUTS),

@@ -170,7 +170,7 @@ class OnnxPoseEstimator:
         image, cam = to_network_input(depth, camera, size=self.input_size,
                                       interpolation=_INTERPOLATION[self.input.interpolation],
                                       fit=self.fit)
-        return image[None, None].astype(np.float32), np.asarray([_camera_row(cam)], dtype=np.float64)
+        return image[None, None].astype(np.float32), np.asarray([cam.row()], dtype=np.float64)
 
     def run(self, images: np.ndarray, cameras: np.ndarray) -> tuple[np.ndarray, ...]:
         """The graph on a batch: (presence, visibility, translation, rotation) of every cell. With the decoding's
@@ -180,7 +180,7 @@ class OnnxPoseEstimator:
         outs = [tuple(self.session.run(None, {"depth": images, "camera": cameras}))]
         for q in quarters(self.turns)[1:]:
             turned = np.ascontiguousarray(np.rot90(images, q, axes=(-2, -1)))
-            rows = np.asarray([_camera_row(turned_camera(_row_camera(r), q)) for r in cameras], dtype=np.float64)
+            rows = np.asarray([turned_camera(Camera.from_row(r), q).row() for r in cameras], dtype=np.float64)
             presence, visibility, t, R = self.session.run(None, {"depth": turned, "camera": rows})
             R, t = turned_back(R, t, q)
             outs.append((presence, visibility, t, R))
@@ -228,11 +228,3 @@ class OnnxPoseEstimator:
         return [self.refine(self.decode(*(o[i] for o in outs)), depths[i], cameras[i]) for i in range(len(pairs))]
 
 
-def _camera_row(cam: Camera) -> list[float]:
-    """The graph's camera input of one image: fx, fy, cx, cy, width, height, clip_start, clip_end."""
-    return [cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.clip_start, cam.clip_end]
-
-
-def _row_camera(row: np.ndarray) -> Camera:
-    """The camera of one row of :func:`_camera_row`."""
-    return Camera(*map(float, row[:4]), int(row[4]), int(row[5]), *map(float, row[6:8]))

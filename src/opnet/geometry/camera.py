@@ -64,6 +64,11 @@ def with_clip(camera: Camera, clip: tuple[float, float] | None) -> Camera:
     return camera if clip is None else replace(camera, clip_start=clip[0], clip_end=clip[1])
 
 
+#: a camera as one row of numbers, in this order: the ONNX graph's camera input, cached scenes, the settings a
+#: checkpoint records, camera YAML files (:meth:`Camera.row`, :meth:`Camera.from_row`)
+CAMERA_FIELDS = ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end")
+
+
 @dataclass(frozen=True)
 class Camera:
     """Intrinsics, image size and clip planes of a depth camera.
@@ -85,7 +90,7 @@ class Camera:
     clip_end: float
 
     def __post_init__(self) -> None:
-        for key in ("fx", "fy", "cx", "cy", "width", "height", "clip_start", "clip_end"):
+        for key in CAMERA_FIELDS:
             if isinstance(getattr(self, key), bool):  # True would read as 1
                 raise ValueError(f"camera {key} must be a number, got the boolean {getattr(self, key)}")
         values = (self.fx, self.fy, self.cx, self.cy, self.clip_start, self.clip_end)
@@ -100,6 +105,25 @@ class Camera:
                 f"Camera clip planes must satisfy 0 < clip_start < clip_end, "
                 f"got clip_start={self.clip_start}, clip_end={self.clip_end}"
             )
+
+    def row(self) -> list[float]:
+        """The camera as :data:`CAMERA_FIELDS` in order (the image size as floats too)."""
+        return [float(getattr(self, key)) for key in CAMERA_FIELDS]
+
+    @classmethod
+    def from_row(cls, row: object) -> Camera:
+        """The camera of a row of :data:`CAMERA_FIELDS` (:meth:`row`); the image size read as whole pixels.
+
+        Raises:
+            ValueError: not 8 numbers, a size that is not a whole number, or an invalid camera.
+        """
+        values = [float(x) for x in row]  # type: ignore[attr-defined]
+        if len(values) != len(CAMERA_FIELDS):
+            raise ValueError(f"a camera row has {len(CAMERA_FIELDS)} numbers ({', '.join(CAMERA_FIELDS)}), "
+                             f"got {len(values)}")
+        if not (values[4].is_integer() and values[5].is_integer()):
+            raise ValueError(f"camera width and height must be whole pixels, got {values[4]:g} x {values[5]:g}")
+        return cls(*values[:4], int(values[4]), int(values[5]), *values[6:])
 
     def check_plausible(self, source: str = "camera") -> Camera:
         """``self`` if it describes a real depth camera, checked where a camera enters the program
