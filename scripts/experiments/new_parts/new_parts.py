@@ -281,7 +281,7 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "EPYC, which trains the same 10,696 steps in 19-25 minutes; the other parts on a 2-core Intel Xeon (40-44). "
         "Nor is a part's row one number for all machines: the two CPUs' physics differ in the last bits, so the same "
         "command makes other piles and another model on each, and ITODD 08's run on the Intel Xeon scored 0.176 "
-        "(pybullet 0.185) where this one on the AMD EPYC scores 0.255. Made by")
+        "(pybullet 0.185) where the recipe of then on the AMD EPYC scored 0.255. Made by")
     lines = [
         f"# {TITLE}", "", intro, "",
         "    python scripts/experiments/new_parts/new_parts.py --run", "",
