@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from opnet.cli.build import read_checkpoint
+from opnet.cli.build import load_checkpoint, read_checkpoint
 from opnet.paths import REPO_ROOT
 from opnet.run_settings import CHECKPOINT_KEY
 from opnet.tools import record_trained_clip as record
@@ -134,7 +134,7 @@ def test_checkpoint_writes_that_fail_name_the_target_and_leave_no_temporary(file
                                                                             tmp_path: Path) -> None:
     """Past the checks before the work (a folder made read-only meanwhile, a full disk): the writes
     themselves."""
-    settings = {**tune.current_settings(tune.load_checkpoint(files["good"])[0].parameterization), "min_visibility": 0.3}
+    settings = {**tune.current_settings(load_checkpoint(files["good"])[0].parameterization), "min_visibility": 0.3}
     before = _snapshot(tmp_path)
     with pytest.raises(ValueError, match=rf"^{files['folder']}: is a folder; give the name of a file to write"):
         tune.write_tuned_checkpoint(files["good"], files["folder"], settings)
@@ -156,7 +156,7 @@ def test_a_full_disk_while_saving_a_checkpoint_names_it_and_leaves_no_temporary(
     import opnet.fileio.atomic as atomic
     from opnet.fileio.atomic import DiskFullError
 
-    settings = tune.current_settings(tune.load_checkpoint(files["good"])[0].parameterization)
+    settings = tune.current_settings(load_checkpoint(files["good"])[0].parameterization)
     before = _snapshot(tmp_path)
     monkeypatch.setattr(atomic.os, "fdopen", FullDisk)
     with pytest.raises(DiskFullError, match=rf"^{tmp_path / 'tuned.ckpt'}: No space left on device"):

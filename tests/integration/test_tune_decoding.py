@@ -81,7 +81,9 @@ def test_tuning_in_place_writes_a_better_decoding_into_the_checkpoint_and_keeps_
     configured = tune.current_settings(system.parameterization)
     better = {**configured, "averaging": True, "eps": 0.75, "min_visibility": 0.3}
     rows = [{**configured, "ap": 0.40}, {**better, "ap": 0.55}]
-    monkeypatch.setattr(tune, "search", lambda splits, verbose=True: (better, rows))
+    from opnet.cli import decoding_search
+
+    monkeypatch.setattr(decoding_search, "search", lambda splits, verbose=True: (better, rows))
     ckpt = _copy(checkpoint, tmp_path / "epoch001-ap0.4000.ckpt")
     record = tune.tune_in_place(ckpt, 2, tmp_path / "tune_val")
     tuned, _ = load_checkpoint(ckpt)

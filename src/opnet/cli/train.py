@@ -97,7 +97,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     result: dict[str, Any] = {}
     best = _best_checkpoint(trainer) if trainer.is_global_zero else None
     if tune_stride is not None and trainer.is_global_zero:
-        from opnet.tools.tune_decoding import tune_in_place, tuned_line
+        from opnet.cli.decoding_search import tune_in_place, tuned_line
 
         report([tuned_line(tune_in_place(best, tune_stride, output_dir / "tune_val")) if best else
                 "decoding      : kept as configured (no checkpoint was kept to tune it in)"])
