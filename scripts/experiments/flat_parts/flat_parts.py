@@ -512,7 +512,9 @@ NOTES = [
     "ITODD 27 0.538 → 0.601, ITODD 08 0.254 → 0.368, the plate where the bin moved 0.444 → 0.476 (the shipped model, "
     "re-made last with the turns). All three gain, all with a narrower averaging radius than the configured 1.5 δ. "
     "Made by the recipe (`new_parts.py --run`, whose validation with the turns picked another ITODD 08 checkpoint): "
-    "ITODD 27 0.601, ITODD 08 0.408 (configured 0.538, 0.281). `experiment=cell` does not tune yet.",
+    "ITODD 27 0.601, ITODD 08 0.408 (configured 0.538, 0.281); `experiment=cell` (`tune_decoding: 1`, `cells.py "
+    "--stage cell`): the shipped plate model 0.476 where the bin moved, its search unchanged (it decodes without "
+    "the averaging).",
     "- *Symmetry* (ITODD 08, seed 0, the new-parts budget): declared as the near-revolution opnet-object names "
     "(every turn about the main axis moves 98 % of its surface by at most 2.67 mm, under its delta of 7.03 mm; "
     "`--declare-near`), the part scores 0.744 held-out as decoded, 0.782 refined, no spin misses left. Under its "
