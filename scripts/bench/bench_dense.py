@@ -112,7 +112,7 @@ def extra_tests(ckpt: Path, run_dir: Path, tests: list[str], tag: str = "") -> s
 
 def recipe_tuning(run_dir: Path) -> dict[str, Any] | None:
     """What the run's recipe chose when it tuned its decoding after training (train.py's ``tune_decoding``;
-    :func:`opnet.tools.tune_decoding.tune_in_place`), None where it does not tune. A run trained before its
+    :func:`opnet.cli.decoding_search.tune_in_place`), None where it does not tune. A run trained before its
     recipe tuned (and so not trained again) is tuned now, as train.py would have, and its test scored again."""
     from opnet.tools import tune_decoding as td
 

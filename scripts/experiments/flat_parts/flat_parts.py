@@ -322,7 +322,7 @@ def plate_eval(arm: str, seed: int, split: str, refine: str) -> dict[str, Any]:
 
 def tuned_copy(ckpt: Path, out: Path, spec: dict[str, Any]) -> Path:
     """``ckpt`` itself, or for an arm with "tune" a copy in ``out``/checkpoints decoding with "start" and then as
-    tuned after training on its validation split (:func:`opnet.tools.tune_decoding.tune_in_place`, its record in
+    tuned after training on its validation split (:func:`opnet.cli.decoding_search.tune_in_place`, its record in
     ``out``/tune_val: made once)."""
     if "tune" not in spec:
         return ckpt
@@ -509,8 +509,9 @@ NOTES = [
     "turns searched on its own validation scenes (every 8th; the plate's training piles hold 200: all) and written "
     "into its checkpoint. On those scenes ITODD 27 0.661 → 0.711 (min_visibility 0.3, eps 1.0), ITODD 08 0.277 → "
     "0.351 (score p, min_visibility 0.4, eps 0.75), the plate 0.554 → 0.600 (eps 1.0); held-out, scored once after: "
-    "ITODD 27 0.538 → 0.601, ITODD 08 0.254 → 0.368, the plate where the bin moved 0.444 → 0.476 (the shipped model, "
-    "re-made last with the turns). All three gain, all with a narrower averaging radius than the configured 1.5 δ. "
+    "ITODD 27 0.538 → 0.601, ITODD 08 0.254 → 0.368, the plate where the bin moved 0.444 → 0.476 (the shipped model as "
+    "re-made with the turns, before it tuned). All three gain, all with a narrower averaging radius than the "
+    "configured 1.5 δ. "
     "Made by the recipe (`new_parts.py --run`, whose validation with the turns picked another ITODD 08 checkpoint): "
     "ITODD 27 0.601, ITODD 08 0.408 (configured 0.538, 0.281); `experiment=cell` (`tune_decoding: 1`, `cells.py "
     "--stage cell`): the shipped plate model 0.476 where the bin moved, its search unchanged (it decodes without "
