@@ -29,6 +29,7 @@ from opnet.datasets.camera_file import YAML_CAMERA_KEYS
 from opnet.geometry.camera import Camera
 from opnet.geometry.frames import BASE_POSE_KEY, rigid_transform
 from opnet.settings_schema import (
+    DECODING_SCALARS,
     METADATA,
     OVERRIDE,
     TRAINING,
@@ -50,7 +51,7 @@ CHECKPOINT_KEY = "opnet_settings"
 FORMAT = 1
 
 #: the settings of the decoding and of the input, by their schema names
-DECODING_NAMES = ("threshold", "min_visibility", "score", "turns", "averaging", "averaging.eps", "averaging.min_samples",
+DECODING_NAMES = (*DECODING_SCALARS, "averaging", "averaging.eps", "averaging.min_samples",
                   "averaging.cluster_score", "averaging.keep_noise")  # fmt: skip
 INPUT_NAMES = ("input_size", "fit", "interpolation", "roi", "trained_clip")
 #: the top-level keys of the checkpoint entry
@@ -111,9 +112,7 @@ class DecodingSettings:
     turns: int = 1
 
     def __post_init__(self) -> None:
-        _checked(self, {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score,
-                        "turns": self.turns},
-                 {"threshold": "threshold", "min_visibility": "min_visibility", "score": "score", "turns": "turns"})
+        _checked(self, self._scalars(), {k: k for k in DECODING_SCALARS})
         if self.averaging is not None and not isinstance(self.averaging, AveragingSettings):
             raise SettingError("decoding.averaging", self.averaging, "expected None or AveragingSettings")
 
@@ -124,12 +123,15 @@ class DecodingSettings:
         if s.get("averaging"):
             given = {name.split(".")[1]: value for name, value in s.items() if name.startswith("averaging.")}
             averaging = AveragingSettings(**given)
-        return cls(**{k: s[k] for k in ("threshold", "min_visibility", "score", "turns") if k in s}, averaging=averaging)
+        return cls(**{k: s[k] for k in DECODING_SCALARS if k in s}, averaging=averaging)
+
+    def _scalars(self) -> dict[str, Any]:
+        """The settings of one value each (:data:`DECODING_SCALARS`) by name."""
+        return {k: getattr(self, k) for k in DECODING_SCALARS}
 
     def _values(self) -> dict[str, Any]:
         """The settings by schema name (the averaging's only when it is on)."""
-        values: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility,
-                                  "score": self.score, "turns": self.turns}
+        values: dict[str, Any] = self._scalars()
         if self.averaging is None:
             values["averaging"] = None
         else:
@@ -172,7 +174,7 @@ class DecodingSettings:
             raise SettingError("decoding", overrides, "expected a mapping of threshold, score, min_visibility, "
                                "turns, averaging", source)  # fmt: skip
         given = read_settings({"decoding": overrides}, OVERRIDE, source, closed=("decoding", "decoding.averaging"))
-        changes = {k: given[k] for k in ("threshold", "min_visibility", "score", "turns") if k in given}
+        changes = {k: given[k] for k in DECODING_SCALARS if k in given}
         if given.get("averaging") is False:
             changes["averaging"] = None
         elif given.get("averaging"):
@@ -187,8 +189,7 @@ class DecodingSettings:
 
     def overrides(self) -> dict[str, Any]:
         """These settings as ``decoding=`` overrides spell them (``Parameterization.with_decoding``)."""
-        out: dict[str, Any] = {"threshold": self.threshold, "min_visibility": self.min_visibility, "score": self.score,
-                               "turns": self.turns}
+        out: dict[str, Any] = self._scalars()
         avg = self.averaging
         out["averaging"] = False if avg is None else dataclasses.asdict(avg)
         return out

@@ -31,6 +31,8 @@ SCORES = ("p", "p*v", "v")
 CLUSTER_SCORES = ("max", "sum", "mean")
 #: the input's quarter-turned copies the decoding may pool (:mod:`opnet.parameterizations.turns`)
 TURNS = (1, 2, 4)
+#: the decoding's settings of one value each, by their schema names (the averaging is a group of its own)
+DECODING_SCALARS = ("threshold", "min_visibility", "score", "turns")
 #: the resize the exported network's input is made with
 INTERPOLATIONS = ("area",)
 #: the largest network input side

@@ -46,7 +46,7 @@ from opnet.parameterizations.positions import (
     ObjectProjection,
     project_origins,
 )
-from opnet.settings_schema import OVERRIDE, TRAINING, check_settings, read_settings
+from opnet.settings_schema import DECODING_SCALARS, OVERRIDE, TRAINING, check_settings, read_settings
 
 POSE_WEIGHTINGS = ("cubic", "linear")
 class Parameterization(abc.ABC):
@@ -363,7 +363,7 @@ class Parameterization(abc.ABC):
         """
         given = read_settings({"decoding": settings}, OVERRIDE, closed=("decoding", "decoding.averaging"))
         new = copy.copy(self)
-        for key in ("threshold", "score", "min_visibility", "turns"):
+        for key in DECODING_SCALARS:
             if key in given:
                 setattr(new, key, given[key])
         if given.get("averaging") is False:
