@@ -24,6 +24,12 @@ Orientation term ``L_ori`` (``orientation``):
   With ``position=metric`` the pose term is then exactly the squared Brégier pose distance in units
   of δ (the evaluation's threshold), its two parts balanced by construction (λ4 = 1).
 
+Quality term ``L_q`` (only for a parameterization with a quality channel, ``parameterization.quality``): on every
+occupied cell/slot, ``λ_q (q̂ - q*)²`` with ``q* = 2^-(d/δ)²``, ``d`` the symmetry-aware Brégier rotation distance
+of the orientation decoded from the cell's own rotation channels to the truth (held fixed: the term teaches q̂ to
+estimate how right the orientation is, and moves no orientation channel). q* is 1 for an exact orientation and ½
+at the metric's threshold (docs/method.md#orientation-quality). Not part of the paper.
+
 ``loss=paper`` (``channels`` + ``euler_l2``, λ_pose = 1) is the paper's loss, computed densely over
 every cell exactly as before; the other combinations gather the occupied cells first.
 """
@@ -88,6 +94,7 @@ class MultiTaskLoss(nn.Module):
         lambda_pos: float = 1.0,
         lambda_z: float = 1.0,
         lambda_xy: float = 1.0,
+        lambda_quality: float = 1.0,
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
@@ -100,7 +107,8 @@ class MultiTaskLoss(nn.Module):
             raise ValueError(f"loss.position must be one of {POSITION_LOSSES}, got {position!r}")
         for key, value in (("lambda_p", lambda_p), ("lambda_v", lambda_v),
                            ("lambda_ori", lambda_ori), ("lambda_pose", lambda_pose),
-                           ("lambda_pos", lambda_pos), ("lambda_z", lambda_z), ("lambda_xy", lambda_xy)):  # fmt: skip
+                           ("lambda_pos", lambda_pos), ("lambda_z", lambda_z), ("lambda_xy", lambda_xy),
+                           ("lambda_quality", lambda_quality)):  # fmt: skip
             if isinstance(value, bool) or not isinstance(value, numbers.Real) or not value >= 0:
                 raise ValueError(f"loss.{key} must be a number >= 0, got {value!r}")
         self.lambda_p, self.lambda_v, self.lambda_ori = (
@@ -112,6 +120,7 @@ class MultiTaskLoss(nn.Module):
         self.lambda_pos = float(lambda_pos)
         self.lambda_z = float(lambda_z)
         self.lambda_xy = float(lambda_xy)
+        self.lambda_quality = float(lambda_quality)
         self.orientation = orientation
         self.position = position
         self.robust = robust
@@ -144,8 +153,8 @@ class MultiTaskLoss(nn.Module):
             parameterization: the one that produced ``target``.
             cameras: the network-input camera(s) of the batch (needed by ``position=metric``).
         Returns:
-            scalars "presence", "visibility", "position", "orientation" (each already weighted) and
-            their sum "total"; sums over cells and slots, means over the batch.
+            scalars "presence", "visibility", "position", "orientation", with a quality channel "quality" (each
+            already weighted), and their sum "total"; sums over cells and slots, means over the batch.
         """
         if output.shape != target.shape:
             raise ValueError(
@@ -170,6 +179,8 @@ class MultiTaskLoss(nn.Module):
             )
         else:
             terms.update(self._pose_terms(out, tgt, parameterization, cameras))
+        if parameterization.has_quality:
+            terms["quality"] = self.lambda_quality * quality_error(out, tgt, parameterization)
         losses = {name: term.sum() / batch for name, term in terms.items()}
         losses["total"] = sum(losses.values())  # type: ignore[assignment]
         return losses
@@ -218,6 +229,24 @@ class MultiTaskLoss(nn.Module):
             "position": self.lambda_pos * weight * position,
             "orientation": self.lambda_ori * weight * orientation,
         }
+
+
+def quality_target(out_rot: torch.Tensor, tgt_rot: torch.Tensor, parameterization: Parameterization) -> torch.Tensor:
+    """q* (P,) of occupied cells from their predicted and target rotation channels (P, A): ``2^-(d/δ)²``, ``d``
+    the symmetry-aware rotation distance of the decoded orientations (no gradient)."""
+    with torch.no_grad():
+        codec = parameterization.rotation
+        err = symmetric_rotation_error(codec.decode(out_rot.double()), codec.decode(tgt_rot.double()), parameterization)
+        return torch.exp2(-err).to(out_rot.dtype)
+
+
+def quality_error(out: torch.Tensor, tgt: torch.Tensor, parameterization: Parameterization) -> torch.Tensor:
+    """``(q̂ - q*)²`` (P,) of the occupied cells/slots of slot-split outputs and targets (B, L, C, S, S)."""
+    lay = parameterization.layout
+    b, slot, row, col = torch.nonzero(tgt[:, :, lay.presence] > 0, as_tuple=True)
+    o = out.permute(0, 1, 3, 4, 2)[b, slot, row, col]  # (P, C)
+    t = tgt.permute(0, 1, 3, 4, 2)[b, slot, row, col]
+    return (o[:, lay.quality] - quality_target(o[:, lay.rotation], t[:, lay.rotation], parameterization)) ** 2
 
 
 def symmetric_rotation_error(

@@ -99,7 +99,7 @@ class DecodingSettings:
     Attributes:
         threshold: presence threshold τ of a hypothesis.
         min_visibility: decode only cells whose predicted visibility reaches this (0: all).
-        score: a hypothesis' score: "p", "p*v" or "v".
+        score: a hypothesis' score: "p", "p*v" or "v"; from a network with a quality channel also "p*q", "p*v*q".
         averaging: the pose averaging, or None (every cell's hypothesis kept).
         turns: 1, or the 2 or 4 quarter-turned copies of the input whose hypotheses are pooled before the
             averaging (:mod:`opnet.parameterizations.turns`).

@@ -25,8 +25,20 @@ from opnet._repr import short_repr
 
 #: how an image becomes the square network input (:func:`opnet.data.preprocess.square_canvas`)
 CANVAS_FITS = ("pad", "crop", "image", "image_crop")
-#: a hypothesis' score: the presence p̂, p̂ v̂, or the visibility v̂
-SCORES = ("p", "p*v", "v")
+def hypothesis_score(score: str, p: Any, v: Any, q: Any = None) -> Any:
+    """A hypothesis' score (one of :data:`SCORES`) from the presence ``p``, visibility ``v`` and quality ``q``
+    (arrays or tensors alike; ``q`` None where the network writes none)."""
+    if score in QUALITY_SCORES and q is None:
+        raise ValueError(f"score {score!r} needs the quality channel q, which this network does not write")
+    return {"p": lambda: p, "p*v": lambda: p * v, "v": lambda: v, "p*q": lambda: p * q,
+            "p*v*q": lambda: p * v * q}[score]()
+
+
+#: a hypothesis' score: the presence p̂, p̂ v̂, or the visibility v̂; with a quality channel also p̂ q̂ and p̂ v̂ q̂
+#: (q̂: the network's own estimate of how right the cell's orientation is, docs/method.md#orientation-quality)
+SCORES = ("p", "p*v", "v", "p*q", "p*v*q")
+#: the scores that read the quality channel (a network trained with ``parameterization.quality``)
+QUALITY_SCORES = ("p*q", "p*v*q")
 #: a cluster's score from its members' scores
 CLUSTER_SCORES = ("max", "sum", "mean")
 #: the input's quarter-turned copies the decoding may pool (:mod:`opnet.parameterizations.turns`)

@@ -303,3 +303,49 @@ def test_runtime_icp_refines_as_eval_does_from_the_exported_model_points(checkpo
     bad = subprocess.run([sys.executable, "-c", code, str(onnx_path), str(folder), "--out", str(tmp_path / "o4"),
                           "--clip", "2", "1"], capture_output=True, text=True, cwd=REPO_ROOT)
     assert bad.returncode == 2 and bad.stderr.strip() == "error: --clip=[2.0, 1.0]: expected 0 < near < far <= 50 metres"
+
+
+def test_a_quality_channel_exports_and_the_runtime_scores_with_it_as_pytorch_does(tmp_path: Path) -> None:
+    """A network with a quality channel: the graph adds the output ``quality``, and the runtime's hypotheses
+    scored p*v*q (four turns pooled, averaged) are PyTorch's; an export whose graph lacks the output but whose
+    decoding reads it is refused, naming the file."""
+    from opnet.geometry.camera import Camera
+
+    cfg = compose_cfg("train", ["model=tiny", "object=zbracket", "parameterization=eve",
+                                "parameterization.quality=true", "parameterization.score=p*v*q"])
+    torch.manual_seed(0)
+    system = build_components(cfg).system.eval()
+    meta = assert_export_matches(system, cfg, tmp_path / "q.onnx")
+    assert meta["outputs"][-1] == "quality" and meta["decoding"]["score"] == "p*v*q"
+    images, cams = export_cli.synthetic_inputs(meta["input"]["size"], n=1)
+    dense = OnnxPoseEstimator(tmp_path / "q.onnx").run(images, cams)
+    with torch.no_grad():
+        q_ref = system(torch.from_numpy(images))[:, system.parameterization.layout.quality].reshape(1, -1)
+    np.testing.assert_allclose(dense[4], q_ref.numpy(), atol=1e-5)
+    system.parameterization = system.parameterization.with_decoding(threshold=0.0, turns=4)
+    export_onnx(system, cfg, Path("none.ckpt"), tmp_path / "q4.onnx")
+    est = OnnxPoseEstimator(tmp_path / "q4.onnx", icp=None)
+    dense = est.run(images, cams)
+    assert len(dense) == 5 and dense[4].shape == dense[0].shape
+    got = est.decode(*(o[0] for o in dense))
+    camera = Camera(*cams[0][:4], int(cams[0][4]), int(cams[0][5]), *cams[0][6:])
+    x = torch.from_numpy(images)
+    with torch.no_grad():
+        ref = system.decode(system(x), [camera], x)[0]
+        plain = system.parameterization.with_decoding(score="p*v", turns=1).decode(system(x), [camera])[0]
+    assert len(ref) == len(got) > 0
+    np.testing.assert_allclose(np.sort(ref.score), np.sort(got.score), atol=1e-5)
+    assert plain.score.max() > ref.score.max()  # q < 1 lowered the scores
+    meta_only = dict(meta, outputs=meta["outputs"][:4])
+    system_plain = build_components(compose_cfg("train", ["model=tiny", "object=zbracket",
+                                                          "parameterization=eve"])).system.eval()
+    export_onnx(system_plain, cfg, Path("none.ckpt"), tmp_path / "plain.onnx")
+    import onnx
+
+    proto = onnx.load(str(tmp_path / "plain.onnx"))
+    entry = next(e for e in proto.metadata_props if e.key == "opnet")
+    entry.value = json.dumps({**json.loads(entry.value), "decoding": meta_only["decoding"],
+                              "outputs": meta_only["outputs"]})
+    onnx.save(proto, str(tmp_path / "plain_q.onnx"))
+    with pytest.raises(ValueError, match=r"plain_q.onnx: decoding.score='p\*v\*q' reads the quality channel q"):
+        OnnxPoseEstimator(tmp_path / "plain_q.onnx")

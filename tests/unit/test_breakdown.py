@@ -61,3 +61,23 @@ def test_each_miss_is_put_down_to_its_largest_share():
     assert b.tilt_deg_p50 == 0.0 and abs(b.tilt_deg_p90 - 0.6 * 25.0) < 1e-6
     assert b.spin_deg_p50 == 0.0 and abs(b.spin_deg_p90 - 0.6 * 40.0) < 1e-6
     assert abs(sum(b.shares().values()) - 1.0) < 1e-12  # every instance to find counted once
+
+
+def test_the_instances_are_counted_by_how_the_camera_sees_their_main_axis():
+    """The plate's normal (y) along the line of sight: end-on; tilted 45° from it: oblique; in the image plane:
+    side-on; along the camera's x but 45° off the optical axis: oblique too (the line of sight, not the optical
+    axis). Of the four (all to find), the side-on one is missed (spun), the others found."""
+    space = plate()
+    face_on = turn("X", 90.0)  # the part's y onto the camera's z
+    oblique = turn("X", 45.0)
+    edge_on = np.eye(3)  # y stays in the image plane
+    across = turn("Z", -90.0)  # y onto the camera's x
+    R = np.stack([face_on, oblique, edge_on, across])
+    t = np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0], [-0.3, 0.0, 1.0], [1.0, 0.0, 1.0]])
+    R_hat = R.copy()
+    R_hat[2] = edge_on @ turn("Y", 60.0)
+    b = error_breakdown({"s": (GroundTruthSet(R, t, np.zeros(4)), HypothesisSet(R_hat, t, np.ones(4)))}, space,
+                        diameter=0.12)
+    assert b.to_find_by_view == (1, 2, 1) and b.matched_by_view == (1, 2, 0)
+    assert b.found_by_view() == {"end_on": 1.0, "oblique": 1.0, "side_on": 0.0}
+    assert "end-on 100% of 1, oblique 100% of 2, side-on 0% of 1" in b.table()

@@ -71,7 +71,7 @@ def _set(meta: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
     ("decoding.threshold", -1, "decoding.threshold=-1: expected a number in [0, 1)"),
     ("decoding.threshold", True, "decoding.threshold=True"),
     ("decoding.threshold", KeyError, "lacks decoding.threshold"),
-    ("decoding.score", "q", "decoding.score='q': expected one of p, p*v, v"),
+    ("decoding.score", "q", "decoding.score='q': expected one of p, p*v, v, p*q, p*v*q"),
     ("decoding.min_visibility", "0.1", "decoding.min_visibility='0.1'"),
     ("decoding.averaging.eps", 0, "decoding.averaging.eps=0"),
     ("decoding.averaging.min_samples", 1.5, "decoding.averaging.min_samples=1.5"),

@@ -161,7 +161,7 @@ def test_the_command_lines_override_and_the_typed_one_decode_alike(overrides: di
     ({"treshold": 0.05}, ("decoding.treshold=0.05: unknown setting; expected one of threshold, min_visibility, score, "
                           "turns, averaging")),
     ({"averaging": {"eps": 1e6}}, "decoding.averaging.eps=1000000.0: expected a fraction of delta in (0, 100]"),
-    ({"score": "best"}, "decoding.score='best': expected one of p, p*v, v"),
+    ({"score": "best"}, "decoding.score='best': expected one of p, p*v, v, p*q, p*v*q"),
     (0.3, "decoding=0.3: expected a mapping of threshold, score, min_visibility, turns, averaging"),
 ])  # fmt: skip
 def test_a_bad_override_is_the_same_line_either_way(overrides: Any, message: str) -> None:

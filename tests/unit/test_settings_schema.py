@@ -37,7 +37,7 @@ CASES = [
     (math.nan, NUMBER, "decoding.threshold", "parameterization.threshold", "decoding.threshold"),
     (1.5, NUMBER, "decoding.threshold", "parameterization.threshold", "decoding.threshold"),
     (False, NUMBER, "decoding.min_visibility", "parameterization.min_visibility", "decoding.min_visibility"),
-    ("best", "expected one of p, p*v, v", "decoding.score", "parameterization.score", "decoding.score"),
+    ("best", "expected one of p, p*v, v, p*q, p*v*q", "decoding.score", "parameterization.score", "decoding.score"),
     (True, EPS, "decoding.averaging.eps", "parameterization.averaging_eps", "decoding.averaging.eps"),
     (math.inf, EPS, "decoding.averaging.eps", "parameterization.averaging_eps", "decoding.averaging.eps"),
     (1e6, EPS, "decoding.averaging.eps", "parameterization.averaging_eps", "decoding.averaging.eps"),

@@ -34,10 +34,11 @@ from opnet.parameterizations.averaging import PoseAveraging  # noqa: E402
 from opnet.parameterizations.base import Parameterization  # noqa: E402
 from opnet.parameterizations.turns import quarters  # noqa: E402
 from opnet.run_settings import CHECKPOINT_KEY, RunSettings
+from opnet.settings_schema import QUALITY_SCORES
 
 SEARCH: dict[str, list[Any]] = {
     "averaging": [False, True],
-    "score": ["p", "p*v"],
+    "score": ["p", "p*v", *QUALITY_SCORES],  # the last two only for a network with a quality channel
     "min_visibility": [0.0, 0.1, 0.2, 0.3, 0.4],
     "eps": [0.25, 0.5, 0.75, 1.0, 1.5, 2.0],
     "min_samples": [1, 2, 3],
@@ -202,8 +203,10 @@ def search(splits: list[RecordedSplit], rounds: int = 2,
         return seen[key]
 
     default_ap = score(best)
+    quality = splits[0].parameterization.has_quality
     for _, key in itertools.product(range(rounds), keys):
-        candidates = [{**best, key: value} for value in SEARCH[key]]
+        candidates = [{**best, key: value} for value in SEARCH[key]
+                      if quality or not (key == "score" and value in QUALITY_SCORES)]
         best = max(candidates, key=score)
     rows[0]["default"] = True
     if verbose:

@@ -6,7 +6,7 @@ camera ``fx fy cx cy width height clip_start clip_end``. It returns, for every c
 (N = slots x S x S, the order of ``Parameterization.decode``): ``presence`` (B, N),
 ``visibility`` (B, N), ``translation`` (B, N, 3) metres in the camera frame and ``rotation``
 (B, N, 3, 3), all float64: the parameterization's own decoding of every cell, traced from the
-same code. The network is traced in its fused inference arithmetic
+same code; a network with a quality channel also ``quality`` (B, N), q̂ of every cell, after them. The network is traced in its fused inference arithmetic
 (:func:`opnet.models.fused.export_form`: batch norms folded, transitions pooled first, the paper
 network's 3x3 convolutions split 48 + 2; the same function, faster in ONNX Runtime too); the
 export's self-check compares it with the network as trained. What stays outside the graph needs no PyTorch (:mod:`opnet.deploy.runtime`): the
@@ -31,6 +31,7 @@ import torch
 
 from opnet import __version__
 from opnet.fileio.atomic import temporary_beside, write_errors_named
+from opnet.deploy.metadata import OUTPUTS, QUALITY_OUTPUT
 from opnet.geometry.camera import CAMERA_FIELDS
 from opnet.geometry.pose_numpy import PoseSpaceArrays
 from opnet.models.fused import export_form
@@ -41,7 +42,11 @@ METADATA_KEY = "opnet"
 FORMATS = ("onnx",)
 #: the ONNX opset of the export (onnxruntime 1.32 runs up to 23)
 OPSET = 17
-OUTPUTS = ("presence", "visibility", "translation", "rotation")
+
+
+def graph_outputs(param: Parameterization) -> tuple[str, ...]:
+    """The names of the exported graph's outputs for ``param``: :data:`OUTPUTS`, and ``quality`` where it has one."""
+    return (*OUTPUTS, QUALITY_OUTPUT) if param.has_quality else OUTPUTS
 
 
 class DenseDecodingNetwork(torch.nn.Module):
@@ -67,8 +72,9 @@ class DenseDecodingNetwork(torch.nn.Module):
         cells = (self.slot.repeat(B), self.row.repeat(B), self.col.repeat(B))
         t, R = self.param.decode_poses(feat, cells, cams)
         lay = self.param.layout
-        return (feat[:, lay.presence].reshape(B, N), feat[:, lay.visibility].reshape(B, N), t.reshape(B, N, 3),
+        outs = (feat[:, lay.presence].reshape(B, N), feat[:, lay.visibility].reshape(B, N), t.reshape(B, N, 3),
                 R.reshape(B, N, 3, 3))
+        return (*outs, feat[:, lay.quality].reshape(B, N)) if lay.quality is not None else outs
 
 
 def parameterization_name(param: Parameterization) -> str:
@@ -105,7 +111,7 @@ def export_metadata(system: Any, cfg: Any, ckpt: Path) -> dict[str, Any]:
         "camera_input": list(CAMERA_FIELDS),
         # the training scenes' clip planes: the runtime normalizes an input's depth with them
         "trained_clip": framing["trained_clip"],
-        "outputs": list(OUTPUTS),
+        "outputs": list(graph_outputs(param)),
         **settings.decoding.to_metadata(),
         "pose_space": PoseSpaceArrays.of(param.obj.pose_space).to_dict(),
         "icp_model": icp_model_metadata(param.obj, settings.refine),
@@ -143,6 +149,7 @@ def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET
 
     meta = export_metadata(system, cfg, ckpt)
     size = meta["input"]["size"]
+    names = list(graph_outputs(system.parameterization))
     model = DenseDecodingNetwork(export_form(system.backbone), system.parameterization).eval()
     depth = torch.rand(2, 1, size, size)
     cam = torch.tensor([[size * 1.2, size * 1.2, (size - 1) / 2, (size - 1) / 2, size, size, 0.5, 1.5]] * 2,
@@ -155,9 +162,9 @@ def export_onnx(system: Any, cfg: Any, ckpt: Path, out: Path, opset: int = OPSET
             with torch.no_grad(), warnings.catch_warnings():
                 warnings.simplefilter("ignore", torch.jit.TracerWarning)  # the backbone's shape checks become constants
                 torch.onnx.export(model, (depth, cam), str(tmp), input_names=["depth", "camera"],
-                                  output_names=list(OUTPUTS), opset_version=opset, dynamo=False,
+                                  output_names=names, opset_version=opset, dynamo=False,
                                   dynamic_axes={"depth": {0: "batch"}, "camera": {0: "batch"},
-                                                **{k: {0: "batch"} for k in OUTPUTS}})
+                                                **{k: {0: "batch"} for k in names}})
             proto = onnx.load(str(tmp))
             entry = proto.metadata_props.add()
             entry.key, entry.value = METADATA_KEY, json.dumps(meta)
@@ -179,5 +186,6 @@ def reference_outputs(system: Any, depth: np.ndarray, camera: np.ndarray) -> tup
 
 
 def max_abs_difference(a: tuple[np.ndarray, ...], b: tuple[np.ndarray, ...]) -> dict[str, float]:
-    return {name: float(np.max(np.abs(x - y))) if x.size else 0.0 for name, x, y in zip(OUTPUTS, a, b, strict=True)}
+    names = (*OUTPUTS, QUALITY_OUTPUT)[: len(a)]
+    return {name: float(np.max(np.abs(x - y))) if x.size else 0.0 for name, x, y in zip(names, a, b, strict=True)}
 

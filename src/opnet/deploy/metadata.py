@@ -20,6 +20,10 @@ from opnet.geometry.symmetry import MAX_GROUP_SIZE, symmetry_from_rotations
 from opnet.run_settings import DecodingSettings, InputSettings, RunSettings, check_format
 from opnet.settings_schema import METADATA, Flag, Number, SettingError, Spec, Whole, read_settings
 
+#: the exported graph's outputs, every cell's (:mod:`opnet.deploy.export`)
+OUTPUTS = ("presence", "visibility", "translation", "rotation")
+#: the output a network with a quality channel adds after :data:`OUTPUTS`
+QUALITY_OUTPUT = "quality"
 MAX_ICP_POINTS = 20_000  # points of the ICP model cloud in the metadata
 REQUIRED = ("format", "parameterization", "grid_size", "slots", "channels_per_slot", "input", "decoding", "pose_space",
             "outputs")

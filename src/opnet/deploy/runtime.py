@@ -26,7 +26,7 @@ import numpy as np
 from opnet._limits import check_threads
 from opnet.data.preprocess import to_network_input
 from opnet.data.roi import crop_image, parse_roi
-from opnet.deploy.metadata import validate_metadata
+from opnet.deploy.metadata import OUTPUTS, QUALITY_OUTPUT, validate_metadata
 from opnet.fileio.files import require_regular_file
 from opnet.geometry.camera import Camera, with_clip, working_clip
 from opnet.geometry.frames import BASE_POSE_KEY
@@ -36,6 +36,7 @@ from opnet.parameterizations.averaging import PoseAveraging
 from opnet.parameterizations.turns import quarters, turned_back, turned_camera
 from opnet.refine import ICPSettings, ModelCloud, Refiner, search_settings
 from opnet.run_settings import REFINE_NAMES, DecodingSettings, InputSettings
+from opnet.settings_schema import QUALITY_SCORES, hypothesis_score
 
 METADATA_KEY = "opnet"
 
@@ -153,6 +154,12 @@ class OnnxPoseEstimator:
         names = [o.name for o in self.session.get_outputs()]
         if names != list(m["outputs"]):
             raise ValueError(f"{self.path}: graph outputs {names} differ from the metadata's outputs {m['outputs']}")
+        if names not in (list(OUTPUTS), [*OUTPUTS, QUALITY_OUTPUT]):
+            raise ValueError(f"{self.path}: graph outputs {names}: expected {list(OUTPUTS)}, and {QUALITY_OUTPUT!r} "
+                             "after them from a network with a quality channel")
+        if s["decoding"].score in QUALITY_SCORES and QUALITY_OUTPUT not in names:
+            raise ValueError(f"{self.path}: decoding.score={s['decoding'].score!r} reads the quality channel q, and "
+                             f"the graph has no {QUALITY_OUTPUT!r} output")
         cells = s["slots"] * s["grid_size"] ** 2
         shape = self.session.get_outputs()[0].shape  # (batch, N)
         if len(shape) != 2 or shape[1] != cells:
@@ -181,19 +188,21 @@ class OnnxPoseEstimator:
         for q in quarters(self.turns)[1:]:
             turned = np.ascontiguousarray(np.rot90(images, q, axes=(-2, -1)))
             rows = np.asarray([turned_camera(Camera.from_row(r), q).row() for r in cameras], dtype=np.float64)
-            presence, visibility, t, R = self.session.run(None, {"depth": turned, "camera": rows})
+            presence, visibility, t, R, *quality = self.session.run(None, {"depth": turned, "camera": rows})
             R, t = turned_back(R, t, q)
-            outs.append((presence, visibility, t, R))
+            outs.append((presence, visibility, t, R, *quality))
         return tuple(np.concatenate(x, axis=1) for x in zip(*outs, strict=True))
 
-    def decode(self, presence: np.ndarray, visibility: np.ndarray, t: np.ndarray, R: np.ndarray) -> HypothesisSet:
-        """Hypotheses of one image from its dense outputs (N,), (N,), (N, 3), (N, 3, 3) (with ``turns``, the
-        cells of each turn one after the other, as :meth:`run` gives them)."""
+    def decode(self, presence: np.ndarray, visibility: np.ndarray, t: np.ndarray, R: np.ndarray,
+               quality: np.ndarray | None = None) -> HypothesisSet:
+        """Hypotheses of one image from its dense outputs (N,), (N,), (N, 3), (N, 3, 3) and, from a network with a
+        quality channel, (N,) (with ``turns``, the cells of each turn one after the other, as :meth:`run` gives
+        them)."""
         passes = len(quarters(self.turns))
         keep = np.concatenate([self._kept(p, v) for p, v in zip(np.split(presence, passes),
                                                                   np.split(visibility, passes), strict=True)])
         p, v = presence[keep], visibility[keep]
-        score = {"p": p, "p*v": p * v, "v": v}[self.score]
+        score = hypothesis_score(self.score, p, v, None if quality is None else quality[keep])
         hyps = HypothesisSet(R[keep], t[keep], score, v)
         return self.averaging(hyps) if self.averaging is not None else hyps
 
@@ -211,8 +220,7 @@ class OnnxPoseEstimator:
         """Pose hypotheses of one depth image ((H, W) metres, NaN = missing) in its camera frame."""
         camera = with_clip(camera, self.clip)
         image, cam = self.preprocess(depth, camera)
-        presence, visibility, t, R = self.run(image, cam)
-        return self.refine(self.decode(presence[0], visibility[0], t[0], R[0]), depth, camera)
+        return self.refine(self.decode(*(o[0] for o in self.run(image, cam))), depth, camera)
 
     def refine(self, hyps: HypothesisSet, depth: np.ndarray, camera: Camera) -> HypothesisSet:
         """The hypotheses refined by ICP against the depth when the estimator has ``icp`` settings."""

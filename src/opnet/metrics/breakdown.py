@@ -18,6 +18,13 @@ Each miss that has a hypothesis near it is then put down to the largest of the f
 squared Brégier distance: lateral, depth, tilt (the distance of the swing alone) or spin (of the turn
 about the axis alone). A part missed mostly on spin is one whose turn about its axis the network did
 not see; mostly on tilt, one whose plane it did not measure.
+
+The instances are also counted by how the camera sees the truth's main axis (:data:`VIEWS`): *end-on* (the
+axis within 30° of the line of sight: a plate seen face-on, a wheel seen from its hub), *oblique*, or
+*side-on* (the axis within 30° of the image plane: a plate seen edge-on, a wheel lying on its tread). A spin
+about an axis seen side-on moves the surface mostly along the line of sight or behind it, and a part whose
+spin-telling features (spokes, holes, teeth) sit inside or under it may show nothing of its spin at all: found
+shares that fall from end-on to side-on say so.
 """
 
 from __future__ import annotations
@@ -35,6 +42,18 @@ from opnet.metrics.records import GroundTruthSet, HypothesisSet
 
 #: the components a miss is put down to (the largest share of its squared distance)
 COMPONENTS = ("lateral", "depth", "tilt", "spin")
+#: how the camera sees the truth's main axis: its angle to the line of sight below 30°, 30-60°, above 60°
+VIEWS = ("end_on", "oblique", "side_on")
+VIEW_EDGES_DEG = (30.0, 60.0)
+
+
+def view_of_axis(R: np.ndarray, t: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(N,) index into :data:`VIEWS` of parts at poses ``R`` (N, 3, 3), ``t`` (N, 3) (camera frame): the angle
+    between the main ``axis`` (part frame; its sign does not matter) and the line of sight through the origin."""
+    a = np.asarray(R, np.float64) @ np.asarray(axis, np.float64)
+    ray = np.asarray(t, np.float64) / np.linalg.norm(t, axis=-1, keepdims=True).clip(1e-12)
+    angle = np.degrees(np.arccos(np.clip(np.abs((a * ray).sum(-1)), 0.0, 1.0)))
+    return np.searchsorted(np.asarray(VIEW_EDGES_DEG), angle, side="right")
 
 
 def main_axis(space: PoseSpace) -> np.ndarray:
@@ -82,6 +101,8 @@ class ErrorBreakdown:
             population, matched or not).
         lateral_mm_p50, depth_mm_p50, tilt_deg_p50, spin_deg_p50 (and p90): over ``near``.
         axis: the main axis (mesh frame).
+        to_find_by_view, matched_by_view: the instances to find and those found, by how the camera sees their
+            main axis (:data:`VIEWS`: end-on, oblique, side-on).
     """
 
     to_find: int
@@ -101,6 +122,13 @@ class ErrorBreakdown:
     spin_deg_p50: float
     spin_deg_p90: float
     axis: tuple[float, float, float]
+    to_find_by_view: tuple[int, int, int] = (0, 0, 0)
+    matched_by_view: tuple[int, int, int] = (0, 0, 0)
+
+    def found_by_view(self) -> dict[str, float]:
+        """The share found of the instances to find seen each way (:data:`VIEWS`); NaN where none is."""
+        return {v: m / n if n else float("nan")
+                for v, n, m in zip(VIEWS, self.to_find_by_view, self.matched_by_view, strict=True)}
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -121,6 +149,9 @@ class ErrorBreakdown:
             f"missed mostly on {misses}",
             f"  nearest hypotheses ({self.near}): lateral p50 {self.lateral_mm_p50:.1f} mm, depth p50 "
             f"{self.depth_mm_p50:.1f} mm, tilt p50 {self.tilt_deg_p50:.1f} deg, spin p50 {self.spin_deg_p50:.1f} deg",
+            "  found by how the main axis is seen: " + ", ".join(
+                f"{v.replace('_', '-')} {f:.0%} of {n}" if n else f"{v.replace('_', '-')} none"
+                for (v, f), n in zip(self.found_by_view().items(), self.to_find_by_view, strict=True)),
         ])  # fmt: skip
 
 
@@ -150,11 +181,16 @@ def error_breakdown(
     axis = main_axis(space)
     counts = dict.fromkeys(("to_find", "matched", "no_hypothesis", *(f"missed_{c}" for c in COMPONENTS)), 0)
     lateral, depth, tilt, spin = [], [], [], []
+    by_view = np.zeros((2, len(VIEWS)), dtype=np.int64)  # to find, found
     for (gt, _), scene in zip(scenes.values(), scene_outcomes(scenes, space, diameter, max_occlusion, min_occlusion),
                               strict=True):  # fmt: skip
         find = scene.find
         counts["to_find"] += int(find.sum())
         counts["matched"] += int((find & (scene.outcome == "matched")).sum())
+        if find.any():
+            view = view_of_axis(gt.R[find], gt.t[find], axis)
+            by_view[0] += np.bincount(view, minlength=len(VIEWS))
+            by_view[1] += np.bincount(view[scene.outcome[find] == "matched"], minlength=len(VIEWS))
         near = find & (scene.nearest >= 0) & (scene.outcome != "no_hypothesis")
         counts["no_hypothesis"] += int((find & ~near).sum())
         if not near.any():
@@ -194,7 +230,8 @@ def error_breakdown(
         tilt_deg_p50=pct(tilt, 50), tilt_deg_p90=pct(tilt, 90),
         spin_deg_p50=pct(spin, 50), spin_deg_p90=pct(spin, 90),
         axis=(float(axis[0]), float(axis[1]), float(axis[2])),
+        to_find_by_view=tuple(int(x) for x in by_view[0]), matched_by_view=tuple(int(x) for x in by_view[1]),
     )  # fmt: skip
 
 
-__all__ = ["COMPONENTS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist"]
+__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist", "view_of_axis"]

@@ -35,7 +35,7 @@ from opnet.objects.model import ObjectModel
 from opnet.parameterizations.assignment import Candidates, resolve
 from opnet.parameterizations.averaging import PoseAveraging
 from opnet.parameterizations.averaging_torch import average_batch
-from opnet.parameterizations.batch import POSE_CHANNEL_NAMES, ChannelLayout, GroundTruthBatch
+from opnet.parameterizations.batch import POSE_CHANNEL_NAMES, QUALITY_CHANNEL_NAME, ChannelLayout, GroundTruthBatch
 from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.rotation import RotationCodec
 from opnet.parameterizations.turns import quarters, turned_back, turned_camera
@@ -46,7 +46,16 @@ from opnet.parameterizations.positions import (
     ObjectProjection,
     project_origins,
 )
-from opnet.settings_schema import DECODING_SCALARS, OVERRIDE, TRAINING, check_settings, read_settings
+from opnet.settings_schema import (
+    DECODING_SCALARS,
+    OVERRIDE,
+    QUALITY_SCORES,
+    TRAINING,
+    SettingError,
+    check_settings,
+    hypothesis_score,
+    read_settings,
+)
 
 POSE_WEIGHTINGS = ("cubic", "linear")
 class Parameterization(abc.ABC):
@@ -60,7 +69,7 @@ class Parameterization(abc.ABC):
         euler: Euler convention of the orientation channels when ``rotation`` is None
             (docs/method.md#orientation).
         threshold: presence threshold τ of a hypothesis (docs/method.md#decoding).
-        score: hypothesis score: "p" (p̂), "p*v" (p̂ v̂) or "v" (v̂).
+        score: hypothesis score: "p" (p̂), "p*v" (p̂ v̂) or "v" (v̂); with ``quality`` also "p*q" and "p*v*q".
         averaging: cluster and average the hypotheses of each image (docs/method.md#decoding).
         averaging_eps: DBSCAN radius as a fraction of δ.
         averaging_min_samples: DBSCAN core-point threshold.
@@ -72,6 +81,10 @@ class Parameterization(abc.ABC):
         min_visibility: decode only cells whose predicted visibility is at least this (0: all, the
             paper); instances more than half occluded need not be found (the metric ignores them)
             but their poses are the least trained, so gating them removes false positives.
+        turns: the input's quarter turns the decoding pools (1, 2 or 4; docs/method.md#decoding).
+        quality: one more channel per slot, q, trained to estimate how right the slot's orientation is
+            (:func:`opnet.losses.quality_target`), for the scores "p*q" and "p*v*q"
+            (docs/method.md#orientation-quality); False: the paper's channels.
 
     Attributes:
         grid_size, slots, channels_per_slot (8, or 7 for revolution objects), out_channels,
@@ -102,6 +115,7 @@ class Parameterization(abc.ABC):
         min_visibility: float = 0.0,
         min_target_visibility: float = 0.0,
         turns: int = 1,
+        quality: bool = False,
     ) -> None:
         check_settings({"grid": grid, "slots": slots, "threshold": threshold, "min_visibility": min_visibility,
                         "turns": turns,
@@ -124,7 +138,8 @@ class Parameterization(abc.ABC):
                 f"object {obj.name!r}'s ({obj.symmetry.kind})"
             )
         # a subclass may replace it after this __init__ with another order of the same channels
-        self.layout = ChannelLayout.for_rotation(self.rotation.num_channels)
+        self.layout = ChannelLayout.for_rotation(self.rotation.num_channels, bool(quality))
+        self._check_score(self.score, "parameterization.score")
         self.averaging = (
             PoseAveraging(obj.pose_space, averaging_eps, averaging_min_samples, averaging_score)
             if averaging
@@ -145,6 +160,8 @@ class Parameterization(abc.ABC):
         lay, names = self.layout, [""] * self.layout.channels
         names[lay.presence], names[lay.visibility] = POSE_CHANNEL_NAMES[:2]
         names[lay.position], names[lay.rotation] = POSE_CHANNEL_NAMES[2:], self.rotation.channel_names
+        if lay.quality is not None:
+            names[lay.quality] = QUALITY_CHANNEL_NAME
         if self.slots == 1:
             return list(names)
         return [f"{name}[{slot}]" for slot in range(self.slots) for name in names]
@@ -330,10 +347,21 @@ class Parameterization(abc.ABC):
         t = self.decode_translations(feat[:, self.layout.position], cells, cams)
         return t, self.rotation.decode(feat[:, self.layout.rotation])
 
+    @property
+    def has_quality(self) -> bool:
+        """The network writes a quality channel q (``parameterization.quality``; the scores ``p*q``, ``p*v*q``)."""
+        return self.layout.quality is not None
+
+    def _check_score(self, score: str, key: str) -> None:
+        if score in QUALITY_SCORES and not self.has_quality:
+            raise SettingError(key, score, "reads the quality channel q, and this network has none (it was trained "
+                               "without parameterization.quality=true): use p, p*v or v")
+
     def hypothesis_scores(self, feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Score (N,) (``score``: p̂, p̂ v̂ or v̂) and predicted visibility (N,) of feature vectors (N, C)."""
+        """Score (N,) (``score``: p̂, p̂ v̂, v̂, p̂ q̂ or p̂ v̂ q̂) and predicted visibility (N,) of feature vectors (N, C)."""
         p_hat, v_hat = feat[:, self.layout.presence], feat[:, self.layout.visibility]
-        return {"p": p_hat, "p*v": p_hat * v_hat, "v": v_hat}[self.score], v_hat
+        q_hat = feat[:, self.layout.quality] if self.has_quality else None
+        return hypothesis_score(self.score, p_hat, v_hat, q_hat), v_hat
 
     def _decode_on_device(self, b: torch.Tensor, R: torch.Tensor, t: torch.Tensor, score: torch.Tensor,
                           v_hat: torch.Tensor, B: int) -> list[HypothesisSet]:  # fmt: skip
@@ -362,6 +390,8 @@ class Parameterization(abc.ABC):
         (:mod:`opnet.settings_schema`): a bad or unknown one raises a ``SettingError`` naming ``decoding.<key>``.
         """
         given = read_settings({"decoding": settings}, OVERRIDE, closed=("decoding", "decoding.averaging"))
+        if "score" in given:
+            self._check_score(given["score"], "decoding.score")
         new = copy.copy(self)
         for key in DECODING_SCALARS:
             if key in given:

@@ -12,11 +12,13 @@ import numpy as np
 import torch
 
 POSE_CHANNEL_NAMES = ("p", "v", "x", "y", "z")
+#: the name of the quality channel (:attr:`ChannelLayout.quality`)
+QUALITY_CHANNEL_NAME = "q"
 
 
 @dataclass(frozen=True)
 class ChannelLayout:
-    """Where each quantity lies among the ``channels`` of one slot: ``[p, v, x, y, z, rotation...]``.
+    """Where each quantity lies among the ``channels`` of one slot: ``[p, v, x, y, z, rotation..., (q)]``.
 
     Index the channel axis of one slot with these: ``grid5[:, :, layout.presence]`` of a
     :meth:`Parameterization.split_slots` view is the (B, L, S, S) presence, ``feat[:, layout.position]``
@@ -28,6 +30,9 @@ class ChannelLayout:
         position: slice of the three position channels x, y, z.
         rotation: slice of the rotation codec's channels.
         channels: channels per slot; every one belongs to exactly one of the above.
+        quality: index of q, the network's estimate of how right the slot's orientation is (its target: how
+            close the orientation decoded from the slot's rotation channels lies to the truth); None: no such
+            channel (the paper's layout).
     """
 
     presence: int
@@ -35,19 +40,24 @@ class ChannelLayout:
     position: slice
     rotation: slice
     channels: int
+    quality: int | None = None
 
     def __post_init__(self) -> None:
         every = range(self.channels)
         used = [self.presence, self.visibility, *every[self.position], *every[self.rotation]]
+        if self.quality is not None:
+            used.append(self.quality)
         if sorted(used) != list(every) or len(every[self.position]) != 3:
             raise ValueError(f"{self}: each of the {self.channels} channels must belong to exactly one quantity, "
                              "three of them to the position")
 
     @classmethod
-    def for_rotation(cls, rotation_channels: int) -> ChannelLayout:
-        """The layout of a slot whose rotation codec writes ``rotation_channels`` channels."""
+    def for_rotation(cls, rotation_channels: int, quality: bool = False) -> ChannelLayout:
+        """The layout of a slot whose rotation codec writes ``rotation_channels`` channels (``quality``: one
+        more channel after them, q)."""
         head = len(POSE_CHANNEL_NAMES)
-        return cls(0, 1, slice(2, head), slice(head, head + rotation_channels), head + rotation_channels)
+        end = head + rotation_channels
+        return cls(0, 1, slice(2, head), slice(head, end), end + int(quality), end if quality else None)
 
 
 @dataclass
