@@ -91,7 +91,10 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
 
     turns = OrientationMisses(10, (1, 0, 0, 0, 1, 8), 0.8, (TurnMode(178.0, (1.0, 0.0, 0.0), 90.0, 0.7),), 20.0)
     (tmp_path / "run27" / "test").mkdir(parents=True)
-    (tmp_path / "run27" / "test" / "summary.json").write_text(json.dumps({"orientation_misses": turns.to_dict()}))
+    # ... and its parts to find counted by how the camera sees their main axis (end-on, oblique, side-on)
+    views = {"to_find_by_view": [20, 40, 40], "matched_by_view": [18, 20, 10]}
+    (tmp_path / "run27" / "test" / "summary.json").write_text(json.dumps({"orientation_misses": turns.to_dict(),
+                                                                          "breakdown": views}))
     # and scored with the refinement on its held-out piles (not on the other engine's: they were not made)
     (tmp_path / "run27" / "test_refined").mkdir()
     (tmp_path / "run27" / "test_refined" / "summary.json").write_text(json.dumps({"ap": 0.45}))
@@ -133,6 +136,9 @@ def test_new_parts_table_reads_the_bench_rows_and_gives_a_reason_below_target(tm
     assert ("of the orientation misses 80.0 % turned over (> 150°), the largest cluster: 70% a 178° turn about "
             "(+1.00, +0.00, +0.00), 90° from the part's z") in table["itodd27"]["reason"]
     assert float(table["itodd27"]["turned_over"]) == 0.8 and t["turned_over"] == ""  # tless20: no run here
+    assert table["itodd27"]["reason"].endswith("; 40.0 % lie with their main axis across the line of sight (side-on), "
+                                               "of which 25.0 % found (end-on: 90.0 %)")
+    assert t["side_on"] == "" and "side-on" not in t["reason"]  # no count by view: nothing said
     # the CSV keeps the training piles' fill only where their bin differs from the recipe's
     assert float(t["fill_made"]) == 0.82 and table["pepper"]["fill_made"] == table["itodd27"]["fill_made"] == ""
 

@@ -29,6 +29,7 @@ from typing import Any
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
+from opnet.metrics.breakdown import view_shares
 from opnet.paths import REPO_ROOT, best_checkpoint
 from opnet.studies import mean_sd_text, merge_csv, run_logged, train_command
 
@@ -49,7 +50,8 @@ DENSE_DATA = REPO_ROOT / "outputs" / "data" / "dense"
 FIELDS = ("part", "lever", "arm", "seed", "steps", "split", "ap_decoded", "ap_refined", "ms_per_frame", "found",
           "found_refined", "no_hypothesis", "missed_lateral", "missed_depth", "missed_tilt", "missed_spin",
           "lateral_mm_p50", "depth_mm_p50", "tilt_deg_p50", "spin_deg_p50", "train_minutes", "train_val_ap",
-          "overrides", "ap_decoded_own_group", "ap_refined_own_group")  # fmt: skip
+          "overrides", "ap_decoded_own_group", "ap_refined_own_group", "found_end_on", "found_side_on",
+          "side_on")  # fmt: skip
 
 #: the cell recipe's training (cells.py's "auto" arm): EVE, small preset, 128-pixel input over a 0.8 m square
 #: around the basket, 16 x 16 cells, 3000 steps
@@ -96,6 +98,11 @@ TURN_ARMS = {**{f"turns{n}": {"from": "exact", "eval": [f"+decoding.turns={n}"]}
              # experiment=dense does (tune_decoding: 8)
              "turns4_tuned": {"from": "exact", "start": {"turns": 4}, "tune": 8}}
 
+#: the network also learns how right each cell's orientation is (a quality channel q, its target 2^-(d/δ)²), and the
+#: score multiplies it in; the recipe's tuning (tune_decoding: 8) then chooses among p, p*v, p*q and p*v*q on
+#: validation. Its A/B: turns4_tuned, the same recipe's network without the channel, tuned the same way
+QUALITY_ARMS = {"quality": {"train": ["parameterization.quality=true", "parameterization.score=p*q"]}}
+
 #: part -> lever -> arm -> the overrides of train.py it adds to the part's recipe ("steps": its step count;
 #: "from": scored with another arm's network (and trained its steps), "eval" adding eval.py overrides, "refined" only
 #: to the refined scoring, "tune": a copy of the network's checkpoint decoding as tuned after training on every
@@ -126,6 +133,9 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                      **{f"cell_turns{n}": {"model": "cell", "eval": [f"+decoding.turns={n}"]} for n in (1, 2, 4)},
                      # ... its decoding tuned on every validation scene of its training piles (they hold few)
                      "cell_tuned": {"model": "cell", "tune": 1}},
+        # the one command's recipe (experiment=cell, as cells.py --stage cell runs it: tune_decoding 1 included) with
+        # the quality channel; its A/B: cell_tuned, the shipped model the same recipe made without it
+        "quality": {"cell_quality": {"recipe": "cell", "train": QUALITY_ARMS["quality"]["train"]}},
         # each the kept arm's network (g32_s6000) with the recorded search changed, in its refined scoring only
         "refinement": {
             # the searched poses polished by projective ICP instead of nearest-point ICP
@@ -218,6 +228,7 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "grid": {"g32": {"train": ["parameterization.grid=32"]}},
         "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}},
         "decoding": TURN_ARMS,
+        "quality": QUALITY_ARMS,
     },
     "itodd27": {
         "symmetry": {"exact": {},
@@ -226,6 +237,7 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         # the orientation's loss weighted 3 x against position and presence (the misses of both are spins)
         "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}},
         "decoding": TURN_ARMS,
+        "quality": QUALITY_ARMS,
     },
 }
 
@@ -261,10 +273,17 @@ def plate_train(arm: str, seed: int) -> Path:
         return model_run(spec)
     if "from" in spec:  # scored differently, trained as another arm
         return plate_train(spec["from"], seed)
+    out = run_dir("plate", arm, seed)
+    if spec.get("recipe") == "cell":  # the one command's recipe, its own steps, piles and tuning
+        if best_checkpoint(out) is None or not (out / "tune_val").is_dir():
+            last = out / "checkpoints" / "last.ckpt"
+            resume = [f"ckpt_path={last}"] if last.is_file() else []
+            run_logged(train_command([*CELLS.cell_overrides(200, 2, 0.5, None), "test=false", f"seed={seed}",
+                                      *spec.get("train", []), *resume], out), out / "console.log")  # fmt: skip
+        return out
     train_sets, _ = CELLS.datasets(CELL_DATA, 200, 12)
     roots = "[" + ",".join(str(r) for r, *_ in train_sets) + "]"
     steps = plate_steps(arm)
-    out = run_dir("plate", arm, seed)
     if not trained_to(out, steps):
         last = out / "checkpoints" / "last.ckpt"  # a run stopped part-way resumes where it stopped
         resume = [f"ckpt_path={last}"] if last.is_file() else []
@@ -293,8 +312,8 @@ def model_run(spec: dict[str, Any]) -> Path:
 def plate_steps(arm: str) -> int:
     """The training steps behind an arm's network (an arm scored "from" another: that arm's)."""
     _, spec = arm_spec("plate", arm)
-    if "model" in spec:
-        points = learning_curve(model_run(spec))
+    if "model" in spec or "recipe" in spec:
+        points = learning_curve(model_run(spec) if "model" in spec else run_dir("plate", arm, 0))
         return int(points[-1]["step"]) if points else 0
     return plate_steps(spec["from"]) if "from" in spec else spec.get("steps", PLATE_STEPS)
 
@@ -312,7 +331,7 @@ def plate_eval(arm: str, seed: int, split: str, refine: str) -> dict[str, Any]:
         ckpt = tuned_copy(ckpt, run_dir("plate", arm, seed), spec)
         refined = spec.get("refined", []) if refine != "none" else []
         overrides = [*CELLS.REFINE[refine], *spec.get("eval", []), *refined]
-        if "model" in spec and split == "val":  # its own training piles' validation cycles
+        if ("model" in spec or "recipe" in spec) and split == "val":  # its own training piles' validation cycles
             run_logged([sys.executable, str(REPO_ROOT / "eval.py"), f"ckpt={ckpt}", "split=val", f"out={out}",
                         "examples=0", *overrides], out.with_suffix(".log"))  # fmt: skip
         else:
@@ -358,6 +377,7 @@ def row_of(part: str, arm: str, seed: int, split: str, decoded: dict[str, Any], 
                                                        "missed_spin")},
             **{k: round(b.get(k, float("nan")), 2) for k in ("lateral_mm_p50", "depth_mm_p50", "tilt_deg_p50",
                                                              "spin_deg_p50")},
+            **{k: round(v, 4) if v != "" else "" for k, v in view_shares(b).items()},
             "train_minutes": minutes, "train_val_ap": round(in_training, 4) if in_training is not None else "",
             "overrides": " ".join(overrides)}  # fmt: skip
 
@@ -547,9 +567,10 @@ def write_page(rows: list[dict[str, Any]]) -> None:
             own_group = any(r.get("ap_decoded_own_group") for k in keys for r in groups[k])
             lines += [f"## {part}, {split.replace('_', '-')} piles", "",
                       "| lever | arm | seeds | AP decoded | AP refined | found % | no hyp % | lateral % | depth % | "
-                      "tilt % | spin % | tilt p50 ° | spin p50 ° | refine ms/img | AP in training |"
+                      "tilt % | spin % | tilt p50 ° | spin p50 ° | found end-on % | found side-on % (side-on share) | "
+                      "refine ms/img | AP in training |"
                       + (" AP decoded / refined, the part's own group |" if own_group else ""),
-                      "|---" * (16 if own_group else 15) + "|"]  # fmt: skip
+                      "|---" * (18 if own_group else 17) + "|"]  # fmt: skip
             for key in keys:
                 g = groups[key]
 
@@ -564,7 +585,8 @@ def write_page(rows: list[dict[str, Any]]) -> None:
                 lines.append(f"| {key[2]} | {key[3]} | {len(g)} | {m('ap_decoded')} | {m('ap_refined')} | "
                              f"{m('found', 100, 1)} | {m('no_hypothesis', 100, 1)} | {m('missed_lateral', 100, 1)} | "
                              f"{m('missed_depth', 100, 1)} | {m('missed_tilt', 100, 1)} | {m('missed_spin', 100, 1)} | "
-                             f"{m('tilt_deg_p50', 1, 1)} | {m('spin_deg_p50', 1, 1)} | {m('ms_per_frame', 1, 0)} | "
+                             f"{m('tilt_deg_p50', 1, 1)} | {m('spin_deg_p50', 1, 1)} | {m('found_end_on', 100, 0)} | "
+                             f"{m('found_side_on', 100, 0)} ({m('side_on', 100, 0)}) | {m('ms_per_frame', 1, 0)} | "
                              f"{m('train_val_ap')} |" + (f" {own} |" if own_group else ""))  # fmt: skip
             lines.append("")
     lines += NOTES

@@ -67,8 +67,10 @@ REFINED = {"ap_refined": "test_refined", "ap_pybullet_refined": "eval_pybullet_r
 TARGET = 0.6
 FIELDS = ("object", "symmetry", "near_symmetry", "d_mm", "camera_m", "fill", "fill_made", "ap", "ap_tuned", "ap_configured", "ap_pybullet",
           "ap_refined", "ap_pybullet_refined", "pybullet_note", "found", "position", "orientation", "no_hypothesis", "confident_fp_per_scene", "t_err_mm_p50", "r_err_deg_p50", "steps",
-          "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "turned_over", "turn_mode", "target", "met",
-          "reason")
+          "gen_minutes", "train_minutes", "train_scenes", "test_scenes", "turned_over", "turn_mode", "found_end_on",
+          "found_side_on", "side_on", "target", "met", "reason")
+#: the fields of :func:`opnet.metrics.breakdown.view_shares`
+VIEWS = ("found_end_on", "found_side_on", "side_on")
 TITLE = "New parts: the dense recipe on parts nobody tuned for"
 
 
@@ -153,13 +155,18 @@ def reason(row: dict[str, Any]) -> str:
     if worst == "orientation" and row.get("turned_over") not in ("", None):
         turns = (f"; of the orientation misses {fmt(row['turned_over'], 'pct')} % turned over (> 150°), the largest "
                  f"cluster: {row['turn_mode'] or 'none'}")
+    views = ""
+    if row.get("side_on") not in ("", None) and row.get("found_side_on") not in ("", None):
+        views = (f"; {fmt(row['side_on'], 'pct')} % lie with their main axis across the line of sight (side-on), of "
+                 f"which {fmt(row['found_side_on'], 'pct')} % found (end-on: {fmt(row['found_end_on'], 'pct')} %)")
     return (f"found {fmt(row['found'], 'pct')} % of the parts to find; missed on {worst} most ({shares}){turns}; "
-            f"{fmt(row['confident_fp_per_scene'], 'f1')} confident false positives per scene")
+            f"{fmt(row['confident_fp_per_scene'], 'f1')} confident false positives per scene{views}")
 
 
 def orientation_turns(run: str) -> dict[str, Any]:
     """``turned_over`` and ``turn_mode`` (the largest cluster of turns, as text) of the orientation misses on
     the run's held-out piles (its test ``summary.json``); empty where the run or the figures are absent."""
+    from opnet.metrics.breakdown import view_shares
     from opnet.metrics.diagnostics import TurnMode
     from opnet.studies import read_summary
 
@@ -167,7 +174,8 @@ def orientation_turns(run: str) -> dict[str, Any]:
     if not summary or "orientation_misses" not in summary:
         return {}
     misses = summary["orientation_misses"]
-    return {"turned_over": misses["turned_over"], "turn_mode": TurnMode(**misses["modes"][0]).text() if misses["modes"] else ""}
+    return {"turned_over": misses["turned_over"], "turn_mode": TurnMode(**misses["modes"][0]).text() if misses["modes"] else "",
+            **view_shares(summary.get("breakdown", {}))}
 
 
 def refine_run(part: str, run_dir: Path) -> None:
@@ -212,7 +220,7 @@ def table_rows(bench_csv: Path, previous: dict[str, dict[str, Any]]) -> list[dic
             row |= part_geometry(part, b.get("run", ""))
         except (FileNotFoundError, ValueError):  # the shared meshes absent: what the table had
             row |= {k: old.get(k, "") for k in ("d_mm", "camera_m", "fill", "fill_made", "near_symmetry")}
-        row |= orientation_turns(b.get("run", "")) or {k: old.get(k, "") for k in ("turned_over", "turn_mode")}
+        row |= orientation_turns(b.get("run", "")) or {k: old.get(k, "") for k in ("turned_over", "turn_mode", *VIEWS)}
         row |= {k: old.get(k, "") for k in REFINED} | refined(b.get("run", ""))
         if row["fill_made"] in ("", None) or math.isnan(float(row["fill_made"])):  # the piles not here: the table's
             row["fill_made"] = old.get("fill_made", "")

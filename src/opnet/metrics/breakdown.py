@@ -155,6 +155,17 @@ class ErrorBreakdown:
         ])  # fmt: skip
 
 
+def view_shares(breakdown: Mapping[str, Any]) -> dict[str, float | str]:
+    """From a breakdown as a summary stores it (:meth:`ErrorBreakdown.to_dict`): ``found_end_on`` and
+    ``found_side_on`` (the share found of the parts to find seen so) and ``side_on`` (the share of them seen side-on),
+    each an empty string where nothing was seen so; all empty for a breakdown made before the count by view."""
+    n, found = breakdown.get("to_find_by_view"), breakdown.get("matched_by_view")
+    if not n or not sum(n):
+        return {"found_end_on": "", "found_side_on": "", "side_on": ""}
+    return {"found_end_on": found[0] / n[0] if n[0] else "", "found_side_on": found[2] / n[2] if n[2] else "",
+            "side_on": n[2] / sum(n)}
+
+
 def _rotation_sq(space: PoseSpace, Q: np.ndarray) -> np.ndarray:
     """Squared Brégier rotation distance (m²) of turns ``Q`` (N, 3, 3) in the part's frame from the identity."""
     if space.revolution:
@@ -234,4 +245,5 @@ def error_breakdown(
     )  # fmt: skip
 
 
-__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist", "view_of_axis"]
+__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist", "view_of_axis",
+           "view_shares"]
