@@ -171,6 +171,8 @@ def test_a_training_config_is_checked_by_the_same_schema() -> None:
         VanillaParameterization(obj, grid=8, min_target_visibility="abc")  # was a TypeError (a traceback)
     with pytest.raises(ValueError, match=r"^parameterization.grid=True: expected a whole number in \[1, 1024\]$"):
         VanillaParameterization(obj, grid=True)  # was read as a 1 x 1 grid
+    with pytest.raises(ValueError, match=r"^parameterization.quality='maybe': expected true or false$"):
+        VanillaParameterization(obj, grid=8, quality="maybe")  # any text would have added the channel
     with pytest.raises(ValueError, match=r"^parameterization.averaging_eps=1000.0: expected a fraction of delta"):
         PoseAveraging(obj.pose_space, eps=1000.0)
 

@@ -118,7 +118,7 @@ class Parameterization(abc.ABC):
         quality: bool = False,
     ) -> None:
         check_settings({"grid": grid, "slots": slots, "threshold": threshold, "min_visibility": min_visibility,
-                        "turns": turns,
+                        "turns": turns, "quality": quality,
                         "score": score, "averaging": averaging, "averaging.eps": averaging_eps,
                         "averaging.min_samples": averaging_min_samples, "averaging.cluster_score": averaging_score,
                         "min_target_visibility": min_target_visibility}, TRAINING)  # fmt: skip
