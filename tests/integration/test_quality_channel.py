@@ -77,6 +77,25 @@ def test_the_loss_trains_q_toward_its_target_and_leaves_the_orientation_alone() 
     assert "quality" not in MultiTaskLoss()(target[:, :-1], target[:, :-1], _eve(False))
 
 
+def test_an_encoded_target_decodes_to_the_truth_with_full_quality() -> None:
+    """The target's q is that of an exact orientation (1): decoding a target scored p*q gives the truth, scored 1."""
+    from opnet.parameterizations.batch import GroundTruthBatch
+    from opnet.geometry.camera import Camera
+
+    param = _eve(True, score="p*q", averaging=False)
+    R = torch.eye(3, dtype=torch.float64)[None]
+    gt = GroundTruthBatch(batch_index=torch.zeros(1, dtype=torch.long), R_cam_obj=R,
+                          t_cam_obj=torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64),
+                          visibility=torch.ones(1, dtype=torch.float64), instance_id=torch.ones(1, dtype=torch.long),
+                          batch_size=1)
+    camera = Camera(100.0, 100.0, 63.5, 63.5, 128, 128, 0.5, 1.5)
+    target = param.encode(gt, camera)
+    assert (param.split_slots(target)[:, :, param.layout.quality] == param.split_slots(target)[:, :, 0]).all()
+    hyps = param.decode(target, [camera])[0]
+    assert len(hyps) >= 1 and torch.allclose(torch.as_tensor(hyps.score), torch.ones(len(hyps), dtype=torch.float64))
+    assert abs(hyps.t[:, 2] - 1.0).max() < 1e-3
+
+
 def test_scores_read_the_quality_channel_and_a_network_without_one_refuses_them() -> None:
     param = _eve(True, score="p*q")
     feat = torch.zeros(2, param.channels_per_slot)

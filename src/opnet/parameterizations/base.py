@@ -204,6 +204,8 @@ class Parameterization(abc.ABC):
         values[:, lay.visibility] = gt.visibility[winners.index].double()
         values[:, lay.position] = winners.position
         values[:, lay.rotation] = self.rotation.encode(gt.R_cam_obj[winners.index])
+        if lay.quality is not None:  # what a cell that writes exactly this orientation should say of it (q* = 1);
+            values[:, lay.quality] = 1.0  # the loss computes each prediction's own target (losses.quality_target)
         target = torch.zeros(
             gt.batch_size * L * S * S, C, dtype=torch.float32, device=gt.t_cam_obj.device
         )
