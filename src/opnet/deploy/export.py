@@ -6,7 +6,8 @@ camera ``fx fy cx cy width height clip_start clip_end``. It returns, for every c
 (N = slots x S x S, the order of ``Parameterization.decode``): ``presence`` (B, N),
 ``visibility`` (B, N), ``translation`` (B, N, 3) metres in the camera frame and ``rotation``
 (B, N, 3, 3), all float64: the parameterization's own decoding of every cell, traced from the
-same code; a network with a quality channel also ``quality`` (B, N), q̂ of every cell, after them. The network is traced in its fused inference arithmetic
+same code; a network with a quality channel also ``quality`` (B, N), q̂ of every cell, after them.
+The network is traced in its fused inference arithmetic
 (:func:`opnet.models.fused.export_form`: batch norms folded, transitions pooled first, the paper
 network's 3x3 convolutions split 48 + 2; the same function, faster in ONNX Runtime too); the
 export's self-check compares it with the network as trained. What stays outside the graph needs no PyTorch (:mod:`opnet.deploy.runtime`): the
