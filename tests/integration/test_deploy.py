@@ -33,6 +33,9 @@ from opnet.deploy.runtime import OnnxPoseEstimator  # noqa: E402
 @pytest.mark.parametrize("param", parameterization_names())
 def test_every_parameterization_exports_and_matches_pytorch(param: str, tmp_path: Path) -> None:
     cfg = compose_cfg("train", ["model=tiny", "object=zbracket", f"parameterization={param}"])
+    # the untrained weights fixed: drawn from whatever state the tests before left, a draw whose rotation columns
+    # stand nearly parallel in some cell turns ONNX Runtime's last-bit differences into 1e-4 of a rotation entry
+    torch.manual_seed(0)
     system = build_components(cfg).system.eval()
     meta = assert_export_matches(system, cfg, tmp_path / f"{param}.onnx")
     assert meta["parameterization"] == param
