@@ -66,9 +66,11 @@ def test_the_loss_trains_q_toward_its_target_and_leaves_the_orientation_alone() 
     target[0, lay.rotation, 2, 3] = param.rotation.encode(torch.eye(3, dtype=torch.float64)[None])[0].float()
     output = target.clone()
     output[0, lay.quality, 2, 3] = 0.2  # the orientation exact: q* = 1, error 0.64
-    output.requires_grad_(True)
     losses = MultiTaskLoss(orientation="sym_channel_l2", lambda_quality=2.0)(output, target, param)
     assert losses["quality"].item() == pytest.approx(2.0 * 0.64, rel=1e-5)
+    output[0, lay.rotation.start + 4, 2, 3] += 0.1  # the x column turned: q* < 1, and it would move with it
+    output.requires_grad_(True)
+    losses = MultiTaskLoss(orientation="sym_channel_l2", lambda_quality=2.0)(output, target, param)
     losses["quality"].backward()
     grad = output.grad[0, :, 2, 3]
     assert grad[lay.quality] < 0 and torch.count_nonzero(grad) == 1
