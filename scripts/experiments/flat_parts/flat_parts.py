@@ -312,8 +312,10 @@ def model_run(spec: dict[str, Any]) -> Path:
 def plate_steps(arm: str) -> int:
     """The training steps behind an arm's network (an arm scored "from" another: that arm's)."""
     _, spec = arm_spec("plate", arm)
-    if "model" in spec or "recipe" in spec:
-        points = learning_curve(model_run(spec) if "model" in spec else run_dir("plate", arm, 0))
+    if "recipe" in spec:  # the one command's own steps for the plate
+        return CELLS.RECIPE_STEPS
+    if "model" in spec:
+        points = learning_curve(model_run(spec))
         return int(points[-1]["step"]) if points else 0
     return plate_steps(spec["from"]) if "from" in spec else spec.get("steps", PLATE_STEPS)
 
