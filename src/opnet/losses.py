@@ -44,6 +44,7 @@ from torch import nn
 
 from opnet.geometry.camera import Camera
 from opnet.parameterizations.base import Parameterization
+from opnet.parameterizations.batch import ChannelLayout
 from opnet.parameterizations.positions import CameraBatch
 
 ORIENTATION_LOSSES = ("euler_l2", "channel_l2", "sym_channel_l2", "sym_rotation")
@@ -177,33 +178,34 @@ class MultiTaskLoss(nn.Module):
             terms["orientation"] = (
                 self.lambda_ori * pose_weight * ((out[:, :, rotation] - tgt[:, :, rotation]) ** 2).sum(2)
             )
-        else:
-            terms.update(self._pose_terms(out, tgt, parameterization, cameras))
-        if parameterization.has_quality:
-            terms["quality"] = self.lambda_quality * quality_error(out, tgt, parameterization)
+        if not self.is_paper or parameterization.has_quality:  # the occupied cells gathered once for both
+            occupied = occupied_cells(out, tgt, lay)
+            if not self.is_paper:
+                terms.update(self._pose_terms(occupied, batch, parameterization, cameras))
+            if parameterization.has_quality:
+                terms["quality"] = self.lambda_quality * quality_error(*occupied[1:], parameterization)
         losses = {name: term.sum() / batch for name, term in terms.items()}
         losses["total"] = sum(losses.values())  # type: ignore[assignment]
         return losses
 
     def _pose_terms(
         self,
-        out: torch.Tensor,
-        tgt: torch.Tensor,
+        occupied: tuple[tuple[torch.Tensor, ...], torch.Tensor, torch.Tensor],
+        batch: int,
         parameterization: Parameterization,
         cameras: Camera | Sequence[Camera] | None,
     ) -> dict[str, torch.Tensor]:
-        """Position and orientation terms (P,) of the occupied cells/slots only."""
+        """Position and orientation terms (P,) of the occupied cells/slots only (:func:`occupied_cells`; ``batch``:
+        the batch's size)."""
         lay = parameterization.layout
-        b, slot, row, col = torch.nonzero(tgt[:, :, lay.presence] > 0, as_tuple=True)
-        o = out.permute(0, 1, 3, 4, 2)[b, slot, row, col]  # (P, C)
-        t = tgt.permute(0, 1, 3, 4, 2)[b, slot, row, col]
+        (b, slot, row, col), o, t = occupied
         weight = self.lambda_pose * parameterization.pose_weight(t[:, lay.visibility])  # (P,)
         o_pos, t_pos, o_rot, t_rot = o[:, lay.position], t[:, lay.position], o[:, lay.rotation], t[:, lay.rotation]
         delta = parameterization.obj.delta
         if self.position == "metric":
             if cameras is None:
                 raise ValueError("loss.position=metric needs the cameras of the batch")
-            cams = CameraBatch.of(cameras, out.shape[0], out.device).take(b)
+            cams = CameraBatch.of(cameras, batch, o.device).take(b)
             cells = (slot, row, col)
             t_hat = parameterization.decode_translations(o_pos, cells, cams)
             t_gt = parameterization.decode_translations(t_pos, cells, cams)
@@ -240,12 +242,20 @@ def quality_target(out_rot: torch.Tensor, tgt_rot: torch.Tensor, parameterizatio
         return torch.exp2(-err).to(out_rot.dtype)
 
 
-def quality_error(out: torch.Tensor, tgt: torch.Tensor, parameterization: Parameterization) -> torch.Tensor:
-    """``(q̂ - q*)²`` (P,) of the occupied cells/slots of slot-split outputs and targets (B, L, C, S, S)."""
-    lay = parameterization.layout
+def occupied_cells(out: torch.Tensor, tgt: torch.Tensor,
+                   lay: ChannelLayout) -> tuple[tuple[torch.Tensor, ...], torch.Tensor, torch.Tensor]:
+    """The cells/slots that hold a part in slot-split targets (B, L, C, S, S): their indices (b, slot, row, col)
+    and the output's and the target's feature vectors there, (P, C) each."""
     b, slot, row, col = torch.nonzero(tgt[:, :, lay.presence] > 0, as_tuple=True)
     o = out.permute(0, 1, 3, 4, 2)[b, slot, row, col]  # (P, C)
     t = tgt.permute(0, 1, 3, 4, 2)[b, slot, row, col]
+    return (b, slot, row, col), o, t
+
+
+def quality_error(o: torch.Tensor, t: torch.Tensor, parameterization: Parameterization) -> torch.Tensor:
+    """``(q̂ - q*)²`` (P,) of occupied cells/slots from their output and target feature vectors (P, C)
+    (:func:`occupied_cells`)."""
+    lay = parameterization.layout
     return (o[:, lay.quality] - quality_target(o[:, lay.rotation], t[:, lay.rotation], parameterization)) ** 2
 
 
