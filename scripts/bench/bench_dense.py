@@ -52,14 +52,15 @@ ROW_FIELDS = (
 
 
 def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int, camera: Path,
-             height: float | None, workers: int = 2, physics: str | None = None) -> float:
-    """Generate (or complete) dense piles; returns the minutes it took to make them (recorded)."""
+             height: float | None, workers: int = 2, physics: str | None = None, settings: list[str] | None = None) -> float:
+    """Generate (or complete) dense piles (``settings``: further scene settings, ``KEY=VALUE``); returns the
+    minutes it took to make them (recorded)."""
     from opnet.cli.evaluate import resolve_object
     from opnet.synthesis import generate_dataset
 
     record = out / "bench_generation.json"
     done = json.loads(record.read_text()) if record.is_file() else {"minutes": 0.0}
-    scene = dense_scene(camera, height, views, physics)
+    scene = dense_scene(camera, height, views, physics, settings or ())
     print(f"[{obj}] data: {out} ({cycles} cycles = {-(-cycles // views)} piles x {views} views, {drops} drops, "
           f"seed {seed})", flush=True)
     start = time.perf_counter()
@@ -274,6 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs-dir", type=Path, default=REPO_ROOT / "outputs" / "dense")
     ap.add_argument("--out", type=Path, default=REPO_ROOT / "results" / "dense")
     ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
+    ap.add_argument("--train-scene", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="further scene settings of the training piles alone (e.g. view_spin=true); their folder is "
+                         "named with them")
     ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
                     help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
                          "bunny:sileane=outputs/data/sileane_rerender (scripts/experiments/sileane/sileane_rerender.py)")
@@ -298,12 +302,17 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     command = shlex.join(["python", "scripts/bench/bench_dense.py",
                           *map(repo_relative, argv if argv is not None else sys.argv[1:])])
+    for kv in args.train_scene:
+        if not re.fullmatch(r"[a-z_]+=[A-Za-z0-9_.-]+", kv):
+            raise SystemExit(f"error: --train-scene {kv!r}: expected KEY=VALUE (a scene setting, e.g. view_spin=true)")
+    # the training piles of other scene settings are other piles: a folder of their own
+    train_tag = "".join(f"_{kv.replace('=', '-')}" for kv in args.train_scene)
     rows = []
     for obj in args.objects:
-        train_root = args.data_dir / f"{obj}_train_c{args.gen_cycles}_v{args.views}_d{args.drops}_s0"
+        train_root = args.data_dir / f"{obj}_train_c{args.gen_cycles}_v{args.views}_d{args.drops}_s0{train_tag}"
         test_root = args.data_dir / f"{obj}_test_p{args.test_piles}_d{args.drops}_s1"
         gen_minutes = generate(obj, train_root, args.gen_cycles, args.drops, 0, args.views, args.camera_file,
-                               args.camera_height)
+                               args.camera_height, settings=args.train_scene)
         generate(obj, test_root, args.test_piles, args.drops, 1, 1, args.camera_file, args.camera_height)
         tests = tests_of(obj, args.extra_test)
         unmade = []

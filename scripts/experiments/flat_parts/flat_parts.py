@@ -103,7 +103,13 @@ TURN_ARMS = {**{f"turns{n}": {"from": "exact", "eval": [f"+decoding.turns={n}"]}
 #: validation. Its A/B: turns4_tuned, the same recipe's network without the channel, tuned the same way
 QUALITY_ARMS = {"quality": {"train": ["parameterization.quality=true", "parameterization.score=p*q"]}}
 
-#: part -> lever -> arm -> the overrides of train.py it adds to the part's recipe ("steps": its step count;
+#: the training piles' views each turn every part about its own axis by a fresh spin (scene.view_spin: a part whose
+#: convex hull is a body of revolution, as both ITODD parts'), so that 24 piles show 8 x their spins; the recipe
+#: otherwise unchanged (its tuning too). Its A/B: the recipe's own run (new_parts.py), the same piles' physics
+DATA_ARMS = {"view_spin": {"scene": ["view_spin=true"]}}
+
+#: part -> lever -> arm -> the overrides of train.py it adds to the part's recipe ("steps": its step count; "scene":
+#: settings of its own training piles' scene, generated for it;
 #: "from": scored with another arm's network (and trained its steps), "eval" adding eval.py overrides, "refined" only
 #: to the refined scoring, "tune": a copy of the network's checkpoint decoding as tuned after training on every
 #: such-th validation scene (train.py's tune_decoding), from its decoding with "start" changed)
@@ -229,6 +235,7 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}},
         "decoding": TURN_ARMS,
         "quality": QUALITY_ARMS,
+        "data": DATA_ARMS,
     },
     "itodd27": {
         "symmetry": {"exact": {},
@@ -238,6 +245,7 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}},
         "decoding": TURN_ARMS,
         "quality": QUALITY_ARMS,
+        "data": DATA_ARMS,
     },
 }
 
@@ -416,7 +424,8 @@ def dense_run(part: str, arm: str, seed: int) -> Path:
     run_logged([sys.executable, str(REPO_ROOT / "scripts" / "bench" / "bench_dense.py"), "--objects", part,
                 "--config", f"{arm}_s{seed}", "--gen-cycles", str(DENSE_CYCLES), "--views", "8",
                 "--steps", str(spec.get("steps", DENSE_STEPS)), "--validations", "20", "--runs-dir", str(RUNS / part),
-                "--data-dir", str(DENSE_DATA), "--out", str(RUNS / part / "bench"), "--extra", *extra],
+                "--data-dir", str(DENSE_DATA), "--out", str(RUNS / part / "bench"),
+                *(["--train-scene", *spec["scene"]] if spec.get("scene") else []), "--extra", *extra],
                RUNS / part / f"bench_{arm}_s{seed}.log")  # fmt: skip
     made = RUNS / part / f"{part}_{arm}_s{seed}"  # bench_dense.py's run folder
     if made != out and made.is_dir():

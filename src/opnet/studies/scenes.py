@@ -5,6 +5,7 @@ to time inference on without a dataset; the statistics of the piles a dataset ho
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,11 +37,12 @@ def scene_overrides(camera_file: str | None, camera_height: float | None, sets: 
 
 
 def dense_scene(camera: Path | None = None, height: float | None = None, views: int = 8,
-                physics: str | None = None) -> SceneConfig:
+                physics: str | None = None, settings: Sequence[str] = ()) -> SceneConfig:
     """The generator's scene of ``experiment=dense`` (conf/experiment/dense.yaml: the bulk preset with
     its jitters, composed as train.py does) with ``views`` views per pile; ``camera``: another camera
     file than the recipe's; at ``height`` as it stands (``scene.rig_d=null``), or None: the recipe's
-    rig, sized to the part; ``physics``: another engine than the recipe's."""
+    rig, sized to the part; ``physics``: another engine than the recipe's; ``settings``: further scene settings,
+    ``KEY=VALUE`` (e.g. ``view_spin=true``)."""
     from omegaconf import OmegaConf
 
     from opnet.studies import compose_train
@@ -49,7 +51,7 @@ def dense_scene(camera: Path | None = None, height: float | None = None, views: 
     overrides = ["experiment=dense", f"paths.root_dir={config_dir().parent}", f"scene.views={views}",
                  *([f"scene.camera_file={Path(camera).resolve()}"] if camera is not None else []),
                  *([f"scene.camera_height={height}", "scene.rig_d=null"] if height is not None else []),
-                 *([f"scene.physics={physics}"] if physics else [])]
+                 *([f"scene.physics={physics}"] if physics else []), *(f"scene.{kv}" for kv in settings)]
     cfg = compose_train(overrides)
     return SceneConfig.from_dict(OmegaConf.to_container(cfg.scene, resolve=True))
 

@@ -171,6 +171,11 @@ class SceneConfig:
             its own (cycle ``pile * views + k``); every view's camera is placed relative to the
             bin as in an independent cycle (the jitters above), so one physics simulation yields
             ``views`` cycles of the same distribution. 1 = one camera per pile (as before).
+        view_spin: every view after the first turns each part about its own model z-axis by a
+            spin of its own (drawn per view, held through the drops): the views show new spins of
+            the same settled pile (:mod:`opnet.synthesis.spin`). Only for a part whose convex hull
+            is a body of revolution about z (a wheel, a rim, a flange), within
+            ``view_spin_tolerance`` × D; refused otherwise.
 
     Rendering:
         solo_cache_mm, solo_cache_deg: an object's solo pixel count (the visibility denominator) is
@@ -237,6 +242,8 @@ class SceneConfig:
     small_part_d: float = _setting(0.05, "sizing", later=True)
     sized_for_d: float | None = _setting(None, "sizing", later=True)
     rig_d: float | None = _setting(None, "sizing", later=True)
+    view_spin: bool = _setting(False, "randomization", later=True)
+    view_spin_tolerance: float = _setting(0.01, "randomization", later=True)
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -294,6 +301,9 @@ class SceneConfig:
              "1 without scene.camera_file (it scales the pixels of the file's camera)")
         need(isinstance(self.views, int) and not isinstance(self.views, bool) and 1 <= self.views <= 1000, "views",
              "an integer in 1..1000 (views per settled pile)")
+        need(isinstance(self.view_spin, bool), "view_spin", "true or false (fresh spins per view)")
+        need(0 < self.view_spin_tolerance < 1, "view_spin_tolerance",
+             "a fraction of D in (0, 1): how far the turned hull may reach out of itself")
         need(self.camera_jitter_deg < 45.0, "camera_jitter_deg", "degrees in [0, 45) (the camera must still see the bin)")
         need(isinstance(self.camera_tilt_deg, (int, float)) and math.isfinite(self.camera_tilt_deg)
              and 0 <= self.camera_tilt_deg < 90, "camera_tilt_deg",

@@ -26,6 +26,7 @@ from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, vi
 from opnet.synthesis.physics import BinSimulator, CycleStates, CycleStats, make_simulator
 from opnet.synthesis.rendering import SceneRenderer
 from opnet.synthesis.sensor import SensorModel, sensor_rng
+from opnet.synthesis.spin import check_spinnable, spin_rng, spin_turns, spun
 
 #: the ground plate is this many bin widths wide (it fills the view around the bin)
 GROUND_SCALE = 10.0
@@ -133,6 +134,8 @@ class CycleGenerator:
         self.sensor = sensor or SensorModel()
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects
+        if self.scene.view_spin:  # before the collision model: a refusal costs no decomposition
+            check_spinnable(obj.mesh, obj.diameter, self.scene.view_spin_tolerance, obj.name)
         self.collision = collision or build_collision_model(obj.mesh, self.scene)
         self._model_scenes = self.scene.bin_model_scenes()
         #: per bin model (0 without models): its rig, scene and simulator, made on first use
@@ -181,7 +184,8 @@ class CycleGenerator:
 
         Random numbers: the pile (bin jitter, drops) and view 0 come from ``cycle_rngs(seed,
         pile)`` exactly as a cycle without views (``views=1`` gives the same bytes as before);
-        view k > 0 draws its camera from ``SeedSequence([seed, pile, k])`` (:func:`view_layout`).
+        view k > 0 draws its camera from ``SeedSequence([seed, pile, k])`` (:func:`view_layout`) and, with
+        ``scene.view_spin``, each part's spin about its own axis from a stream of its own (:func:`spin_rng`).
         Views are rendered one after another, each with its own visibility cache.
         """
         K = self.scene.views
@@ -199,8 +203,11 @@ class CycleGenerator:
         states = simulator.simulate(layout, self.drops, drop_rng)
         for k in wanted:
             view = layout if k == 0 else view_layout(rig, scene, layout, view_rng(seed, pile, k))
+            shown = states
+            if k and self.scene.view_spin:  # new spins of the same pile (opnet.synthesis.spin)
+                shown = spun(states, spin_turns(spin_rng(seed, pile, k), self.drops))
             self.renderer.select_bin(model)
-            yield dataclasses.replace(self._render_view(seed, pile * K + k, view, states), bin_model=record)
+            yield dataclasses.replace(self._render_view(seed, pile * K + k, view, shown), bin_model=record)
 
     def _outside_clip(self, depth: np.ndarray) -> np.ndarray:
         """``scene.outside_clip``: surfaces outside the clip planes at the plane they cross ("clamp")
