@@ -2,9 +2,7 @@
 
 With ``scene.views`` > 1 every view of a pile shows the same parts in the same poses, seen from a slightly other
 camera: 24 piles of 75 drops hold 1800 spins about the parts' own axes whatever the number of views. A part whose
-spin is what the network must read (a wheel's spokes, a flange's bolt circle) is then seen in few spins, and the
-network learns those spins by heart rather than from the image: on a five-spoke wheel the training loss of the
-orientation fell to a third of the validation's while position's did not.
+spin is what the network must read (a wheel's spokes, a flange's bolt circle) is then seen in few spins.
 
 A part whose **convex hull is a body of revolution about its model z-axis** (a wheel, a rim, a gear, a flange: the
 features that set its spin lie inside its envelope) touches its neighbours and the bin the same way whatever its
@@ -12,7 +10,8 @@ turn about that axis, so the pile stays a pile when every part is turned about i
 does that for every view after the first (view 0 keeps the spins the physics made): each part of the pile gets a
 spin of its own, drawn uniformly per view and held through the cycle's drops, so each view shows new spins of the
 same settled pile. The generator refuses it for a part whose hull is not such a body
-(:func:`hull_spin_gap` over ``scene.view_spin_tolerance`` × D).
+(:func:`hull_spin_gap` over ``scene.view_spin_tolerance`` × D). Off by default: on a five-spoke wheel it left the
+held-out AP where it was (docs/data.md#fresh-spins-per-view).
 """
 
 from __future__ import annotations
