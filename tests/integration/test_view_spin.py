@@ -86,6 +86,9 @@ def test_a_part_whose_hull_is_no_body_of_revolution_is_refused_naming_it() -> No
 def test_bad_spin_settings_are_refused(key: str, value: object) -> None:
     with pytest.raises(ValueError, match=rf"scene config: {key}="):
         SceneConfig.from_dict({**SCENE.to_dict(), key: value})
+    # with one view per pile there is no view to turn the parts in
+    with pytest.raises(ValueError, match=r"scene config: view_spin=True, expected false with scene.views=1"):
+        SceneConfig.from_dict({**SCENE.to_dict(), "views": 1, "view_spin": True})
 
 
 def test_the_dense_recipe_takes_it_as_a_scene_setting_and_old_datasets_keep_their_record() -> None:
@@ -95,4 +98,4 @@ def test_the_dense_recipe_takes_it_as_a_scene_setting_and_old_datasets_keep_thei
     assert dense_scene(views=8).view_spin is False
     # left out of generation.json at its default: the datasets made before still match their settings
     assert "view_spin" not in SceneConfig().to_dict() and "view_spin_tolerance" not in SceneConfig().to_dict()
-    assert SceneConfig(view_spin=True).to_dict()["view_spin"] is True
+    assert SceneConfig(views=2, view_spin=True).to_dict()["view_spin"] is True

@@ -302,6 +302,8 @@ class SceneConfig:
         need(isinstance(self.views, int) and not isinstance(self.views, bool) and 1 <= self.views <= 1000, "views",
              "an integer in 1..1000 (views per settled pile)")
         need(isinstance(self.view_spin, bool), "view_spin", "true or false (fresh spins per view)")
+        need(not self.view_spin or self.views > 1, "view_spin",
+             "false with scene.views=1 (it turns the parts in the views after the first: set scene.views > 1)")
         need(0 < self.view_spin_tolerance < 1, "view_spin_tolerance",
              "a fraction of D in (0, 1): how far the turned hull may reach out of itself")
         need(self.camera_jitter_deg < 45.0, "camera_jitter_deg", "degrees in [0, 45) (the camera must still see the bin)")
