@@ -284,7 +284,7 @@ def write_readme(out: Path, rows: list[dict[str, Any]]) -> None:
         "shares of the parts to find). For scale: the bunny, the part the recipe was chosen on, scores 0.83 at "
         "twice these steps ([the dense benchmark](../dense/README.md)).\n\n*gen + train min*: wall minutes, longer where "
         "other jobs shared the machine (pepper's generation: 33 minutes, about half of them beside other generation "
-        "and decomposition jobs; ITODD 13's: 53 minutes, about 14 of them beside the test suite; ITODD 08's and T-LESS "
+        "and decomposition jobs; ITODD 13's: 41.5 minutes, made over three resumed runs, most of them beside another part's generation; ITODD 08's and T-LESS "
         "20's training: 25 and 23 minutes, beside short evaluations of other models; the bunny's 192 cycles took 14 "
         "alone). The steps are the budget, not the minutes: ITODD 08, ITODD 13 and T-LESS 20 ran on a 2-core AMD "
         "EPYC, which trains the same 10,696 steps in 19-25 minutes; the other parts on a 2-core Intel Xeon (40-44). "
