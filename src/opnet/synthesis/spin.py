@@ -21,6 +21,7 @@ import dataclasses
 import numpy as np
 import trimesh
 
+from opnet.geometry.symmetry import cyclic_group
 from opnet.synthesis.physics import CycleStates
 
 #: entropy tag of a view's spin stream (SeedSequence([seed, pile, view, SPIN_STREAM]))
@@ -38,10 +39,8 @@ def hull_spin_gap(mesh: trimesh.Trimesh, turns: int = HULL_TURNS) -> float:
     offsets = (normals * np.asarray(hull.triangles, np.float64)[:, 0]).sum(-1)
     vertices = np.asarray(hull.vertices, np.float64)
     gap = 0.0
-    for angle in np.linspace(0.0, 2.0 * np.pi, int(turns), endpoint=False)[1:]:
-        c, s = np.cos(angle), np.sin(angle)
-        turned = vertices @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
-        gap = max(gap, float((turned @ normals.T - offsets).max()))
+    for g in cyclic_group(int(turns))[1:]:  # every turn but the identity
+        gap = max(gap, float((vertices @ g.T @ normals.T - offsets).max()))
     return gap
 
 
