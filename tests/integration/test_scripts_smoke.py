@@ -38,6 +38,10 @@ RUNS: list[tuple[str, list[str]]] = [
     ("scripts/bench/bench_generate.py", ["--cycles", "1", "--drops", "2", "--workers", "1", "--resolution", "64",
                                          "--keep", "{tmp}/piles"]),
     ("scripts/bench/pile_stats.py", ["{tmp}/piles/bracket_w1"]),
+    ("scripts/experiments/flat_parts/spin_ceiling.py", ["--object", "bracket", "--root", "{tmp}/piles/bracket_w1",
+                                                        "--cutoffs", "45", "--draws", "2"]),
+    ("scripts/experiments/flat_parts/spin_observability.py", ["--object", "bracket", "--tilts", "0", "--spins", "36",
+                                                              "--out", "{tmp}/observability.md"]),
     ("scripts/experiments/table1/table1.py", ["--dry-run", "--objects", "bracket", "--seeds", "0",
                                               "--runs-dir", "{tmp}/table1_runs", "--out", "{tmp}/table1"]),
 ]

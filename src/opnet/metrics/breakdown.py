@@ -175,6 +175,25 @@ def _rotation_sq(space: PoseSpace, Q: np.ndarray) -> np.ndarray:
     return (diff**2).sum((-1, -2))
 
 
+def tilt_and_spin(space: PoseSpace, axis: np.ndarray, R_hat: np.ndarray,
+                  R_true: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The rotation error of hypotheses ``R_hat`` (N, 3, 3) against truths ``R_true`` (N, 3, 3), on the symmetric
+    equivalent of each truth nearest its hypothesis, split along the main ``axis`` (part frame): (tilt, spin) in
+    degrees and the (swing, twist) turns (N, 3, 3) behind them. The spin of a revolution part is 0 (the metric
+    ignores it)."""
+    R_hat = np.asarray(R_hat, np.float64)
+    R_eq = space.closest_equivalent(torch.from_numpy(R_hat), torch.from_numpy(np.asarray(R_true, np.float64))).numpy()
+    Q = np.swapaxes(R_eq, -1, -2) @ R_hat  # truth -> hypothesis, part frame
+    swing, twist = swing_twist(Q, axis)
+    tilt = np.degrees(np.arccos(np.clip((swing @ axis) @ axis, -1, 1)))
+    twist_vec = np.stack([twist[:, 2, 1] - twist[:, 1, 2], twist[:, 0, 2] - twist[:, 2, 0],
+                          twist[:, 1, 0] - twist[:, 0, 1]], -1) @ axis  # fmt: skip
+    spin = np.degrees(np.abs(np.arctan2(0.5 * twist_vec, 0.5 * (np.trace(twist, axis1=1, axis2=2) - 1))))
+    if space.revolution:
+        spin = np.zeros_like(spin)
+    return tilt, spin, swing, twist
+
+
 def error_breakdown(
     scenes: Mapping[str, tuple[GroundTruthSet, HypothesisSet]],
     space: PoseSpace,
@@ -208,17 +227,8 @@ def error_breakdown(
             continue
         h = scene.hypotheses
         idx = scene.nearest[near]
-        R_hat = np.asarray(h.R[idx], np.float64)
-        R_eq = space.closest_equivalent(torch.from_numpy(R_hat), torch.from_numpy(np.asarray(gt.R[near], np.float64))).numpy()
         dt = np.asarray(h.t[idx], np.float64) - np.asarray(gt.t[near], np.float64)
-        Q = np.swapaxes(R_eq, -1, -2) @ R_hat  # truth -> hypothesis, part frame
-        swing, twist = swing_twist(Q, axis)
-        tilt_angle = np.degrees(np.arccos(np.clip((swing @ axis) @ axis, -1, 1)))
-        twist_vec = np.stack([twist[:, 2, 1] - twist[:, 1, 2], twist[:, 0, 2] - twist[:, 2, 0],
-                              twist[:, 1, 0] - twist[:, 0, 1]], -1) @ axis  # fmt: skip
-        spin_angle = np.degrees(np.abs(np.arctan2(0.5 * twist_vec, 0.5 * (np.trace(twist, axis1=1, axis2=2) - 1))))
-        if space.revolution:
-            spin_angle = np.zeros_like(spin_angle)  # the metric ignores it
+        tilt_angle, spin_angle, swing, twist = tilt_and_spin(space, axis, h.R[idx], gt.R[near])
         lateral.append(1000 * np.linalg.norm(dt[:, :2], axis=-1))
         depth.append(1000 * np.abs(dt[:, 2]))
         tilt.append(tilt_angle)
@@ -245,5 +255,5 @@ def error_breakdown(
     )  # fmt: skip
 
 
-__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist", "view_of_axis",
+__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist", "tilt_and_spin", "view_of_axis",
            "view_shares"]

@@ -13,6 +13,7 @@ import csv
 import io
 import json
 import math
+import shlex
 import statistics
 import subprocess
 import sys
@@ -111,6 +112,15 @@ def merge_csv(path: Path, fields: tuple[str, ...], new: list[dict[str, Any]], ke
     return rows
 
 
+def write_table_page(out: Path, title: str, lines: list[str]) -> None:
+    """A script's printed ``lines`` (a Markdown table and its caption) under ``title`` and the command that printed
+    them (``python <script> <arguments>`` as invoked), written atomically as the page ``out``."""
+    from opnet.fileio.atomic import write_text_atomic
+
+    command = shlex.join(["python", Path(sys.argv[0]).as_posix(), *sys.argv[1:]])
+    write_text_atomic(out, "\n".join([f"# {title}", "", f"`{command}`", "", *lines, ""]))
+
+
 def fmt(value: Any, kind: str = "f3") -> str:
     """A table cell: ``f<digits>`` decimals, ``pct`` a share in percent (one decimal), ``int``; ``–``
     for NaN, the text itself for what is not a number."""
@@ -126,4 +136,4 @@ def fmt(value: Any, kind: str = "f3") -> str:
 
 
 __all__ = ["best_checkpoint", "diagnostic_shares", "fmt", "mean_sd", "mean_sd_text", "merge_csv", "read_summary",
-           "run_logged", "run_train", "train_command"]
+           "run_logged", "run_train", "train_command", "write_table_page"]
