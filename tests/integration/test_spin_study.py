@@ -12,6 +12,7 @@ import trimesh
 
 from opnet.geometry.pose_numpy import rodrigues
 from opnet.metrics.bregier import evaluate_scenes
+from opnet.metrics.breakdown import axis_angle
 from opnet.metrics.records import GroundTruthSet
 from opnet.objects import ObjectModel
 from opnet.paths import REPO_ROOT
@@ -65,7 +66,7 @@ def test_the_ceiling_spins_only_the_parts_seen_past_the_cutoff_and_scores_them_b
     scenes = scenes_of(obj, 40, seed=0)
     axis = np.array([0.0, 0.0, 1.0])
     gt = scenes["s0"]
-    angles = ceiling.axis_angles(gt, axis)
+    angles = axis_angle(gt.R, gt.t, axis)
     find = np.ones(len(gt), bool)
     h = ceiling.ceiling_hypotheses(gt, angles, 45.0, axis, find, np.random.default_rng(1))
     blind = angles > 45.0
@@ -83,6 +84,6 @@ def test_the_ceiling_spins_only_the_parts_seen_past_the_cutoff_and_scores_them_b
     revolution = rim(False, {"kind": "revolution"})
     assert ceiling.ceilings(scenes, revolution, [0.0], 3, 0.5)[0][2] == pytest.approx(1.0)
     # the evaluator the ceiling uses agrees with scoring the truth itself
-    assert evaluate_scenes({k: (g, ceiling.ceiling_hypotheses(g, ceiling.axis_angles(g, axis), 90.0, axis,
+    assert evaluate_scenes({k: (g, ceiling.ceiling_hypotheses(g, axis_angle(g.R, g.t, axis), 90.0, axis,
                                                                np.ones(len(g), bool), np.random.default_rng(0)))
                             for k, g in scenes.items()}, obj.pose_space).ap == pytest.approx(1.0)  # fmt: skip

@@ -28,17 +28,10 @@ import numpy as np  # noqa: E402
 from opnet.datasets.autodetect import open_dataset  # noqa: E402
 from opnet.geometry.pose_numpy import rodrigues  # noqa: E402
 from opnet.metrics.bregier import evaluate_scenes, instances_to_find  # noqa: E402
-from opnet.metrics.breakdown import main_axis  # noqa: E402
+from opnet.metrics.breakdown import axis_angle, main_axis  # noqa: E402
 from opnet.metrics.records import GroundTruthSet, HypothesisSet  # noqa: E402
 from opnet.objects import object_from_config  # noqa: E402
 from opnet.studies import compose_train, write_table_page  # noqa: E402
-
-
-def axis_angles(gt: GroundTruthSet, axis: np.ndarray) -> np.ndarray:
-    """(N,) degrees between each part's main ``axis`` (part frame, sign free) and the line of sight to it."""
-    a = np.asarray(gt.R, np.float64) @ axis
-    ray = np.asarray(gt.t, np.float64) / np.linalg.norm(gt.t, axis=-1, keepdims=True).clip(1e-12)
-    return np.degrees(np.arccos(np.clip(np.abs((a * ray).sum(-1)), 0.0, 1.0)))
 
 
 def ceiling_hypotheses(gt: GroundTruthSet, angles: np.ndarray, cutoff: float, axis: np.ndarray,
@@ -58,7 +51,7 @@ def ceilings(scenes: dict[str, GroundTruthSet], obj, cutoffs: list[float], draws
     space = obj.pose_space
     axis = main_axis(space)
     finds = {k: instances_to_find(g, max_occlusion) for k, g in scenes.items()}
-    angles = {k: axis_angles(g, axis) for k, g in scenes.items()}
+    angles = {k: axis_angle(g.R, g.t, axis) for k, g in scenes.items()}
     total = sum(int(f.sum()) for f in finds.values())
     rows = []
     for cutoff in cutoffs:

@@ -3,9 +3,9 @@
 A part is rendered alone (the project's renderer, no bin) with its main axis tilted by each ``--tilts`` angle
 from the line of sight, and again turned about that axis by each ``--spins`` angle; each render is brought to
 the network input as the recipes frame a part (D across ``--pixels`` pixels of it, rendered at four times that
-and each input pixel the median of its 4 x 4, as the generated 512-pixel images reach the 128-pixel input). The table counts the input
-pixels whose depth a spin changes by more than ``--change`` x D (or that it covers or uncovers): what a
-network could read the spin from, before any neighbour hides part of it. A column near 0 is a spin the depth
+and each input pixel the median of its 4 x 4, as the generated 512-pixel images reach the 128-pixel input). The
+table counts the input pixels whose depth a spin changes by more than ``--change`` x D (or that it covers or
+uncovers): what a network could read the spin from, before any neighbour hides part of it. A column near 0 is a spin the depth
 does not hold; a depth that changes under every spin holds it, whether or not a network learns to read it.
 
     python scripts/experiments/flat_parts/spin_observability.py --object itodd08 --pixels 45 90

@@ -47,13 +47,18 @@ VIEWS = ("end_on", "oblique", "side_on")
 VIEW_EDGES_DEG = (30.0, 60.0)
 
 
-def view_of_axis(R: np.ndarray, t: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """(N,) index into :data:`VIEWS` of parts at poses ``R`` (N, 3, 3), ``t`` (N, 3) (camera frame): the angle
-    between the main ``axis`` (part frame; its sign does not matter) and the line of sight through the origin."""
+def axis_angle(R: np.ndarray, t: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(N,) degrees in [0, 90] between the main ``axis`` (part frame; its sign does not matter) of parts at poses
+    ``R`` (N, 3, 3), ``t`` (N, 3) (camera frame) and the line of sight through their origins."""
     a = np.asarray(R, np.float64) @ np.asarray(axis, np.float64)
     ray = np.asarray(t, np.float64) / np.linalg.norm(t, axis=-1, keepdims=True).clip(1e-12)
-    angle = np.degrees(np.arccos(np.clip(np.abs((a * ray).sum(-1)), 0.0, 1.0)))
-    return np.searchsorted(np.asarray(VIEW_EDGES_DEG), angle, side="right")
+    return np.degrees(np.arccos(np.clip(np.abs((a * ray).sum(-1)), 0.0, 1.0)))
+
+
+def view_of_axis(R: np.ndarray, t: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(N,) index into :data:`VIEWS` of parts at poses ``R`` (N, 3, 3), ``t`` (N, 3) (camera frame), by
+    :func:`axis_angle`."""
+    return np.searchsorted(np.asarray(VIEW_EDGES_DEG), axis_angle(R, t, axis), side="right")
 
 
 def main_axis(space: PoseSpace) -> np.ndarray:
@@ -255,5 +260,5 @@ def error_breakdown(
     )  # fmt: skip
 
 
-__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "error_breakdown", "main_axis", "swing_twist", "tilt_and_spin",
+__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "axis_angle", "error_breakdown", "main_axis", "swing_twist", "tilt_and_spin",
            "view_of_axis", "view_shares"]
