@@ -130,3 +130,42 @@ def test_the_spinning_itodd_parts_are_near_revolutions(shared: Path, part: str, 
     near = near_axis(mesh, report)
     assert report.name == exact
     assert near is not None and near.order is None and near.deviation < 0.6 * near.delta
+
+
+def cup(bumps: int = 5) -> trimesh.Trimesh:
+    """A 80 mm cup (a base and a rim wall, 16 mm high) with ``bumps`` blocks on its floor below the wall: its
+    group is cyclic ``bumps``, and what sets its spin lies inside its envelope (a rim's spokes, a flange's holes)."""
+    base = trimesh.creation.cylinder(0.04, 0.004, sections=64)
+    wall = trimesh.creation.annulus(0.036, 0.04, 0.012, sections=64)
+    wall.apply_translation([0, 0, 0.008])
+    parts = [base, wall]
+    for k in range(bumps):
+        block = trimesh.creation.box((0.008, 0.004, 0.006))
+        a = 2 * math.pi * k / bumps
+        block.apply_transform(trimesh.transformations.rotation_matrix(a, [0, 0, 1]))
+        block.apply_translation([0.02 * math.cos(a), 0.02 * math.sin(a), 0.005])
+        parts.append(block)
+    return trimesh.util.concatenate(parts)
+
+
+def test_a_part_whose_hull_spins_freely_is_told_of_fresh_spins_per_view(tmp_path: Path, capsys) -> None:
+    """The cup lies with its axis along the file's x: in the model frame (the main axis on z) its hull is a body of
+    revolution, so the report and the config name scene.view_spin=true with the hull's figure. A box's hull is
+    not one, and a plain cylinder's spins are free (revolution): neither is told."""
+    part = cup()
+    part.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0, 1, 0]))  # axis onto file x
+    src = tmp_path / "cup.stl"
+    part.export(src)
+    out = tmp_path / "cup.yaml"
+    assert opnet_object([str(src), "--out", str(out), "--units", "m"]) == 0
+    line = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("  spins:"))
+    assert "scene.view_spin=true" in line
+    assert float(line.split("% of D")[0].split(", ")[-1]) < 1.0  # within the generator's 1 % of D
+    text = out.read_text()
+    assert yaml.safe_load(text)["symmetry"] == {"kind": "cyclic", "order": 5} and "# spins:" in text
+    for name, mesh in (("box", trimesh.creation.box((0.06, 0.04, 0.01))),
+                       ("cylinder", trimesh.creation.cylinder(0.03, 0.01, sections=64))):
+        src = tmp_path / f"{name}.stl"
+        mesh.export(src)
+        assert opnet_object([str(src), "--out", str(tmp_path / f"{name}.yaml"), "--units", "m"]) == 0
+        assert "spins:" not in capsys.readouterr().out and "# spins:" not in (tmp_path / f"{name}.yaml").read_text()

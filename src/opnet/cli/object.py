@@ -109,7 +109,10 @@ def inspect_part(path: Path, units: str = "auto", tolerance_mm: float | None = N
     return mesh, scale, assumed, find_symmetry(mesh, tol)
 
 
-def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = None, declared: bool = False) -> list[str]:
+def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = None, declared: bool = False,
+             spins: str = "") -> list[str]:
+    """The report printed: units, measures, the symmetry found and rejected, the near-symmetries, and ``spins``
+    (:func:`spin_hint`)."""
     from opnet.objects.surface import sqrtm_psd, surface_moments
 
     m = surface_moments(mesh.vertices, mesh.faces)
@@ -142,7 +145,32 @@ def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = 
                   "    wrong pose: a network is asked to learn what it cannot see (expect orientation misses, spins about",
                   f"    the axis). {'Declared' if declared else 'To declare it'}: symmetry {what} about the main axis"
                   f"{'' if declared else ' (--declare-near)'}, where the part's spin does not matter to the grasp."]
+    if spins:
+        lines += [f"  spins: {spins}.",
+                  "    It helps where the depth shows the spin (a flange's face), not where the part hides it (spokes",
+                  "    inside a rim): measure what a spin changes first (scripts/experiments/flat_parts/",
+                  "    spin_observability.py --object <name>)."]
     return lines
+
+
+def spin_hint(mesh: Any, report: Any) -> str:
+    """What a part's training piles may do with its spins: when its convex hull, in the model frame (the main axis
+    on z), is a body of revolution within the generator's ``scene.view_spin_tolerance`` × D and its spins are not
+    free (no revolution symmetry), a line naming ``scene.view_spin=true`` (fresh spins per view) and the hull's
+    figure; else empty."""
+    from opnet.synthesis.config import SceneConfig
+    from opnet.synthesis.spin import hull_spin_gap
+
+    if report.spec["kind"] == "revolution":
+        return ""
+    model = mesh.copy()
+    model.vertices = (np.asarray(mesh.vertices) - np.asarray(report.origin)) @ np.asarray(report.model_rotation).T
+    gap = hull_spin_gap(model)
+    if gap > SceneConfig().view_spin_tolerance * report.diameter:
+        return ""
+    return (f"convex hull a body of revolution about the main axis (turned about it, it reaches {gap * 1000:.2f} mm, "
+            f"{100 * gap / report.diameter:.2f} % of D, out of itself): scene.view_spin=true gives every view of a "
+            "training pile fresh spins of its parts (docs/data.md#fresh-spins-per-view)")
 
 
 def near_symmetries(report: Any) -> str:
@@ -168,9 +196,9 @@ def _spec_text(spec: dict) -> str:
 
 
 def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: Any, assumed: str,
-                 near_spin: Any = None, exact: Any = None) -> str:  # fmt: skip
+                 near_spin: Any = None, exact: Any = None, spins: str = "") -> str:  # fmt: skip
     """The object config's text. ``near_spin``: the near-symmetry about the main axis, named (``exact`` None)
-    or declared (``exact``: the report of the exact symmetry it replaced)."""
+    or declared (``exact``: the report of the exact symmetry it replaced); ``spins``: :func:`spin_hint`'s line."""
     import yaml
 
     spec = dict(report.spec)
@@ -179,6 +207,8 @@ def write_config(out: Path, name: str, mesh_path: Path, scale: float, report: An
              "file's frame, metres; model_rotation: x_model = R (x_file - origin), the main axis onto z."]  # fmt: skip
     if near_symmetries(report):
         lines.append(f"# near-symmetry (under delta, not declared): {near_symmetries(report)}.")
+    if spins:
+        lines.append(f"# spins: {spins}.")
     if near_spin is not None and exact is None:
         lines.append(f"# {near_spin.text(report.model_rotation)} (not declared; --declare-near declares it).")
     elif near_spin is not None:
@@ -303,8 +333,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.declare_near:
         print(f"{args.mesh}: --declare-near: no near-revolution or near-cyclic order about the main axis to declare; "
               "the exact symmetry is written")  # fmt: skip
-    print("\n".join(describe(mesh, report, args.mesh, assumed, near_spin, declared=exact is not None)))
-    text = write_config(out, name, args.mesh.resolve(), scale, report, assumed, near_spin, exact)
+    spins = spin_hint(mesh, report)
+    print("\n".join(describe(mesh, report, args.mesh, assumed, near_spin, declared=exact is not None, spins=spins)))
+    text = write_config(out, name, args.mesh.resolve(), scale, report, assumed, near_spin, exact, spins)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, text)
     preview(mesh, report, png)
