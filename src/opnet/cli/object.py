@@ -148,8 +148,8 @@ def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = 
     if spins:
         lines += [f"  spins: {spins}.",
                   "    It helps where the depth shows the spin (a flange's face), not where the part hides it (spokes",
-                  "    inside a rim): measure what a spin changes first (scripts/experiments/flat_parts/",
-                  "    spin_observability.py --object <name>)."]
+                  "    inside a rim). Measure what a spin changes first:",
+                  "    python scripts/experiments/flat_parts/spin_observability.py --object <name>"]
     return lines
 
 
@@ -168,9 +168,9 @@ def spin_hint(mesh: Any, report: Any) -> str:
     gap = hull_spin_gap(model)
     if gap > SceneConfig().view_spin_tolerance * report.diameter:
         return ""
-    return (f"convex hull a body of revolution about the main axis (turned about it, it reaches {gap * 1000:.2f} mm, "
-            f"{100 * gap / report.diameter:.2f} % of D, out of itself): scene.view_spin=true gives every view of a "
-            "training pile fresh spins of its parts (docs/data.md#fresh-spins-per-view)")
+    return (f"its convex hull is a body of revolution about the main axis (turned about it, the hull reaches "
+            f"{gap * 1000:.2f} mm, {100 * gap / report.diameter:.2f} % of D, out of itself): scene.view_spin=true gives "
+            "every view of a training pile fresh spins of its parts (docs/data.md#fresh-spins-per-view)")
 
 
 def near_symmetries(report: Any) -> str:
