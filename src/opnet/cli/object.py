@@ -159,14 +159,14 @@ def spin_hint(mesh: Any, report: Any) -> str:
     free (no revolution symmetry), a line naming ``scene.view_spin=true`` (fresh spins per view) and the hull's
     figure; else empty."""
     from opnet.synthesis.config import SceneConfig
-    from opnet.synthesis.spin import hull_spin_gap
+    from opnet.synthesis.spin import hull_spins_within
 
     if report.spec["kind"] == "revolution":
         return ""
     model = mesh.copy()
     model.vertices = (np.asarray(mesh.vertices) - np.asarray(report.origin)) @ np.asarray(report.model_rotation).T
-    gap = hull_spin_gap(model)
-    if gap > SceneConfig().view_spin_tolerance * report.diameter:
+    within, gap = hull_spins_within(model, report.diameter, SceneConfig().view_spin_tolerance)
+    if not within:
         return ""
     return (f"its convex hull is a body of revolution about the main axis (turned about it, the hull reaches "
             f"{gap * 1000:.2f} mm, {100 * gap / report.diameter:.2f} % of D, out of itself): scene.view_spin=true gives "

@@ -260,5 +260,5 @@ def error_breakdown(
     )  # fmt: skip
 
 
-__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "axis_angle", "error_breakdown", "main_axis", "swing_twist", "tilt_and_spin",
-           "view_of_axis", "view_shares"]
+__all__ = ["COMPONENTS", "VIEWS", "ErrorBreakdown", "axis_angle", "error_breakdown", "main_axis", "swing_twist",
+           "tilt_and_spin", "view_of_axis", "view_shares"]

@@ -44,11 +44,18 @@ def hull_spin_gap(mesh: trimesh.Trimesh, turns: int = HULL_TURNS) -> float:
     return gap
 
 
+def hull_spins_within(mesh: trimesh.Trimesh, diameter: float, tolerance: float) -> tuple[bool, float]:
+    """Whether the part's hull is a body of revolution about z within ``tolerance`` × ``diameter`` (the rule of
+    ``scene.view_spin``), and :func:`hull_spin_gap` behind it."""
+    gap = hull_spin_gap(mesh)
+    return gap <= tolerance * diameter, gap
+
+
 def check_spinnable(mesh: trimesh.Trimesh, diameter: float, tolerance: float, name: str) -> None:
     """Refuse ``scene.view_spin`` for a part whose hull is not a body of revolution about z within
     ``tolerance`` × ``diameter`` (ValueError, one line naming the part and the figures)."""
-    gap = hull_spin_gap(mesh)
-    if gap > tolerance * diameter:
+    within, gap = hull_spins_within(mesh, diameter, tolerance)
+    if not within:
         raise ValueError(
             f"scene.view_spin: {name}'s convex hull is not a body of revolution about its z-axis: turned about "
             f"it, the hull reaches {1e3 * gap:.2f} mm ({100 * gap / diameter:.2f} % of D) out of itself, over "
