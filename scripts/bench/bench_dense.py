@@ -75,6 +75,24 @@ def generate(obj: str, out: Path, cycles: int, drops: int, seed: int, views: int
     return float(done["minutes"])
 
 
+def recipe_settings(obj: str, settings: list[str], views: int, camera: Path, height: float | None) -> list[str]:
+    """The training piles' further scene settings with the recipe's ``scene.view_spin=auto`` decided for the part
+    (``view_spin=true`` joins them where it turns the part's views), unless given."""
+    from opnet.cli.evaluate import resolve_object
+    from opnet.synthesis.spin import resolve_view_spin
+
+    if any(kv.startswith("view_spin=") for kv in settings):
+        return list(settings)
+    scene = dense_scene(camera, height, views, None, settings)
+    return [*settings, "view_spin=true"] if resolve_view_spin(scene, resolve_object(obj)).view_spin else list(settings)
+
+
+def folder_tag(settings: list[str]) -> str:
+    """The training piles' folder suffix of their further scene settings (``view_spin=false``, the generator's
+    default, names none: the piles made before the recipe decided it keep their folder)."""
+    return "".join(f"_{kv.replace('=', '-')}" for kv in settings if kv != "view_spin=false")
+
+
 def tests_of(obj: str, specs: list[str]) -> list[str]:
     """The ``NAME=DIR`` of the ``[OBJECT:]NAME=DIR`` specs that apply to ``obj`` (all without OBJECT)."""
     out = []
@@ -277,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--extra", nargs="*", default=[], help="further Hydra overrides of train.py")
     ap.add_argument("--train-scene", nargs="*", default=[], metavar="KEY=VALUE",
                     help="further scene settings of the training piles alone (e.g. view_spin=true); their folder is "
-                         "named with them")
+                         "named with them. The recipe's scene.view_spin=auto is decided for each part unless given")
     ap.add_argument("--extra-test", action="append", default=[], metavar="[OBJECT:]NAME=DIR",
                     help="also score the model (of OBJECT only, if given) on all scenes of DIR, e.g. "
                          "bunny:sileane=outputs/data/sileane_rerender (scripts/experiments/sileane/sileane_rerender.py)")
@@ -305,14 +323,15 @@ def main(argv: list[str] | None = None) -> int:
     for kv in args.train_scene:
         if not re.fullmatch(r"[a-z_]+=[A-Za-z0-9_.-]+", kv):
             raise SystemExit(f"error: --train-scene {kv!r}: expected KEY=VALUE (a scene setting, e.g. view_spin=true)")
-    # the training piles of other scene settings are other piles: a folder of their own
-    train_tag = "".join(f"_{kv.replace('=', '-')}" for kv in args.train_scene)
     rows = []
     for obj in args.objects:
+        settings = recipe_settings(obj, args.train_scene, args.views, args.camera_file, args.camera_height)
+        # the training piles of other scene settings are other piles: a folder of their own
+        train_tag = folder_tag(settings)
         train_root = args.data_dir / f"{obj}_train_c{args.gen_cycles}_v{args.views}_d{args.drops}_s0{train_tag}"
         test_root = args.data_dir / f"{obj}_test_p{args.test_piles}_d{args.drops}_s1"
         gen_minutes = generate(obj, train_root, args.gen_cycles, args.drops, 0, args.views, args.camera_file,
-                               args.camera_height, settings=args.train_scene)
+                               args.camera_height, settings=settings)
         generate(obj, test_root, args.test_piles, args.drops, 1, 1, args.camera_file, args.camera_height)
         tests = tests_of(obj, args.extra_test)
         unmade = []

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +15,7 @@ from opnet.objects import ObjectModel, builtin_object
 from opnet.synthesis import SceneConfig
 from opnet.synthesis.cycle import CycleGenerator
 from opnet.synthesis.layout import inverse_pose
-from opnet.synthesis.spin import hull_spin_gap
+from opnet.synthesis.spin import hull_spin_gap, resolve_view_spin
 
 SCENE = SceneConfig(resolution=96, collision="convex_hull", views=3)
 DROPS = 4
@@ -95,7 +98,40 @@ def test_the_dense_recipe_takes_it_as_a_scene_setting_and_old_datasets_keep_thei
     from opnet.studies.scenes import dense_scene
 
     assert dense_scene(views=8, settings=["view_spin=true"]).view_spin is True
-    assert dense_scene(views=8).view_spin is False
+    assert dense_scene(views=8, settings=["view_spin=false"]).view_spin is False
+    assert dense_scene(views=8).view_spin == "auto"  # the recipe decides by the part
     # left out of generation.json at its default: the datasets made before still match their settings
     assert "view_spin" not in SceneConfig().to_dict() and "view_spin_tolerance" not in SceneConfig().to_dict()
     assert SceneConfig(views=2, view_spin=True).to_dict()["view_spin"] is True
+
+
+def test_auto_turns_the_views_of_exactly_the_parts_it_fits() -> None:
+    """On for a part whose hull spins freely and whose spins are not free; off for a part whose spins are free (a
+    revolution symmetry: every spin is the same pose), one whose hull is no body of revolution, and one view a pile."""
+    auto = dataclasses.replace(SCENE, view_spin="auto")
+    assert resolve_view_spin(auto, wheel()).view_spin is True
+    rim = ObjectModel.from_mesh("rim", trimesh.creation.annulus(r_min=0.020, r_max=0.025, height=0.015, sections=48),
+                                {"kind": "revolution"})
+    assert resolve_view_spin(auto, rim).view_spin is False
+    assert resolve_view_spin(auto, builtin_object("bracket")).view_spin is False
+    assert resolve_view_spin(dataclasses.replace(auto, views=1), wheel()).view_spin is False
+    # a setting given is kept: true still refused for the bracket by the generator, false never turns the wheel
+    for given in (True, False):
+        assert resolve_view_spin(dataclasses.replace(SCENE, view_spin=given), wheel()).view_spin is given
+
+
+def test_a_dataset_records_what_auto_decided_and_one_made_otherwise_is_refused_naming_the_setting(
+        tmp_path: Path) -> None:
+    from opnet.synthesis import generate_dataset
+
+    def made(out: Path, view_spin: object) -> dict:
+        generate_dataset(wheel(), out, cycles=2, drops=2, scene=dataclasses.replace(SCENE, views=2, view_spin=view_spin),
+                         progress=False, previews=0)
+        return json.loads((out / "generation.json").read_text())
+
+    auto, on = made(tmp_path / "auto", "auto"), made(tmp_path / "on", True)
+    assert auto["scene"]["view_spin"] is True and auto["scene"] == on["scene"]  # as if the setting were written
+    depth = "p_depth/cycle_0001/002_depth_uint16.png"  # the second view of the pile: its parts turned
+    assert (tmp_path / "auto" / depth).read_bytes() == (tmp_path / "on" / depth).read_bytes()
+    with pytest.raises(ValueError, match=r"generation.json: .*scene.view_spin.*made with scene.view_spin=true"):
+        made(tmp_path / "auto", False)

@@ -215,6 +215,29 @@ def test_bench_dense_goes_on_without_the_other_engines_piles_it_could_not_make(t
     assert row["ap"] == "0.5" and row["extra_tests"].startswith("pybullet not made: parts kept leaving the bin")
 
 
+def test_bench_dense_names_the_training_piles_by_what_the_recipe_decides_for_the_part(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recipe's scene.view_spin=auto turns a wheel's views: its piles get a folder of their own (those of a
+    recipe that did not turn them are other piles); a part it does not fit, or false given, keeps the plain folder."""
+    import trimesh
+
+    import opnet.cli.evaluate
+    from opnet.objects import ObjectModel, builtin_object
+
+    bench_dense = _script("bench/bench_dense.py")
+    rim = trimesh.creation.annulus(r_min=0.020, r_max=0.025, height=0.015, sections=48)
+    spoke = trimesh.creation.box(extents=(0.042, 0.006, 0.006))
+    wheel = ObjectModel.from_mesh("wheel", trimesh.util.concatenate([rim, spoke]), {"kind": "cyclic", "order": 2})
+    monkeypatch.setattr(opnet.cli.evaluate, "resolve_object",
+                        lambda name: wheel if name == "wheel" else builtin_object(name))
+
+    def tag(obj: str, given: list[str]) -> str:
+        return bench_dense.folder_tag(bench_dense.recipe_settings(obj, given, 8, None, None))
+
+    assert tag("wheel", []) == "_view_spin-true" and tag("wheel", ["clutter=2"]) == "_clutter-2_view_spin-true"
+    assert tag("wheel", ["view_spin=false"]) == "" and tag("bracket", []) == ""
+
+
 def test_bench_dense_records_its_command_with_repository_paths_relative() -> None:
     bench_dense = _script("bench/bench_dense.py")
     assert bench_dense.repo_relative(str(REPO_ROOT / "results" / "new_parts" / "bench")) == "results/new_parts/bench"

@@ -159,7 +159,7 @@ def test_a_part_whose_hull_spins_freely_is_told_of_fresh_spins_per_view(tmp_path
     out = tmp_path / "cup.yaml"
     assert opnet_object([str(src), "--out", str(out), "--units", "m"]) == 0
     line = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("  spins:"))
-    assert "scene.view_spin=true" in line
+    assert "experiment=dense" in line and "scene.view_spin=auto" in line and "scene.view_spin=true" in line
     assert float(line.split("% of D")[0].split(", ")[-1]) < 1.0  # within the generator's 1 % of D
     text = out.read_text()
     assert yaml.safe_load(text)["symmetry"] == {"kind": "cyclic", "order": 5} and "# spins:" in text

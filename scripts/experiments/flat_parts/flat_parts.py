@@ -434,7 +434,8 @@ def dense_run(part: str, arm: str, seed: int) -> Path:
                 "--config", f"{arm}_s{seed}", "--gen-cycles", str(DENSE_CYCLES), "--views", "8",
                 "--steps", str(spec.get("steps", DENSE_STEPS)), "--validations", "20", "--runs-dir", str(RUNS / part),
                 "--data-dir", str(DENSE_DATA), "--out", str(RUNS / part / "bench"),
-                *(["--train-scene", *spec["scene"]] if spec.get("scene") else []), "--extra", *extra],
+                # an arm without scene settings keeps the piles its A/B was made on (no fresh spins)
+                "--train-scene", *spec.get("scene", ["view_spin=false"]), "--extra", *extra],
                RUNS / part / f"bench_{arm}_s{seed}.log")  # fmt: skip
     made = RUNS / part / f"{part}_{arm}_s{seed}"  # bench_dense.py's run folder
     if made != out and made.is_dir():

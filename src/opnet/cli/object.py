@@ -147,8 +147,8 @@ def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = 
                   f"{'' if declared else ' (--declare-near)'}, where the part's spin does not matter to the grasp."]
     if spins:
         lines += [f"  spins: {spins}.",
-                  "    It helps where the depth shows the spin (a flange's face), not where the part hides it (spokes",
-                  "    inside a rim). Measure what a spin changes first:",
+                  "    It helps most where the depth shows the spin (a flange's face), less where the part hides it",
+                  "    (spokes inside a rim). What a spin changes in the depth, measured:",
                   "    python scripts/experiments/flat_parts/spin_observability.py --object <name>"]
     return lines
 
@@ -156,8 +156,8 @@ def describe(mesh: Any, report: Any, path: Path, assumed: str, near_spin: Any = 
 def spin_hint(mesh: Any, report: Any) -> str:
     """What a part's training piles may do with its spins: when its convex hull, in the model frame (the main axis
     on z), is a body of revolution within the generator's ``scene.view_spin_tolerance`` × D and its spins are not
-    free (no revolution symmetry), a line naming ``scene.view_spin=true`` (fresh spins per view) and the hull's
-    figure; else empty."""
+    free (no revolution symmetry), a line saying that ``experiment=dense`` turns its views (``scene.view_spin=auto``
+    decides as this does) and naming ``scene.view_spin=true`` for other recipes, with the hull's figure; else empty."""
     from opnet.synthesis.config import SceneConfig
     from opnet.synthesis.spin import hull_spins_within
 
@@ -169,8 +169,9 @@ def spin_hint(mesh: Any, report: Any) -> str:
     if not within:
         return ""
     return (f"its convex hull is a body of revolution about the main axis (turned about it, the hull reaches "
-            f"{gap * 1000:.2f} mm, {100 * gap / report.diameter:.2f} % of D, out of itself): scene.view_spin=true gives "
-            "every view of a training pile fresh spins of its parts (docs/data.md#fresh-spins-per-view)")
+            f"{gap * 1000:.2f} mm, {100 * gap / report.diameter:.2f} % of D, out of itself): experiment=dense gives "
+            "every view of a training pile fresh spins of its parts (its scene.view_spin=auto decides so for this "
+            "part; in another recipe, scene.view_spin=true: docs/data.md#fresh-spins-per-view)")
 
 
 def near_symmetries(report: Any) -> str:

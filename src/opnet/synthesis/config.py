@@ -175,7 +175,9 @@ class SceneConfig:
             spin of its own (drawn per view, held through the drops): the views show new spins of
             the same settled pile (:mod:`opnet.synthesis.spin`). Only for a part whose convex hull
             is a body of revolution about z (a wheel, a rim, a flange), within
-            ``view_spin_tolerance`` × D; refused otherwise.
+            ``view_spin_tolerance`` × D; refused otherwise. ``auto``: on exactly for such a part
+            whose spins are not free (no revolution symmetry) with ``views`` > 1, off for any other
+            (:func:`opnet.synthesis.spin.resolve_view_spin`; the dataset records what it was).
 
     Rendering:
         solo_cache_mm, solo_cache_deg: an object's solo pixel count (the visibility denominator) is
@@ -242,7 +244,7 @@ class SceneConfig:
     small_part_d: float = _setting(0.05, "sizing", later=True)
     sized_for_d: float | None = _setting(None, "sizing", later=True)
     rig_d: float | None = _setting(None, "sizing", later=True)
-    view_spin: bool = _setting(False, "randomization", later=True)
+    view_spin: bool | str = _setting(False, "randomization", later=True)
     view_spin_tolerance: float = _setting(0.01, "randomization", later=True)
 
     def __post_init__(self) -> None:
@@ -301,8 +303,9 @@ class SceneConfig:
              "1 without scene.camera_file (it scales the pixels of the file's camera)")
         need(isinstance(self.views, int) and not isinstance(self.views, bool) and 1 <= self.views <= 1000, "views",
              "an integer in 1..1000 (views per settled pile)")
-        need(isinstance(self.view_spin, bool), "view_spin", "true or false (fresh spins per view)")
-        need(not self.view_spin or self.views > 1, "view_spin",
+        need(isinstance(self.view_spin, bool) or self.view_spin == "auto", "view_spin",
+             "true, false or auto (fresh spins per view; auto: where the part's hull lets them)")
+        need(self.view_spin is not True or self.views > 1, "view_spin",
              "false with scene.views=1 (it turns the parts in the views after the first: set scene.views > 1)")
         need(0 < self.view_spin_tolerance < 1, "view_spin_tolerance",
              "a fraction of D in (0, 1): how far the turned hull may reach out of itself")

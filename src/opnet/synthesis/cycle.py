@@ -26,7 +26,7 @@ from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, vi
 from opnet.synthesis.physics import BinSimulator, CycleStates, CycleStats, make_simulator
 from opnet.synthesis.rendering import SceneRenderer
 from opnet.synthesis.sensor import SensorModel, sensor_rng
-from opnet.synthesis.spin import check_spinnable, spin_rng, spin_turns, spun
+from opnet.synthesis.spin import check_spinnable, resolve_view_spin, spin_rng, spin_turns, spun
 
 #: the ground plate is this many bin widths wide (it fills the view around the bin)
 GROUND_SCALE = 10.0
@@ -130,7 +130,7 @@ class CycleGenerator:
             raise ValueError(f"drops must be >= 0, got {drops}")
         self.obj, self.drops = obj, int(drops)
         # the settings sized to the part: the rig by D / rig_d, a small part's lengths (SceneConfig.for_part)
-        self.scene = (scene or SceneConfig()).for_part(obj.diameter)
+        self.scene = resolve_view_spin((scene or SceneConfig()).for_part(obj.diameter), obj)
         self.sensor = sensor or SensorModel()
         self.rig: Rig = make_rig(obj, self.drops, cycles, self.scene)
         assert obj.mesh is not None  # make_rig refuses mesh-less objects

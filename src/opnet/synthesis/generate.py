@@ -31,6 +31,7 @@ from opnet.synthesis.collision import CollisionModel, build_collision_model, che
 from opnet.synthesis.config import SceneConfig
 from opnet.synthesis.layout import make_rig
 from opnet.synthesis.sensor import SensorModel
+from opnet.synthesis.spin import resolve_view_spin
 from opnet.synthesis.writer import (
     clear_cycle,
     cycle_complete,
@@ -218,7 +219,10 @@ def generate_dataset(
     sensor = (sensor if isinstance(sensor, SensorModel) else SensorModel.from_dict(sensor)).scaled(scene.camera_scale)
     # the settings sized to the part (SceneConfig.for_part: the rig scaled by D / rig_d, a small part's lengths
     # by D / small_part_d), as recorded in generation.json (a dataset made before that is then not completed)
-    given, scene = scene, scene.for_part(obj.diameter)
+    given, scene = scene, resolve_view_spin(scene.for_part(obj.diameter), obj)  # scene.view_spin=auto decided
+    if given.view_spin == "auto" and scene.view_spin:
+        log.info("scene.view_spin=auto: %s's convex hull is a body of revolution about its axis and its spins are not "
+                 "free: every view after a pile's first turns its parts about their axes", obj.name)
     if given.rig_d and scene.sized_for_d is not None:
         log.info("the camera rig (scene.rig_d: set up for a part of D %.1f mm) scaled to this part's D %.1f mm: camera "
                  "height %s, clip planes %s-%s, jitters %.1f mm; scene.rig_d=null keeps the rig as given",

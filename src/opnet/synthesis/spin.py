@@ -10,19 +10,25 @@ turn about that axis, so the pile stays a pile when every part is turned about i
 does that for every view after the first (view 0 keeps the spins the physics made): each part of the pile gets a
 spin of its own, drawn uniformly per view and held through the cycle's drops, so each view shows new spins of the
 same settled pile. The generator refuses it for a part whose hull is not such a body
-(:func:`hull_spin_gap` over ``scene.view_spin_tolerance`` × D). Off by default: on a five-spoke wheel it left the
-held-out AP where it was (docs/data.md#fresh-spins-per-view).
+(:func:`hull_spin_gap` over ``scene.view_spin_tolerance`` × D). Off by default; ``scene.view_spin=auto`` (the dense
+recipe's setting, :func:`resolve_view_spin`) turns it on for exactly the parts it fits: such a hull, spins that are
+not free (no revolution symmetry) and more than one view per pile (docs/data.md#fresh-spins-per-view).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
 
 from opnet.geometry.symmetry import cyclic_group
 from opnet.synthesis.physics import CycleStates
+
+if TYPE_CHECKING:
+    from opnet.objects import ObjectModel
+    from opnet.synthesis.config import SceneConfig
 
 #: entropy tag of a view's spin stream (SeedSequence([seed, pile, view, SPIN_STREAM]))
 SPIN_STREAM = 0x5917
@@ -49,6 +55,17 @@ def hull_spins_within(mesh: trimesh.Trimesh, diameter: float, tolerance: float) 
     ``scene.view_spin``), and :func:`hull_spin_gap` behind it."""
     gap = hull_spin_gap(mesh)
     return gap <= tolerance * diameter, gap
+
+
+def resolve_view_spin(scene: SceneConfig, obj: ObjectModel) -> SceneConfig:
+    """``scene`` with ``view_spin=auto`` decided for ``obj`` (else as given): on where the part's hull is a body of
+    revolution about z within ``view_spin_tolerance`` × D (:func:`hull_spins_within`), its spins are not free (a
+    revolution symmetry makes every spin the same pose) and a pile has more than one view; off otherwise."""
+    if scene.view_spin != "auto":
+        return scene
+    on = (scene.views > 1 and obj.mesh is not None and not obj.symmetry.is_revolution
+          and hull_spins_within(obj.mesh, obj.diameter, scene.view_spin_tolerance)[0])
+    return dataclasses.replace(scene, view_spin=bool(on))
 
 
 def check_spinnable(mesh: trimesh.Trimesh, diameter: float, tolerance: float, name: str) -> None:

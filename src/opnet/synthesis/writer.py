@@ -145,6 +145,10 @@ def write_root_files(
             if "scene.physics" in differing:
                 made = existing.get("scene", {}).get("physics", "pybullet")
                 hint = f"; to complete it, generate with scene.physics={made}"
+            elif "scene.view_spin" in differing:
+                made = str(existing.get("scene", {}).get("view_spin", False)).lower()
+                hint = (f"; it was made with scene.view_spin={made} (scene.view_spin=auto decides by the part's hull): "
+                        f"set scene.view_spin={made} to use it")
             raise ValueError(
                 f"{existing_file}: the folder holds a dataset generated with other settings (keys {differing} differ"
                 f"{hint}); choose another output folder or delete it"
