@@ -125,8 +125,8 @@ def test_a_dataset_records_what_auto_decided_and_one_made_otherwise_is_refused_n
     from opnet.synthesis import generate_dataset
 
     def made(out: Path, view_spin: object) -> dict:
-        generate_dataset(wheel(), out, cycles=2, drops=2, scene=dataclasses.replace(SCENE, views=2, view_spin=view_spin),
-                         progress=False, previews=0)
+        scene = dataclasses.replace(SCENE, views=2, view_spin=view_spin)
+        generate_dataset(wheel(), out, cycles=2, drops=2, scene=scene, progress=False, previews=0)
         return json.loads((out / "generation.json").read_text())
 
     auto, on = made(tmp_path / "auto", "auto"), made(tmp_path / "on", True)
