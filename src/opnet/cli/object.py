@@ -159,13 +159,12 @@ def spin_hint(mesh: Any, report: Any) -> str:
     free (no revolution symmetry), a line saying that ``experiment=dense`` turns its views (``scene.view_spin=auto``
     decides as this does) and naming ``scene.view_spin=true`` for other recipes, with the hull's figure; else empty."""
     from opnet.synthesis.config import SceneConfig
-    from opnet.synthesis.spin import hull_spins_within
+    from opnet.synthesis.spin import fresh_spins_fit
 
-    if report.spec["kind"] == "revolution":
-        return ""
     model = mesh.copy()
     model.vertices = (np.asarray(mesh.vertices) - np.asarray(report.origin)) @ np.asarray(report.model_rotation).T
-    within, gap = hull_spins_within(model, report.diameter, SceneConfig().view_spin_tolerance)
+    within, gap = fresh_spins_fit(model, report.diameter, SceneConfig().view_spin_tolerance,
+                                  report.spec["kind"] == "revolution")
     if not within:
         return ""
     return (f"its convex hull is a body of revolution about the main axis (turned about it, the hull reaches "

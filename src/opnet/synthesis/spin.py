@@ -57,14 +57,23 @@ def hull_spins_within(mesh: trimesh.Trimesh, diameter: float, tolerance: float) 
     return gap <= tolerance * diameter, gap
 
 
+def fresh_spins_fit(mesh: trimesh.Trimesh, diameter: float, tolerance: float, revolution: bool) -> tuple[bool, float]:
+    """The part rule of ``scene.view_spin=auto`` (one rule for the generator and ``opnet-object``): the hull is a
+    body of revolution about z within ``tolerance`` × ``diameter`` (:func:`hull_spins_within`) and the spins are not
+    free (``revolution``: a revolution symmetry makes every spin the same pose); the hull's gap behind it (nan where
+    the spins are free: not measured)."""
+    if revolution:
+        return False, float("nan")
+    return hull_spins_within(mesh, diameter, tolerance)
+
+
 def resolve_view_spin(scene: SceneConfig, obj: ObjectModel) -> SceneConfig:
-    """``scene`` with ``view_spin=auto`` decided for ``obj`` (else as given): on where the part's hull is a body of
-    revolution about z within ``view_spin_tolerance`` × D (:func:`hull_spins_within`), its spins are not free (a
-    revolution symmetry makes every spin the same pose) and a pile has more than one view; off otherwise."""
+    """``scene`` with ``view_spin=auto`` decided for ``obj`` (else as given): on where the part fits
+    (:func:`fresh_spins_fit`) and a pile has more than one view; off otherwise."""
     if scene.view_spin != "auto":
         return scene
-    on = (scene.views > 1 and obj.mesh is not None and not obj.symmetry.is_revolution
-          and hull_spins_within(obj.mesh, obj.diameter, scene.view_spin_tolerance)[0])
+    on = (scene.views > 1 and obj.mesh is not None
+          and fresh_spins_fit(obj.mesh, obj.diameter, scene.view_spin_tolerance, obj.symmetry.is_revolution)[0])
     return dataclasses.replace(scene, view_spin=bool(on))
 
 
