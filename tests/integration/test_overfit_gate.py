@@ -40,7 +40,9 @@ def test_tiny_network_memorizes_a_handful_of_scenes(parameterization: str, handf
     L.seed_everything(0)
     comps = build_components(cfg)
     dm = build_datamodule(cfg, comps.obj, train=True)
-    trainer = L.Trainer(accelerator="cpu", max_steps=200, limit_val_batches=0, logger=False,
+    # 300 steps: at 200 the vanilla network with one CPU thread (pytest -n 2) reached only 0.73 on one 2-core
+    # machine where it had passed on others; at 300 it reaches 0.95 there with one thread and 0.97 with two
+    trainer = L.Trainer(accelerator="cpu", max_steps=300, limit_val_batches=0, logger=False,
                         gradient_clip_val=cfg.trainer.gradient_clip_val,
                         enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False)  # fmt: skip
     trainer.fit(comps.system, datamodule=dm)
@@ -49,5 +51,5 @@ def test_tiny_network_memorizes_a_handful_of_scenes(parameterization: str, handf
     samples = SceneSamples(train.source, train.indices)  # the same scenes, without augmentation
     scenes = predict_scenes(comps.system, DataLoader(samples, batch_size=6, collate_fn=collate))
     summary = evaluate_scenes(scenes, comps.obj.pose_space)
-    assert summary.ap >= 0.9, f"train-split AP {summary.ap:.3f} after 200 steps"
+    assert summary.ap >= 0.9, f"train-split AP {summary.ap:.3f} after 300 steps"
     torch.set_grad_enabled(True)
