@@ -111,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     def emit(text: str = "") -> None:
         print(text, flush=True)
         lines.extend(text.split("\n"))
+
     recorded = {split: RecordedSplit.record(str(args.ckpt), split) for split in args.splits}
     first = next(iter(recorded.values()))
     settings = current_settings(first.parameterization)
@@ -136,11 +137,11 @@ def main(argv: list[str] | None = None) -> int:
         counts = false_positive_places(scenes, space, diameter, recorded[split].max_occlusion)
         total = [sum(c[j] for c in counts.values()) for j in range(2)]
         emit(f"\n{split}: the hypotheses as decoded, by where they lie ({len(scenes)} scenes; a part's place: "
-              f"within {AT_PART:g} D of it; confident: scored at least the median true positive)\n")
+             f"within {AT_PART:g} D of it; confident: scored at least the median true positive)\n")
         emit("| hypothesis | all | per scene | confident | per scene |\n|---|---|---|---|---|")
         for kind, (n_all, n_conf) in counts.items():
             emit(f"| {kind} | {n_all / max(total[0], 1):.1%} | {n_all / len(scenes):.1f} | "
-                  f"{n_conf / max(total[1], 1):.1%} | {n_conf / len(scenes):.1f} |")
+                 f"{n_conf / max(total[1], 1):.1%} | {n_conf / len(scenes):.1f} |")
     if args.out:
         write_text_atomic(args.out, "\n".join(lines) + "\n")
     return 0
