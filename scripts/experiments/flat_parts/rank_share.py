@@ -27,8 +27,8 @@ from scipy.spatial import cKDTree
 from opnet.cli.decoding_search import RecordedSplit, current_settings
 from opnet.evaluation import AveragePrecision
 from opnet.fileio.atomic import write_text_atomic
-from opnet.metrics.bregier import instances_to_find, pose_distances
 from opnet.metrics.breakdown import axis_angle, main_axis
+from opnet.metrics.diagnostics import scene_outcomes
 from opnet.metrics.records import HypothesisSet
 
 
@@ -59,35 +59,31 @@ AT_PART = 0.25
 
 def false_positive_places(scenes: dict, space, diameter: float, max_occlusion: float) -> dict[str, list[int]]:
     """Each split's hypotheses counted by kind (all of them, and those scored at least the median true positive):
-    true positive, ignored, duplicate, missed part, hidden part, no part."""
+    true positive, ignored, duplicate, missed part, hidden part, no part; the matching is the metric's at the
+    lowest threshold (:func:`opnet.metrics.diagnostics.scene_outcomes`)."""
     kinds = ("true positive", "ignored", "duplicate of a found part", "wrong pose of a missed part",
              "at a hidden part", "at no part")
     counts = {k: [0, 0] for k in kinds}
     labelled = []
-    for gt, h in scenes.values():
-        if not len(h) or not len(gt):
+    for (gt, _), o in zip(scenes.values(), scene_outcomes(scenes, space, diameter, max_occlusion), strict=True):
+        h, matched = o.hypotheses, o.outcome == "matched"
+        if not len(h) or not len(matched):
             continue
-        D = pose_distances(h, gt, space)  # (M, N)
-        to_find = instances_to_find(gt, max_occlusion)
-        near = D.argmin(1)
-        # the matching at the lowest threshold: mutual nearest within delta
-        nearest_h = D.argmin(0)
-        mutual = (nearest_h[near] == np.arange(len(h))) & (D[np.arange(len(h)), near] <= space.delta)
-        found = np.zeros(len(gt), bool)
-        found[near[mutual & to_find[near]]] = True
+        kind_of = np.full(len(h), "", dtype=object)
+        kind_of[o.nearest[matched & o.find]] = kinds[0]
+        kind_of[o.nearest[matched & ~o.find]] = kinds[1]
         dt = np.linalg.norm(h.t[:, None] - gt.t[None], axis=-1)
         place = dt.argmin(1)
         at = dt.min(1) <= AT_PART * diameter
-        for i in range(len(h)):
-            if mutual[i]:
-                kind = kinds[0] if to_find[near[i]] else kinds[1]
-            elif not at[i]:
-                kind = kinds[5]
-            elif not to_find[place[i]]:
-                kind = kinds[4]
+        found = matched & o.find
+        for i in np.flatnonzero(kind_of == ""):
+            if not at[i]:
+                kind_of[i] = kinds[5]
+            elif not o.find[place[i]]:
+                kind_of[i] = kinds[4]
             else:
-                kind = kinds[2] if found[place[i]] else kinds[3]
-            labelled.append((kind, float(h.score[i])))
+                kind_of[i] = kinds[2] if found[place[i]] else kinds[3]
+        labelled += list(zip(kind_of, h.score.astype(float), strict=True))
     tp_scores = [s for k, s in labelled if k == kinds[0]]
     confident = float(np.median(tp_scores)) if tp_scores else np.inf
     for kind, score in labelled:
