@@ -24,6 +24,13 @@ Orientation term ``L_ori`` (``orientation``):
   With ``position=metric`` the pose term is then exactly the squared Brégier pose distance in units
   of δ (the evaluation's threshold), its two parts balanced by construction (λ4 = 1).
 
+Unseen spins (``spin_unseen_deg``, not part of the paper; off by default): for a part spun about its model z-axis
+(a wheel, a rim, a flange; opnet-object puts a part's main axis there) whose axis lies more than ``spin_unseen_deg``
+from the camera's optical axis, the depth hardly shows the turn about that axis. There ``sym_channel_l2`` asks for
+the axis only: the target's x column is the network's own x column made perpendicular to the target's axis (the
+spin that the output already has), so no gradient asks the network to learn a spin the image does not hold
+(docs/method.md#unseen-spins).
+
 Quality term ``L_q`` (only for a parameterization with a quality channel, ``parameterization.quality``): on every
 occupied cell/slot, ``λ_q (q̂ - q*)²`` with ``q* = 2^-(d/δ)²``, ``d`` the symmetry-aware Brégier rotation distance
 of the orientation decoded from the cell's own rotation channels to the truth (held fixed: the term teaches q̂ to
@@ -36,6 +43,7 @@ every cell exactly as before; the other combinations gather the occupied cells f
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Sequence
 
@@ -76,6 +84,9 @@ class MultiTaskLoss(nn.Module):
             cell (at least two cells), so an origin error of δ costs about (1/20)² whatever the part,
             little beside the orientation channels of a flat part, whose turns the metric prices
             high (results/flat_parts/README.md).
+        spin_unseen_deg: null (off) or the angle between a part's model z-axis and the optical axis beyond which
+            ``sym_channel_l2`` asks for the axis only, the spin left as the network has it
+            (:func:`unseen_spin_targets`).
         robust: "none" (squared errors, the paper) or "charbonnier": each pose term ``e`` (a
             squared error) becomes ``2 (sqrt(1 + e) - 1)``: the same near zero, but growing only
             linearly with the error, so that the large errors of early training do not swamp the
@@ -96,6 +107,7 @@ class MultiTaskLoss(nn.Module):
         lambda_z: float = 1.0,
         lambda_xy: float = 1.0,
         lambda_quality: float = 1.0,
+        spin_unseen_deg: float | None = None,
     ) -> None:
         super().__init__()
         if orientation not in ORIENTATION_LOSSES:
@@ -122,6 +134,14 @@ class MultiTaskLoss(nn.Module):
         self.lambda_z = float(lambda_z)
         self.lambda_xy = float(lambda_xy)
         self.lambda_quality = float(lambda_quality)
+        if spin_unseen_deg is not None:
+            if (isinstance(spin_unseen_deg, bool) or not isinstance(spin_unseen_deg, numbers.Real)
+                    or not 0 < spin_unseen_deg < 90):
+                raise ValueError(f"loss.spin_unseen_deg must be null or an angle in (0, 90) degrees, "
+                                 f"got {spin_unseen_deg!r}")
+            if orientation != "sym_channel_l2":
+                raise ValueError(f"loss.spin_unseen_deg needs loss.orientation=sym_channel_l2, got {orientation!r}")
+        self.spin_unseen_deg = None if spin_unseen_deg is None else float(spin_unseen_deg)
         self.orientation = orientation
         self.position = position
         self.robust = robust
@@ -220,7 +240,10 @@ class MultiTaskLoss(nn.Module):
             )
         elif self.orientation == "sym_channel_l2":
             group = torch.as_tensor(parameterization.obj.pose_space.group, device=o.device)
-            targets = rotation.equivalent_channels(rotation.decode(t_rot.double()), group).to(o.dtype)
+            targets = rotation.equivalent_channels(rotation.decode(t_rot.double()), group)
+            if self.spin_unseen_deg is not None and targets.shape[-1] == 6:
+                targets = unseen_spin_targets(o_rot, targets, self.spin_unseen_deg)
+            targets = targets.to(o.dtype)
             orientation = ((o_rot[:, None] - targets.detach()) ** 2).sum(-1).amin(-1)  # (P,)
         else:
             orientation = ((o_rot - t_rot) ** 2).sum(-1)
@@ -231,6 +254,21 @@ class MultiTaskLoss(nn.Module):
             "position": self.lambda_pos * weight * position,
             "orientation": self.lambda_ori * weight * orientation,
         }
+
+
+def unseen_spin_targets(o_rot: torch.Tensor, targets: torch.Tensor, unseen_deg: float) -> torch.Tensor:
+    """The 6-D channel targets (P, K, 6) of the symmetric equivalents with the spin left to the network where the
+    part's axis lies more than ``unseen_deg`` from the optical axis: there each target's x column becomes the
+    output's x column (``o_rot``, (P, 6)) made perpendicular to the target's axis and of unit length (the target's
+    own x column where the output's is along the axis). Axes nearer the optical axis keep their targets."""
+    z = 2.0 * targets[..., :3] - 1.0  # (P, K, 3) the equivalents' axes, camera frame
+    x_hat = (2.0 * o_rot[:, None, 3:6].detach().to(targets.dtype) - 1.0).expand_as(z)
+    x_free = x_hat - (x_hat * z).sum(-1, keepdim=True) * z
+    norm = x_free.norm(dim=-1, keepdim=True)
+    x_free = torch.where(norm > 1e-6, x_free / norm.clamp_min(1e-6), 2.0 * targets[..., 3:6] - 1.0)
+    unseen = z[..., 2].abs() < math.cos(math.radians(unseen_deg))  # (P, K): the axis far from the line of sight
+    x = torch.where(unseen[..., None], x_free, 2.0 * targets[..., 3:6] - 1.0)
+    return torch.cat((targets[..., :3], 0.5 + 0.5 * x), -1)
 
 
 def quality_target(out_rot: torch.Tensor, tgt_rot: torch.Tensor, parameterization: Parameterization) -> torch.Tensor:

@@ -277,3 +277,49 @@ def test_sym_channel_l2_is_zero_for_every_symmetric_equivalent_and_positive_othe
     raw = param.rotation.equivalent_channels(tilted, torch.eye(3, dtype=torch.float64)[None])[:, 0]
     param.split_slots(output).permute(0, 1, 3, 4, 2)[b, slot, row, col, 5:] = raw.float()
     assert float(sym(output, target, param, CAMERA)["orientation"]) > 1e-3
+
+
+def _cells_with(param, target, R_new):
+    """``target`` with the rotation channels of its occupied cells set to ``R_new`` (as decoded there, (P, 3, 3),
+    or a function of it)."""
+    grid = param.split_slots(target)
+    b, slot, row, col = torch.nonzero(grid[:, :, 0] > 0, as_tuple=True)
+    cells = grid.permute(0, 1, 3, 4, 2)[b, slot, row, col]
+    R = param.rotation.decode(cells[:, 5:].double())
+    raw = param.rotation.equivalent_channels(R_new(R), torch.eye(3, dtype=torch.float64)[None])[:, 0]
+    output = target.clone()
+    param.split_slots(output).permute(0, 1, 3, 4, 2)[b, slot, row, col, 5:] = raw.float()
+    return output, R
+
+
+def test_unseen_spins_leave_the_spin_of_a_side_on_axis_free_and_ask_for_the_rest():
+    """loss.spin_unseen_deg: a wrong spin about an axis seen from the side costs nothing, about an axis seen
+    end-on it costs as before, and a wrong axis costs everywhere."""
+    param = VanillaParameterization(ZBRACKET, rotation=SixDCodec(ZBRACKET.symmetry))
+    gt = random_scene_batch(ZBRACKET, CAMERA, 1, 20, torch.Generator().manual_seed(9))
+    target = param.encode(gt, CAMERA)
+    spin = axis_angle_rotation("Z", torch.tensor(0.6, dtype=torch.float64))
+    output, R = _cells_with(param, target, lambda R: R @ spin)
+    side_on = R[:, 2, 2].abs() < math.cos(math.radians(50))
+    assert side_on.any() and (~side_on).any()  # the scene holds both kinds
+
+    def orientation(loss, out):
+        return float(loss(out, target, param, CAMERA)["orientation"])
+
+    plain, blind = MultiTaskLoss(orientation="sym_channel_l2"), MultiTaskLoss(orientation="sym_channel_l2",
+                                                                              spin_unseen_deg=50)
+    # the spin is asked for only where the axis is within 50 degrees of the line of sight
+    end_on_only, _ = _cells_with(param, target, lambda R: torch.where(side_on[:, None, None], R, R @ spin))
+    assert orientation(blind, output) == pytest.approx(orientation(plain, end_on_only), rel=1e-4)
+    assert 0 < orientation(blind, output) < orientation(plain, output)
+    side_only, _ = _cells_with(param, target, lambda R: torch.where(side_on[:, None, None], R @ spin, R))
+    assert orientation(blind, side_only) < 1e-9 < orientation(plain, side_only)
+    tilt = axis_angle_rotation("X", torch.tensor(0.4, dtype=torch.float64))
+    tilted, _ = _cells_with(param, target, lambda R: torch.where(side_on[:, None, None], R @ tilt, R))
+    assert orientation(blind, tilted) > 1e-3
+    assert not blind.is_paper
+    for bad in (0, 90, "x", True):
+        with pytest.raises(ValueError, match="spin_unseen_deg"):
+            MultiTaskLoss(orientation="sym_channel_l2", spin_unseen_deg=bad)
+    with pytest.raises(ValueError, match="sym_channel_l2"):
+        MultiTaskLoss(orientation="sym_rotation", spin_unseen_deg=50)
