@@ -109,7 +109,15 @@ QUALITY_ARMS = {"quality": {"train": ["parameterization.quality=true", "paramete
 DATA_ARMS = {"view_spin": {"scene": ["view_spin=true"]}}
 #: both levers that helped ITODD 08 a little, together: fresh spins per view and the quality channel. Its A/B: the
 #: view_spin arm run at the same seed on the same machine
-BOTH_ARMS = {"view_spin_quality": {"scene": DATA_ARMS["view_spin"]["scene"], "train": QUALITY_ARMS["quality"]["train"]}}
+BOTH_ARMS = {"view_spin_quality": {"scene": DATA_ARMS["view_spin"]["scene"], "train": QUALITY_ARMS["quality"]["train"]},
+             # fresh spins per view and the plate's grid (the part's D over twice the cells), which lifted ITODD 08
+             # with the four turns (g32_turns4); its A/B: the view_spin arm at the same seed on the same machine
+             "view_spin_g32": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["parameterization.grid=32"]},
+             # fresh spins per view, and the spin not asked for where the depth hardly shows it: the axis more than
+             # 55 degrees from the line of sight (loss.spin_unseen_deg; from the spin study's rendering, where a
+             # 36-degree turn changes 6 of the wheel's input pixels by over 1 mm at 55 degrees, 20 at 50); its A/B:
+             # the view_spin arm at the same seed on the same machine
+             "view_spin_blind55": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["loss.spin_unseen_deg=55"]}}
 
 #: the new-parts recipe frames a part at about 45 pixels of the 128-pixel input, a spoke or a tooth at 2-3; at the
 #: 256-pixel input a stride-8 stem hands the same network (its blocks at 32 x 32, the same grid) twice the pixels
@@ -645,6 +653,17 @@ NOTES = [
     "(`view_spin_quality`: fresh spins per view and the quality channel, seed 0, the same machine, piles and budget "
     "as that `view_spin` run, each tuned on validation): held-out 0.375 against 0.446, validation 0.422 against "
     "0.453; found 75 % against 70 %, but 4.0 confident duplicates a scene against 2.4. Neither kept.",
+    "- *The last two levers* (not kept; ITODD 08, seed 0, the same piles, budget and machine kind as that "
+    "`view_spin` run, each tuned on validation; the confident duplicates by `rank_share.py <ckpt> --rho 0 --alpha 0 "
+    "--beta 0`). *Fresh spins and the finer grid* (`view_spin_g32`: the plate's `parameterization.grid=32`, the "
+    "wheel's D over about 11 cells; with the four turns it had lifted the recipe's network, `g32_turns4`): "
+    "validation 0.466 against 0.453, held-out 0.403 against 0.446; found 74 % against 70 %, confident duplicates "
+    "1.9 a scene against 2.4. *Unseen spins not asked for* (`view_spin_blind55`, `loss.spin_unseen_deg=55`, "
+    "docs/method.md#unseen-spins: where the wheel's axis lies more than 55° from the optical axis, beyond which a "
+    "36° turn changes 6 of its input pixels by over 1 mm, the loss asks for the axis only): validation 0.444, "
+    "held-out 0.311; found 69 %, but 4.6 confident duplicates a scene: a network not asked for a spin gives the "
+    "cells of one wheel spins of their own, which the averaging keeps apart. Neither gains beyond the seeds' "
+    "spread of ±0.05, and the second loses.",
     "",
 ]
 
