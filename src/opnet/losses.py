@@ -54,6 +54,7 @@ from opnet.geometry.camera import Camera
 from opnet.parameterizations.base import Parameterization
 from opnet.parameterizations.batch import ChannelLayout
 from opnet.parameterizations.positions import CameraBatch
+from opnet.parameterizations.rotation import RotationCodec, SixDCodec
 
 ORIENTATION_LOSSES = ("euler_l2", "channel_l2", "sym_channel_l2", "sym_rotation")
 POSITION_LOSSES = ("channels", "metric")
@@ -241,8 +242,8 @@ class MultiTaskLoss(nn.Module):
         elif self.orientation == "sym_channel_l2":
             group = torch.as_tensor(parameterization.obj.pose_space.group, device=o.device)
             targets = rotation.equivalent_channels(rotation.decode(t_rot.double()), group)
-            if self.spin_unseen_deg is not None and targets.shape[-1] == 6:
-                targets = unseen_spin_targets(o_rot, targets, self.spin_unseen_deg)
+            if self.spin_unseen_deg is not None:
+                targets = unseen_spin_targets(o_rot, targets, rotation, self.spin_unseen_deg)
             targets = targets.to(o.dtype)
             orientation = ((o_rot[:, None] - targets.detach()) ** 2).sum(-1).amin(-1)  # (P,)
         else:
@@ -256,19 +257,24 @@ class MultiTaskLoss(nn.Module):
         }
 
 
-def unseen_spin_targets(o_rot: torch.Tensor, targets: torch.Tensor, unseen_deg: float) -> torch.Tensor:
-    """The 6-D channel targets (P, K, 6) of the symmetric equivalents with the spin left to the network where the
-    part's axis lies more than ``unseen_deg`` from the optical axis: there each target's x column becomes the
-    output's x column (``o_rot``, (P, 6)) made perpendicular to the target's axis and of unit length (the target's
-    own x column where the output's is along the axis). Axes nearer the optical axis keep their targets."""
-    z = 2.0 * targets[..., :3] - 1.0  # (P, K, 3) the equivalents' axes, camera frame
-    x_hat = (2.0 * o_rot[:, None, 3:6].detach().to(targets.dtype) - 1.0).expand_as(z)
-    x_free = x_hat - (x_hat * z).sum(-1, keepdim=True) * z
-    norm = x_free.norm(dim=-1, keepdim=True)
-    x_free = torch.where(norm > 1e-6, x_free / norm.clamp_min(1e-6), 2.0 * targets[..., 3:6] - 1.0)
-    unseen = z[..., 2].abs() < math.cos(math.radians(unseen_deg))  # (P, K): the axis far from the line of sight
-    x = torch.where(unseen[..., None], x_free, 2.0 * targets[..., 3:6] - 1.0)
-    return torch.cat((targets[..., :3], 0.5 + 0.5 * x), -1)
+def unseen_spin_targets(o_rot: torch.Tensor, targets: torch.Tensor, rotation: RotationCodec,
+                        unseen_deg: float) -> torch.Tensor:
+    """The channel targets (P, K, A) of the symmetric equivalents with the spin left to the network where the
+    part's axis lies more than ``unseen_deg`` from the optical axis: there each target is turned about its axis to
+    the spin of the output ``o_rot`` (P, A) (:meth:`SixDCodec.with_spin_of`). Axes nearer the optical axis keep
+    their targets; a revolution part's channels hold its axis alone already and are returned as they are.
+
+    Raises:
+        ValueError: the codec is not the 6-D one (``rotation=r6d``), the only one whose axis and spin lie apart.
+    """
+    if not isinstance(rotation, SixDCodec):
+        raise ValueError(f"loss.spin_unseen_deg needs rotation=r6d, got the {rotation.name!r} codec")
+    if rotation.revolution:
+        return targets
+    free = rotation.with_spin_of(targets, o_rot[:, None].detach().to(targets.dtype))
+    axis_z = 2.0 * targets[..., 2] - 1.0  # (P, K) the equivalents' axes' z in the camera frame
+    unseen = axis_z.abs() < math.cos(math.radians(unseen_deg))  # the axis far from the line of sight
+    return torch.where(unseen[..., None], free, targets)
 
 
 def quality_target(out_rot: torch.Tensor, tgt_rot: torch.Tensor, parameterization: Parameterization) -> torch.Tensor:

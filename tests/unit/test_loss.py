@@ -15,6 +15,7 @@ from opnet.geometry import Camera, axis_angle_rotation, quaternion_to_matrix
 from opnet.losses import MultiTaskLoss, symmetric_rotation_error
 from opnet.objects import builtin_object
 from opnet.parameterizations import GroundTruthBatch, SIParameterization, VanillaParameterization
+from opnet.parameterizations.euler_codec import EulerCodec
 from opnet.parameterizations.positions import CameraBatch
 from opnet.parameterizations.rotation import SixDCodec
 from opnet.paths import config_dir
@@ -316,3 +317,6 @@ def test_unseen_spins_leave_the_spin_of_a_side_on_axis_free_and_ask_for_the_rest
             MultiTaskLoss(orientation="sym_channel_l2", spin_unseen_deg=bad)
     with pytest.raises(ValueError, match="sym_channel_l2"):
         MultiTaskLoss(orientation="sym_rotation", spin_unseen_deg=50)
+    euler = VanillaParameterization(ZBRACKET, rotation=EulerCodec(ZBRACKET.symmetry))
+    with pytest.raises(ValueError, match="rotation=r6d"):  # the Euler channels mix the spin into every angle
+        blind(euler.encode(gt, CAMERA), euler.encode(gt, CAMERA), euler, CAMERA)

@@ -134,6 +134,17 @@ class SixDCodec(RotationCodec):
         """Channels of every ``R g`` as they are (no canonical choice): (M, K, num_channels)."""
         return self._channels(R.to(torch.float64).unsqueeze(1) @ group.to(device=R.device, dtype=torch.float64))
 
+    def with_spin_of(self, channels: torch.Tensor, other: torch.Tensor) -> torch.Tensor:
+        """``channels`` (..., 6) with their x column replaced by ``other``'s (channels broadcastable to them) made
+        perpendicular to their z column and of unit length: the same axis, turned about it to the spin ``other``
+        has (their own x column where ``other``'s lies along the axis)."""
+        z, x = 2.0 * channels[..., :3] - 1.0, 2.0 * channels[..., 3:6] - 1.0
+        x_other = (2.0 * other[..., 3:6] - 1.0).expand_as(z)
+        x_free = x_other - (x_other * z).sum(-1, keepdim=True) * z
+        norm = x_free.norm(dim=-1, keepdim=True)
+        x_free = torch.where(norm > 1e-6, x_free / norm.clamp_min(1e-6), x)
+        return torch.cat((channels[..., :3], 0.5 + 0.5 * x_free), -1)
+
     def decode(self, channels: torch.Tensor) -> torch.Tensor:
         v = 2.0 * channels - 1.0
         if self.revolution:
