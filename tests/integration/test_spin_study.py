@@ -13,7 +13,7 @@ import trimesh
 from opnet.geometry.pose_numpy import rodrigues
 from opnet.metrics.bregier import evaluate_scenes
 from opnet.metrics.breakdown import axis_angle
-from opnet.metrics.records import GroundTruthSet
+from opnet.metrics.records import GroundTruthSet, HypothesisSet
 from opnet.objects import ObjectModel
 from opnet.paths import REPO_ROOT
 
@@ -87,3 +87,32 @@ def test_the_ceiling_spins_only_the_parts_seen_past_the_cutoff_and_scores_them_b
     assert evaluate_scenes({k: (g, ceiling.ceiling_hypotheses(g, axis_angle(g.R, g.t, axis), 90.0, axis,
                                                                np.ones(len(g), bool), np.random.default_rng(0)))
                             for k, g in scenes.items()}, obj.pose_space).ap == pytest.approx(1.0)  # fmt: skip
+
+
+def test_the_spin_hedge_copies_only_poses_seen_side_on_turned_about_their_own_axis() -> None:
+    hedge = script("spin_hedge")
+    obj = rim(True, {"kind": "cyclic", "order": 5})
+    axis = np.array([0.0, 0.0, 1.0])
+    gt = scenes_of(obj, 40, seed=2)["s0"]
+    half = rodrigues(axis[None], np.array([math.pi / 5]))[0]  # 36°: half the turn between symmetric equivalents
+    wrong = HypothesisSet(gt.R @ half, gt.t, np.linspace(1.0, 0.5, len(gt)))  # every spin as far off as it gets
+    side_on = axis_angle(gt.R, gt.t, axis) > 45.0
+    out = hedge.hedged(wrong, axis, 72.0, 45.0, 2, 0.3)
+    n = int(side_on.sum())
+    assert 0 < n < len(gt) and len(out) == len(gt) + n
+    np.testing.assert_array_equal(out.R[: len(gt)], wrong.R)  # the poses themselves untouched
+    np.testing.assert_allclose(out.t[len(gt):], gt.t[side_on])  # the copies: where the side-on poses stand,
+    np.testing.assert_allclose(out.R[len(gt):] @ axis, gt.R[side_on] @ axis, atol=1e-12)  # their axes,
+    np.testing.assert_allclose(out.score[len(gt):], 0.3 * wrong.score[side_on])  # scored lower,
+    np.testing.assert_allclose(out.R[len(gt):], gt.R[side_on] @ half @ half, atol=1e-12)  # turned by 36° more
+    # a turn of 72° is the part's own symmetry: each copy finds its part, the poses find none
+    scored = {"s": (gt, wrong)}
+    assert evaluate_scenes(scored, obj.pose_space).ap == 0.0
+    assert hedge.found_share({"s": (gt, out)}, obj.pose_space, obj.diameter, 1.0) == pytest.approx(n / len(gt))
+    # ... but ranked after every pose: found at a precision of at most n / (N + n), which bounds the AP gained
+    ap = evaluate_scenes({"s": (gt, out)}, obj.pose_space).ap
+    assert 0.0 < ap < n / len(gt) * n / (len(gt) + n)
+    assert hedge.hedged(wrong, axis, 72.0, 45.0, 1, 0.3) is wrong  # one copy: nothing added
+    # only the best-scored pose of a place is copied where asked
+    two = HypothesisSet(gt.R[[0, 0, 1]], gt.t[[0, 0, 1]], np.array([0.5, 0.9, 0.2]))
+    np.testing.assert_array_equal(hedge.best_at_place(two, 0.01), [False, True, True])

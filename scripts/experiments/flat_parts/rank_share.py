@@ -19,17 +19,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from opnet.cli.decoding_search import RecordedSplit, current_settings
 from opnet.evaluation import AveragePrecision
-from opnet.fileio.atomic import write_text_atomic
 from opnet.metrics.breakdown import axis_angle, main_axis
 from opnet.metrics.diagnostics import scene_outcomes
 from opnet.metrics.records import HypothesisSet
+from opnet.studies.results import ProbePage
 
 
 def share_scores(hyps: HypothesisSet, radius: float, alpha: float) -> HypothesisSet:
@@ -94,25 +92,12 @@ def false_positive_places(scenes: dict, space, diameter: float, max_occlusion: f
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("ckpt", type=Path)
     ap.add_argument("--rho", type=float, nargs="+", default=[0.1, 0.2, 0.3, 0.5])
     ap.add_argument("--alpha", type=float, nargs="+", default=[0.5, 1.0, 2.0])
     ap.add_argument("--beta", type=float, nargs="+", default=[0.5, 1.0, 2.0])
-    ap.add_argument("--splits", nargs="+", default=["val", "test"])
-    ap.add_argument("--out", type=Path, help="also write the tables to this Markdown file")
-    args = ap.parse_args(argv)
-    lines = [f"# {__doc__.splitlines()[0]}", "", "`python scripts/experiments/flat_parts/rank_share.py "
-             + " ".join(sys.argv[1:] if argv is None else argv) + "`", ""]
-
-    def emit(text: str = "") -> None:
-        print(text, flush=True)
-        lines.extend(text.split("\n"))
-
-    recorded = {split: RecordedSplit.record(str(args.ckpt), split) for split in args.splits}
-    first = next(iter(recorded.values()))
-    settings = current_settings(first.parameterization)
-    space, diameter = first.parameterization.obj.pose_space, first.parameterization.obj.diameter
-    decoded = {split: rec.scenes(settings) for split, rec in recorded.items()}
+    args, page, recorded, settings, decoded, obj = ProbePage.checkpoint_probe(ap, __doc__, __file__, argv)
+    emit = page.emit
+    space, diameter = obj.pose_space, obj.diameter
     emit(f"{args.ckpt}: decoding {settings}; D {diameter * 1000:.1f} mm. AP as decoded, the scores of the hypotheses "
          "multiplied by (s / S)^alpha, S the summed score within rho D (rho 0: none), and by cos(a)^beta, a the angle "
          "of the hypothesis' main axis to its line of sight; val: the run's validation split, test: its held-out piles")
@@ -138,8 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         for kind, (n_all, n_conf) in counts.items():
             emit(f"| {kind} | {n_all / max(total[0], 1):.1%} | {n_all / len(scenes):.1f} | "
                  f"{n_conf / max(total[1], 1):.1%} | {n_conf / len(scenes):.1f} |")
-    if args.out:
-        write_text_atomic(args.out, "\n".join(lines) + "\n")
+    page.write(args.out)
     return 0
 
 

@@ -118,6 +118,15 @@ class Outputs(Evaluator):
         return self.outputs, self.cameras, self.gts
 
 
+def decoded_as_recorded(ckpt: str | Path, splits: Iterable[str]) -> tuple[dict[str, RecordedSplit], dict[str, Any],
+                                                                       dict[str, dict[str, tuple[Any, Any]]]]:
+    """Each split's outputs recorded once (:meth:`RecordedSplit.record`), the decoding the checkpoint records,
+    and each split's scenes decoded with it: ``(recorded, settings, decoded)``, keyed by split."""
+    recorded = {split: RecordedSplit.record(str(ckpt), split) for split in splits}
+    settings = current_settings(next(iter(recorded.values())).parameterization)
+    return recorded, settings, {split: rec.scenes(settings) for split, rec in recorded.items()}
+
+
 def every_kth(batches: Iterable[Batch], stride: int) -> Iterator[Batch]:
     """The batches of a loader holding only every ``stride``-th image of the split (counted across
     batches; a batch left with none is skipped, one left whole passes as it is)."""

@@ -16,6 +16,53 @@ from opnet.studies import fmt, mean_sd
 DENSE_HEADLINE = "recipe60"
 
 
+class ProbePage:
+    """A probe script's Markdown page: its title and command, then every line printed as it comes
+    (:meth:`emit`) and written at once at the end (:meth:`write`)."""
+
+    def __init__(self, title: str, command: str) -> None:
+        self.lines = [f"# {title}", "", f"`{command}`", ""]
+
+    @classmethod
+    def of_script(cls, doc: str, script: str | Path, argv: list[str] | None) -> ProbePage:
+        """The page of the script ``script`` (its path) whose module docstring is ``doc`` (the first line: the
+        title), run with ``argv`` (None: the command line's)."""
+        import sys
+
+        from opnet.paths import REPO_ROOT
+
+        args = sys.argv[1:] if argv is None else argv
+        return cls(doc.splitlines()[0], " ".join(["python", str(Path(script).resolve().relative_to(REPO_ROOT)),
+                                                  *args]))
+
+    @classmethod
+    def checkpoint_probe(cls, ap: Any, doc: str, script: str | Path, argv: list[str] | None) -> tuple[Any, ...]:
+        """A probe of a checkpoint's decoded outputs: ``ap`` (an argparse parser with the probe's own options)
+        takes ``ckpt``, ``--splits`` (default val and test) and ``--out``; the command line parsed, each split
+        recorded and decoded as the checkpoint records (:func:`opnet.cli.decoding_search.decoded_as_recorded`).
+        Returns ``(args, page, recorded, settings, decoded, obj)``, ``obj`` the checkpoint's part."""
+        from opnet.cli.decoding_search import decoded_as_recorded
+
+        ap.add_argument("ckpt", type=Path)
+        ap.add_argument("--splits", nargs="+", default=["val", "test"])
+        ap.add_argument("--out", type=Path, help="also write the tables to this Markdown file")
+        args = ap.parse_args(argv)
+        page = cls.of_script(doc, script, argv)
+        recorded, settings, decoded = decoded_as_recorded(args.ckpt, args.splits)
+        return args, page, recorded, settings, decoded, next(iter(recorded.values())).parameterization.obj
+
+    def emit(self, text: str = "") -> None:
+        print(text, flush=True)
+        self.lines.extend(text.split("\n"))
+
+    def write(self, out: Path | None) -> None:
+        """The page, atomically, to ``out`` (None: nowhere)."""
+        if out is not None:
+            from opnet.fileio.atomic import write_text_atomic
+
+            write_text_atomic(out, "\n".join(self.lines) + "\n")
+
+
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo``), or the platform's processor string."""
     try:
