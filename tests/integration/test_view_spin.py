@@ -15,7 +15,7 @@ from opnet.objects import ObjectModel, builtin_object
 from opnet.synthesis import SceneConfig
 from opnet.synthesis.cycle import CycleGenerator
 from opnet.synthesis.layout import inverse_pose
-from opnet.synthesis.spin import hull_spin_gap, resolve_view_spin
+from opnet.synthesis.spin import hull_flip, hull_spin_gap, resolve_view_spin
 
 SCENE = SceneConfig(resolution=96, collision="convex_hull", views=3)
 DROPS = 4
@@ -135,3 +135,60 @@ def test_a_dataset_records_what_auto_decided_and_one_made_otherwise_is_refused_n
     assert (tmp_path / "auto" / depth).read_bytes() == (tmp_path / "on" / depth).read_bytes()
     with pytest.raises(ValueError, match=r"generation.json: .*scene.view_spin.*made with scene.view_spin=true"):
         made(tmp_path / "auto", False)
+
+
+def hubbed_wheel() -> ObjectModel:
+    """A rim with a hub off the middle of its width, inside the rim's envelope: the hull is symmetric about the
+    rim's mid-plane, the part is not; its model origin (at the hub's side, as a part's surface centroid lies)
+    lies off that plane."""
+    rim = trimesh.creation.annulus(r_min=0.020, r_max=0.025, height=0.015, sections=48)
+    hub = trimesh.creation.cylinder(radius=0.006, height=0.006, sections=24)
+    hub.apply_translation((0.0, 0.0, 0.004))
+    spoke = trimesh.creation.box(extents=(0.042, 0.004, 0.004))
+    spoke.apply_translation((0.0, 0.0, 0.004))
+    mesh = trimesh.util.concatenate([rim, hub, spoke])
+    mesh.apply_translation((0.0, 0.0, -0.003))
+    return ObjectModel.from_mesh("hubbed", mesh, {"kind": "cyclic", "order": 2})
+
+
+def test_the_views_after_the_first_turn_half_the_parts_end_over_end_about_their_hull_middle() -> None:
+    obj = hubbed_wheel()
+    centre, gap = hull_flip(obj.mesh)
+    assert gap < 1e-6 and centre == pytest.approx(-0.003)  # the hull's middle, not the model origin
+    flip_scene = SceneConfig.from_dict({**SCENE.to_dict(), "view_flip": True})
+    both = SceneConfig.from_dict({**SCENE.to_dict(), "view_flip": True, "view_spin": True})
+    flipped, plain = views(flip_scene, obj), views(SCENE, obj)
+    spun_only = views(SceneConfig.from_dict({**SCENE.to_dict(), "view_spin": True}), obj)
+    spun_flipped = views(both, obj)
+    last = DROPS
+    base = bin_frame(plain[0], plain[0].records[last])
+    middle = base @ np.array([0.0, 0.0, centre, 1.0])  # (n, 4) the hull's middle in the bin
+    np.testing.assert_allclose(bin_frame(flipped[0], flipped[0].records[last]), base, atol=1e-9)  # view 0 as made
+    turned = 0
+    for k in (1, 2):
+        T = bin_frame(flipped[k], flipped[k].records[last])
+        np.testing.assert_allclose(T @ np.array([0.0, 0.0, centre, 1.0]), middle, atol=1e-9)  # hull where it was
+        dot = np.einsum("ni,ni->n", T[:, :3, 2], base[:, :3, 2])
+        np.testing.assert_allclose(np.abs(dot), 1.0, atol=1e-9)  # each axis kept or reversed, nothing between
+        turned += int((dot < 0).sum())
+        # with spins too: the parts not flipped are spun exactly as by the spins alone (streams apart)
+        S, SF = (bin_frame(v[k], v[k].records[last]) for v in (spun_only, spun_flipped))
+        same = np.einsum("ni,ni->n", SF[:, :3, 2], S[:, :3, 2]) > 0
+        np.testing.assert_allclose(SF[same], S[same], atol=1e-9)
+        np.testing.assert_array_equal(same, dot > 0)  # the same parts flipped, whatever the spins
+    assert 0 < turned < 2 * DROPS  # about half the parts of each view
+
+
+def test_a_part_whose_hull_is_not_symmetric_about_its_middle_is_refused_naming_it() -> None:
+    cone = ObjectModel.from_mesh("cone", trimesh.creation.cone(radius=0.02, height=0.03, sections=48),
+                                 {"kind": "cyclic", "order": 2})
+    assert hull_flip(cone.mesh)[1] > 0.01  # its tip turned end over end lies far beyond its base
+    scene = SceneConfig.from_dict({**SCENE.to_dict(), "view_flip": True})
+    with pytest.raises(ValueError, match=r"scene.view_flip: cone's convex hull is not symmetric about its mid-plane"
+                                         r".*% of D"):
+        CycleGenerator(cone, DROPS, scene)
+    with pytest.raises(ValueError, match=r"scene config: view_flip='yes'"):
+        SceneConfig.from_dict({**SCENE.to_dict(), "view_flip": "yes"})
+    with pytest.raises(ValueError, match=r"scene config: view_flip=True, expected false with scene.views=1"):
+        SceneConfig.from_dict({**SCENE.to_dict(), "views": 1, "view_flip": True})
+    assert "view_flip" not in SceneConfig().to_dict()  # datasets made before keep their record

@@ -178,6 +178,10 @@ class SceneConfig:
             ``view_spin_tolerance`` × D; refused otherwise. ``auto``: on exactly for such a part
             whose spins are not free (no revolution symmetry) with ``views`` > 1, off for any other
             (:func:`opnet.synthesis.spin.resolve_view_spin`; the dataset records what it was).
+        view_flip: every view after the first turns each part with probability 1/2 end over end about a
+            diameter through the middle of its hull (besides its spin, with ``view_spin``; drawn per view, held
+            through the drops). Only for a part whose hull is symmetric about that mid-plane within
+            ``view_spin_tolerance`` × D; refused otherwise (:mod:`opnet.synthesis.spin`).
 
     Rendering:
         solo_cache_mm, solo_cache_deg: an object's solo pixel count (the visibility denominator) is
@@ -246,6 +250,7 @@ class SceneConfig:
     rig_d: float | None = _setting(None, "sizing", later=True)
     view_spin: bool | str = _setting(False, "randomization", later=True)
     view_spin_tolerance: float = _setting(0.01, "randomization", later=True)
+    view_flip: bool = _setting(False, "randomization", later=True)
 
     def __post_init__(self) -> None:
         def need(ok: bool, key: str, expected: str) -> None:
@@ -306,6 +311,9 @@ class SceneConfig:
         need(isinstance(self.view_spin, bool) or self.view_spin == "auto", "view_spin",
              "true, false or auto (fresh spins per view; auto: where the part's hull lets them)")
         need(self.view_spin is not True or self.views > 1, "view_spin",
+             "false with scene.views=1 (it turns the parts in the views after the first: set scene.views > 1)")
+        need(isinstance(self.view_flip, bool), "view_flip", "true or false (fresh flips per view)")
+        need(not self.view_flip or self.views > 1, "view_flip",
              "false with scene.views=1 (it turns the parts in the views after the first: set scene.views > 1)")
         need(0 < self.view_spin_tolerance < 1, "view_spin_tolerance",
              "a fraction of D in (0, 1): how far the turned hull may reach out of itself")

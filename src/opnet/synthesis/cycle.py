@@ -26,7 +26,16 @@ from opnet.synthesis.layout import CycleLayout, Rig, make_rig, sample_layout, vi
 from opnet.synthesis.physics import BinSimulator, CycleStates, CycleStats, make_simulator
 from opnet.synthesis.rendering import SceneRenderer
 from opnet.synthesis.sensor import SensorModel, sensor_rng
-from opnet.synthesis.spin import check_spinnable, resolve_view_spin, spin_rng, spin_turns, spun
+from opnet.synthesis.spin import (
+    check_flippable,
+    check_spinnable,
+    flip_rng,
+    flip_turns,
+    resolve_view_spin,
+    spin_rng,
+    spin_turns,
+    spun,
+)
 
 #: the ground plate is this many bin widths wide (it fills the view around the bin)
 GROUND_SCALE = 10.0
@@ -136,6 +145,8 @@ class CycleGenerator:
         assert obj.mesh is not None  # make_rig refuses mesh-less objects
         if self.scene.view_spin:  # before the collision model: a refusal costs no decomposition
             check_spinnable(obj.mesh, obj.diameter, self.scene.view_spin_tolerance, obj.name)
+        self._flip_centre = (check_flippable(obj.mesh, obj.diameter, self.scene.view_spin_tolerance, obj.name)
+                             if self.scene.view_flip else 0.0)
         self.collision = collision or build_collision_model(obj.mesh, self.scene)
         self._model_scenes = self.scene.bin_model_scenes()
         #: per bin model (0 without models): its rig, scene and simulator, made on first use
@@ -185,7 +196,8 @@ class CycleGenerator:
         Random numbers: the pile (bin jitter, drops) and view 0 come from ``cycle_rngs(seed,
         pile)`` exactly as a cycle without views (``views=1`` gives the same bytes as before);
         view k > 0 draws its camera from ``SeedSequence([seed, pile, k])`` (:func:`view_layout`) and, with
-        ``scene.view_spin``, each part's spin about its own axis from a stream of its own (:func:`spin_rng`).
+        ``scene.view_spin``, each part's spin about its own axis from a stream of its own (:func:`spin_rng`), with
+        ``scene.view_flip`` each part's flip end over end (before its spin) from another (:func:`flip_rng`).
         Views are rendered one after another, each with its own visibility cache.
         """
         K = self.scene.views
@@ -204,8 +216,13 @@ class CycleGenerator:
         for k in wanted:
             view = layout if k == 0 else view_layout(rig, scene, layout, view_rng(seed, pile, k))
             shown = states
-            if k and self.scene.view_spin:  # new spins of the same pile (opnet.synthesis.spin)
-                shown = spun(states, spin_turns(spin_rng(seed, pile, k), self.drops))
+            if k and (self.scene.view_spin or self.scene.view_flip):  # new spins, flips (opnet.synthesis.spin)
+                turns = np.tile(np.eye(4), (self.drops, 1, 1))
+                if self.scene.view_spin:
+                    turns = spin_turns(spin_rng(seed, pile, k), self.drops)
+                if self.scene.view_flip:
+                    turns = turns @ flip_turns(flip_rng(seed, pile, k), self.drops, self._flip_centre)
+                shown = spun(states, turns)
             self.renderer.select_bin(model)
             yield dataclasses.replace(self._render_view(seed, pile * K + k, view, shown), bin_model=record)
 

@@ -13,6 +13,13 @@ same settled pile. The generator refuses it for a part whose hull is not such a 
 (:func:`hull_spin_gap` over ``scene.view_spin_tolerance`` × D). Off by default; ``scene.view_spin=auto`` (the dense
 recipe's setting, :func:`resolve_view_spin`) turns it on for exactly the parts it fits: such a hull, spins that are
 not free (no revolution symmetry) and more than one view per pile (docs/data.md#fresh-spins-per-view).
+
+A part whose hull is also **symmetric about its mid-plane across z** (a wheel whose hub sits off the middle of its
+rim inside the rim's envelope) touches its neighbours the same way turned end over end about a diameter through the
+hull's middle. ``scene.view_flip`` turns half the parts of every view after the first so (each part's own draw,
+from a stream apart from the spins': with ``view_spin`` the spins are those it makes alone), so that the views
+show the part's faces both ways up in the same places; refused for a part whose hull is not so
+(:func:`hull_flip`). Off unless set (docs/data.md#fresh-flips-per-view).
 """
 
 from __future__ import annotations
@@ -32,6 +39,8 @@ if TYPE_CHECKING:
 
 #: entropy tag of a view's spin stream (SeedSequence([seed, pile, view, SPIN_STREAM]))
 SPIN_STREAM = 0x5917
+#: entropy tag of a view's flip stream (SeedSequence([seed, pile, view, FLIP_STREAM]))
+FLIP_STREAM = 0xF11B
 #: turns about z at which the hull is tested (every 5 degrees)
 HULL_TURNS = 72
 
@@ -41,13 +50,40 @@ def hull_spin_gap(mesh: trimesh.Trimesh, turns: int = HULL_TURNS) -> float:
     largest distance of a turned hull vertex beyond the hull's face planes over ``turns`` turns of the circle.
     0 for a body of revolution about z (up to its tessellation); a wheel's rim gives about its facets' sag."""
     hull = mesh.convex_hull
+    vertices = np.asarray(hull.vertices, np.float64)
+    return max((_beyond_hull(hull, vertices @ g.T) for g in cyclic_group(int(turns))[1:]), default=0.0)
+
+
+def _beyond_hull(hull: trimesh.Trimesh, points: np.ndarray) -> float:
+    """How far (mesh units) the farthest of ``points`` (N, 3) lies beyond the face planes of the convex ``hull``."""
     normals = np.asarray(hull.face_normals, np.float64)
     offsets = (normals * np.asarray(hull.triangles, np.float64)[:, 0]).sum(-1)
-    vertices = np.asarray(hull.vertices, np.float64)
-    gap = 0.0
-    for g in cyclic_group(int(turns))[1:]:  # every turn but the identity
-        gap = max(gap, float((vertices @ g.T @ normals.T - offsets).max()))
-    return gap
+    return float((np.asarray(points, np.float64) @ normals.T - offsets).max())
+
+
+def hull_flip(mesh: trimesh.Trimesh) -> tuple[float, float]:
+    """``(centre, gap)``: the z (mesh units) of the convex hull's mid-plane across z, and how far the hull turned
+    end over end about the x-axis through (0, 0, centre) reaches out of itself (0 for a hull symmetric about that
+    plane, up to its tessellation)."""
+    hull = mesh.convex_hull
+    lo, hi = np.asarray(hull.bounds, np.float64)[:, 2]
+    centre = 0.5 * (lo + hi)
+    vertices = np.asarray(hull.vertices, np.float64) * np.array([1.0, -1.0, -1.0]) + np.array([0.0, 0.0, 2 * centre])
+    return float(centre), _beyond_hull(hull, vertices)
+
+
+def check_flippable(mesh: trimesh.Trimesh, diameter: float, tolerance: float, name: str) -> float:
+    """The z of the hull's mid-plane (:func:`hull_flip`) where the hull turned end over end about it stays within
+    ``tolerance`` × ``diameter`` of itself; ValueError, one line naming the part and the figures, otherwise."""
+    centre, gap = hull_flip(mesh)
+    if gap > tolerance * diameter:
+        raise ValueError(
+            f"scene.view_flip: {name}'s convex hull is not symmetric about its mid-plane across its z-axis: turned "
+            f"end over end, the hull reaches {1e3 * gap:.2f} mm ({100 * gap / diameter:.2f} % of D) out of itself, "
+            f"over scene.view_spin_tolerance={tolerance:g} of D, so a part turned in a settled pile would go "
+            "through its neighbours (set scene.view_flip=false)"
+        )
+    return centre
 
 
 def hull_spins_within(mesh: trimesh.Trimesh, diameter: float, tolerance: float) -> tuple[bool, float]:
@@ -101,6 +137,21 @@ def spin_turns(rng: np.random.Generator, parts: int) -> np.ndarray:
     T = np.tile(np.eye(4), (int(parts), 1, 1))
     T[:, 0, 0], T[:, 0, 1] = np.cos(angle), -np.sin(angle)
     T[:, 1, 0], T[:, 1, 1] = np.sin(angle), np.cos(angle)
+    return T
+
+
+def flip_rng(seed: int, pile: int, view: int) -> np.random.Generator:
+    """The flip stream of view ``view`` of pile ``pile`` (independent of its camera's and its spins')."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(pile), int(view), FLIP_STREAM]))
+
+
+def flip_turns(rng: np.random.Generator, parts: int, centre: float) -> np.ndarray:
+    """(parts, 4, 4): for each part drawn with probability 1/2, the turn end over end about the x-axis through
+    (0, 0, ``centre``) (model frame, metres); the identity for the others."""
+    flip = rng.random(int(parts)) < 0.5
+    T = np.tile(np.eye(4), (int(parts), 1, 1))
+    T[flip, 1, 1] = T[flip, 2, 2] = -1.0
+    T[flip, 2, 3] = 2.0 * centre
     return T
 
 
