@@ -10,11 +10,11 @@ parts without reading anything more of the image. This probe measures how much: 
 Records the checkpoint's outputs on its validation and held-out (test) splits once, decodes them as the checkpoint
 records, then adds to every hypothesis whose main axis lies more than ``side-on`` degrees from its line of sight
 ``copies - 1`` copies turned by k / copies of the turn between symmetric equivalents (k = 1 .. copies - 1), each
-scored ``factor`` times the hypothesis' own score: every such hypothesis (copied: all), or only those scored
-highest within 0.25 D of their translation (copied: best). Prints the AP of every setting on both splits (choose on ``val``) and the
-share of the parts to find that a true positive finds. Then, for the parts found as decoded (no copies), by how
-the camera sees their axis: how often their true positive is the best-scored hypothesis within 0.25 D of the part,
-how often another pose there scores higher, and how often it stands alone.
+scored ``factor`` times the hypothesis' own score: every such hypothesis (copied: all), or only those scored highest
+within 0.25 D of their translation (copied: best). Prints the AP of every setting on both splits (choose on ``val``)
+and the share of the parts to find that a true positive finds. Then, for the parts found as decoded (no copies), by
+how the camera sees their axis: how often their true positive is the best-scored hypothesis within 0.25 D of the
+part, how often another pose there scores higher, and how often it stands alone.
 """
 
 from __future__ import annotations
