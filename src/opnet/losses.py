@@ -272,7 +272,7 @@ def unseen_spin_targets(o_rot: torch.Tensor, targets: torch.Tensor, rotation: Ro
     if rotation.revolution:
         return targets
     free = rotation.with_spin_of(targets, o_rot[:, None].detach().to(targets.dtype))
-    axis_z = 2.0 * targets[..., 2] - 1.0  # (P, K) the equivalents' axes' z in the camera frame
+    axis_z = rotation.axis(targets)[..., 2]  # (P, K) the equivalents' axes' z in the camera frame
     unseen = axis_z.abs() < math.cos(math.radians(unseen_deg))  # the axis far from the line of sight
     return torch.where(unseen[..., None], free, targets)
 

@@ -134,11 +134,15 @@ class SixDCodec(RotationCodec):
         """Channels of every ``R g`` as they are (no canonical choice): (M, K, num_channels)."""
         return self._channels(R.to(torch.float64).unsqueeze(1) @ group.to(device=R.device, dtype=torch.float64))
 
+    def axis(self, channels: torch.Tensor) -> torch.Tensor:
+        """The z column (..., 3) the channels (..., num_channels) hold: the part's axis in the camera frame."""
+        return 2.0 * channels[..., :3] - 1.0
+
     def with_spin_of(self, channels: torch.Tensor, other: torch.Tensor) -> torch.Tensor:
         """``channels`` (..., 6) with their x column replaced by ``other``'s (channels broadcastable to them) made
         perpendicular to their z column and of unit length: the same axis, turned about it to the spin ``other``
         has (their own x column where ``other``'s lies along the axis)."""
-        z, x = 2.0 * channels[..., :3] - 1.0, 2.0 * channels[..., 3:6] - 1.0
+        z, x = self.axis(channels), 2.0 * channels[..., 3:6] - 1.0
         x_other = (2.0 * other[..., 3:6] - 1.0).expand_as(z)
         x_free = x_other - (x_other * z).sum(-1, keepdim=True) * z
         norm = x_free.norm(dim=-1, keepdim=True)

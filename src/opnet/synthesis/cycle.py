@@ -217,9 +217,8 @@ class CycleGenerator:
             view = layout if k == 0 else view_layout(rig, scene, layout, view_rng(seed, pile, k))
             shown = states
             if k and (self.scene.view_spin or self.scene.view_flip):  # new spins, flips (opnet.synthesis.spin)
-                turns = np.tile(np.eye(4), (self.drops, 1, 1))
-                if self.scene.view_spin:
-                    turns = spin_turns(spin_rng(seed, pile, k), self.drops)
+                turns = (spin_turns(spin_rng(seed, pile, k), self.drops) if self.scene.view_spin
+                         else np.tile(np.eye(4), (self.drops, 1, 1)))
                 if self.scene.view_flip:
                     turns = turns @ flip_turns(flip_rng(seed, pile, k), self.drops, self._flip_centre)
                 shown = spun(states, turns)
