@@ -134,6 +134,20 @@ def test_splits_keep_the_views_of_a_pile_together(two_views: Path) -> None:
         SceneData(builtin_object("bracket"), two_views, test_min_objects=-1)
 
 
+def test_a_validation_dataset_of_its_own_replaces_the_held_out_share(two_views: Path) -> None:
+    from opnet.data.scene_data import SceneData
+
+    dm = SceneData(builtin_object("bracket"), two_views, val_fraction=0.5, test_fraction=0.0, cache=False,
+                   check="off", val_root=two_views, test_min_objects=DROPS)
+    dm.setup()
+    names = {split: [dm.splits[split].record(i).name for i in range(len(dm.splits[split]))] for split in dm.splits}
+    # the validation split: only the full piles of val_root, every one of them
+    assert sorted(names["val"]) == [f"cycle_{c:04d}_{DROPS:03d}" for c in range(6)]
+    # and the share val_fraction would have held out is trained on: every pile of root, every scene
+    assert {int(n.split("_")[1]) // 2 for n in names["train"]} == {0, 1, 2}
+    assert len(names["train"]) == 6 * DROPS  # the empty bins (0 parts) are left out as ever
+
+
 def test_rotation_refused_for_data_without_segmentation(two_views: Path, tmp_path: Path) -> None:
     import shutil
 

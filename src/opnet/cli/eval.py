@@ -127,8 +127,8 @@ def _write_bop_results(datamodule: Any, split: str, scenes: dict[str, tuple[Grou
     )
 
     obj_id = getattr(datamodule, "object_id", None)
-    roots = getattr(datamodule, "test_roots", None) if split == "test" and getattr(datamodule, "test_roots", None) \
-        else getattr(datamodule, "roots", [])
+    own = getattr(datamodule, f"{split}_roots", None)  # a split of datasets of its own (data.test_root, val_root)
+    roots = own if own else getattr(datamodule, "roots", [])
     R_align = None
     if obj_id is not None and roots and is_bop_split(Path(roots[0])):
         models = models_dir_of(Path(roots[0]))

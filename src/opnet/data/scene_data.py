@@ -221,7 +221,10 @@ class SceneData:
             predict.py and the ONNX export frame images the same way.
         roi: region of interest cropped before the framing (:mod:`opnet.data.roi`): None, an
             ``[x0, y0, x1, y1]`` pixel box or ``"auto"``; the checkpoint keeps it like ``fit``.
-        test_min_objects: score only the scenes of ``test_root`` with at least this many parts
+        val_root: a separate dataset (or a list) whose scenes, all of them, form the validation split
+            (the checkpoint kept, the learning curve's validation AP and the decoding tuned after training
+            all choose on it); the ``val_fraction`` of ``root`` is then not held out.
+        test_min_objects: score only the scenes of ``test_root`` and ``val_root`` with at least this many parts
             (e.g. 70 for the Siléane-like bulk piles of 70-80 parts); 0 = every scene.
     """
 
@@ -250,6 +253,7 @@ class SceneData:
         clip: Sequence[float] | None = None,
         fit: str = "pad",
         test_min_objects: int = 0,
+        val_root: str | Path | Sequence[str | Path] | None = None,
         train_groups: int | None = None,
         roi: Any = None,
     ) -> None:
@@ -292,6 +296,7 @@ class SceneData:
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None  # None: per dataset, by its framing
         self.cache_workers = int(cache_workers)
         self.test_roots = as_paths(test_root)
+        self.val_roots = as_paths(val_root)
         if isinstance(test_min_objects, bool) or int(test_min_objects) < 0:
             raise ValueError(f"data.test_min_objects={test_min_objects!r}, expected an integer >= 0")
         self.test_min_objects = int(test_min_objects)
@@ -321,12 +326,13 @@ class SceneData:
         if self.cache:
             self._open_sources(self.roots)
             self._open_sources(self.test_roots)
+            self._open_sources(self.val_roots)
 
     def _check_datasets(self) -> None:
         """Every file of every dataset, before the first is used (fast: headers and sizes)."""
         from opnet.datasets.check import check_dataset
 
-        for root in [*self.roots, *self.test_roots]:
+        for root in [*self.roots, *self.val_roots, *self.test_roots]:
             report = check_dataset(root, fast=self.check == "fast", object_id=self.object_id, clip=self.clip)
             log.info("dataset check (%s): %s", self.check, report.summary(0).replace("\n", " "))
             if not report.ok:
@@ -354,13 +360,14 @@ class SceneData:
     def setup(self, stage: str | None = None) -> None:
         if self.splits:
             return
-        for root in (*self.roots, *self.test_roots):
+        for root in (*self.roots, *self.val_roots, *self.test_roots):
             self._check_object(root)
         self._check_rotation()
         source = self._open_sources(self.roots)
         keys, keep = self._scene_keys(source, self.roots)
         test_fraction = 0.0 if self.test_root is not None else self.test_fraction
-        tr, va, te = split_groups([keys[i] for i in keep], self.val_fraction, test_fraction, self.seed)
+        val_fraction = 0.0 if self.val_roots else self.val_fraction
+        tr, va, te = split_groups([keys[i] for i in keep], val_fraction, test_fraction, self.seed)
         if self.train_groups is not None:  # the data-scaling curve: the first N training groups only
             first = set(sorted({keys[keep[i]] for i in tr})[: self.train_groups])
             tr = [i for i in tr if keys[keep[i]] in first]
@@ -373,10 +380,10 @@ class SceneData:
             "val": SceneSamples(source, pick(va), **common),
             "test": SceneSamples(source, pick(te), **common),
         }
-        if self.test_roots:  # held-out datasets of their own (other seed, other generator)
-            test_source = self._open_sources(self.test_roots)
-            keep = self._scene_keys(test_source, self.test_roots, self.test_min_objects)[1]
-            self.splits["test"] = SceneSamples(test_source, keep, **common)
+        for split, roots in (("val", self.val_roots), ("test", self.test_roots)):
+            if roots:  # datasets of their own (other seed, other generator)
+                own = self._open_sources(roots)
+                self.splits[split] = SceneSamples(own, self._scene_keys(own, roots, self.test_min_objects)[1], **common)
         log.info("dataset %s: %s", ", ".join(map(str, self.roots)), {k: len(v) for k, v in self.splits.items()})
 
     def _check_rotation(self) -> None:
