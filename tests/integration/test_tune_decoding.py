@@ -143,3 +143,29 @@ def test_the_decoding_arguments_give_eval_py_the_settings_they_spell(checkpoint:
     got = tune.current_settings(system.parameterization)
     assert {k: got[k] for k in settings if averaging or k not in tune.AVERAGING_KEYS} == \
         {k: v for k, v in settings.items() if averaging or k not in tune.AVERAGING_KEYS}
+
+
+def test_root_records_every_scene_of_the_piles_given_instead_of_the_runs_split(checkpoint: Path,
+                                                                              tiny_dataset: Path) -> None:
+    """``--root``: validation piles of their own. Given the run's own dataset, every scene of it is recorded (its
+    train, val and test shares together), with the ground truth the split's own recording reads."""
+    from opnet.cli.build import build_datamodule
+
+    system, cfg = load_checkpoint(checkpoint)
+    dm = build_datamodule(cfg, system.parameterization.obj, train=False)
+    dm.setup("test")
+    shares = {k: len(v) for k, v in dm.splits.items()}
+    assert shares["val"] < sum(shares.values())
+    whole = tune.RecordedSplit.record(str(checkpoint), "val", root=tiny_dataset)
+    assert sum(len(g) for g in whole.gts) == sum(shares.values())
+    mark = lambda rec: {(len(g), round(float(g.t.sum()), 6)) for batch in rec.gts for g in batch}  # noqa: E731
+    assert mark(tune.RecordedSplit.record(str(checkpoint), "val")) < mark(whole)
+
+
+def test_a_missing_root_is_one_line_naming_it(checkpoint: Path, tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "no_piles"
+    assert tune.main(["--ckpt", str(checkpoint), "--root", str(missing), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {missing}: dataset folder not found (--root)"]
+    assert not (tmp_path / "o" / "decoding_sweep.csv").exists()

@@ -23,6 +23,7 @@ from typing import Any
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import torch  # noqa: E402
+from omegaconf import OmegaConf  # noqa: E402
 
 from opnet.cli.build import build_datamodule, load_checkpoint  # noqa: E402
 from opnet.cli.tools import save_checkpoint  # noqa: E402
@@ -63,12 +64,17 @@ class RecordedSplit:
     turned: dict[int, list[torch.Tensor]] = dataclasses.field(default_factory=dict)
 
     @classmethod
-    def record(cls, ckpt: str, split: str, stride: int = 1, turns: tuple[int, ...] | None = None) -> RecordedSplit:
+    def record(cls, ckpt: str, split: str, stride: int = 1, turns: tuple[int, ...] | None = None,
+               root: str | Path | None = None) -> RecordedSplit:
         """Run the checkpoint's network once over every ``stride``-th scene of ``split``, and over each of
         them turned by each quarter turn of ``turns`` (None: those its configured decoding pools; (1, 2, 3):
         every turn, so that the search tries ``turns`` too) (:func:`opnet.evaluation.evaluate` with an
-        :class:`Outputs` evaluator: nothing decoded)."""
+        :class:`Outputs` evaluator: nothing decoded). ``root``: instead of ``split``, every scene of that
+        dataset with at least the run's ``data.test_min_objects`` parts (as ``data.test_root`` scores it)."""
         system, cfg = load_checkpoint(ckpt)
+        if root is not None:
+            OmegaConf.update(cfg, "data.test_root", str(root), force_add=True)
+            split = "test"
         if turns is None:
             turns = quarters(system.parameterization.turns)[1:]
         dm = build_datamodule(cfg, system.parameterization.obj, train=False)

@@ -1,7 +1,7 @@
 """Tune the decoding of a trained model on its validation split: score, minimum visibility, the input's turns
 pooled and the pose-averaging settings (DBSCAN eps, min_samples, cluster score), measured, not guessed.
 
-    opnet-tune-decoding --ckpt <run>/checkpoints/last.ckpt [--split val] [--out <dir>]
+    opnet-tune-decoding --ckpt <run>/checkpoints/last.ckpt [--split val | --root <piles>] [--out <dir>]
 
 The network runs once over the split and once over each quarter turn of it (``turns``, :mod:`opnet.parameterizations.turns`;
 ``--no-turns``: the configured turns kept, the network run only as they need); every setting then only re-decodes the stored outputs and
@@ -10,6 +10,10 @@ candidates, the others at their current best; two rounds). Prints a table and wr
 ``decoding_sweep.csv`` and ``decoding_sweep.md`` to ``--out`` (default: the run's
 ``tune_<split>/``). Several checkpoints (``--ckpt a --ckpt b``) are tuned jointly: the mean AP over
 them decides, so that the chosen defaults hold for more than one model.
+
+``--root <dataset>`` tunes on every scene of that dataset instead (those with at least the run's
+``data.test_min_objects`` parts, as ``data.test_root`` scores them): validation piles of their own, more than a
+run's validation share holds (two piles of a dense run choose a decoding that does not carry over; forty do).
 
 ``--write <file.ckpt>`` saves a copy of the (first) checkpoint whose config decodes with the tuned
 settings, so that eval.py, predict.py and export.py use them (an existing file only with ``--force``). ``--stride K`` tunes on every K-th
@@ -62,6 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", action="append", required=True, help="checkpoint (repeat to tune jointly)")
     parser.add_argument("--split", default="val", choices=("val", "test", "train"))
+    parser.add_argument("--root", type=Path, default=None,
+                        help="tune on every scene of this dataset instead of the run's --split")
     parser.add_argument("--rounds", type=whole(1, MAX_ROUNDS), default=2,
                         help=f"rounds of the coordinate-wise search (1 to {MAX_ROUNDS})")
     parser.add_argument("--out", type=Path, default=None)
@@ -78,15 +84,19 @@ def main(argv: list[str] | None = None) -> int:
 @torch.no_grad()
 def tune(args: argparse.Namespace) -> int:
     """The tuning :func:`main` asks for: record, search, write."""
-    out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{args.split}"
+    where = args.split if args.root is None else args.root.name
+    out = args.out or Path(args.ckpt[0]).resolve().parent.parent / f"tune_{where}"
+    if args.root is not None and not args.root.is_dir():
+        raise FileNotFoundError(f"{args.root}: dataset folder not found (--root)")
     require_folder(out, "--out")  # before the network runs, not after
     require_writable(out / "decoding_sweep.csv", "--out")
     if args.write is not None:
         require_writable(args.write, "--write", replace=args.force)
     splits = []
     for ckpt in args.ckpt:
-        print(f"recording {args.split} outputs of {ckpt}", flush=True)
-        splits.append(RecordedSplit.record(ckpt, args.split, args.stride, None if args.no_turns else (1, 2, 3)))
+        print(f"recording {where} outputs of {ckpt}", flush=True)
+        splits.append(RecordedSplit.record(ckpt, args.split, args.stride, None if args.no_turns else (1, 2, 3),
+                                           args.root))
     best, rows = search(splits, args.rounds)
     write_table(rows, out)
     print(f"written {out}/decoding_sweep.csv, {out}/decoding_sweep.md")
