@@ -129,7 +129,7 @@ BOTH_ARMS = {"view_spin_quality": {"scene": DATA_ARMS["view_spin"]["scene"], "tr
              # fresh spins per view, trained on the depth as rendered: no elastic warp, blur, noise or dropout (the
              # recipe's noise reaches 2.5 mm at ITODD 08's rig, more than the 1 mm a 36-degree turn changes at the
              # 71 input pixels where an oblique wheel shows its spokes); the random resize and quarter turns stay.
-             # Its A/B: the view_spin arm at the same seed on the same machine
+             # Its A/B: view_spin_again at the same seed
              "view_spin_clean": {"scene": DATA_ARMS["view_spin"]["scene"],
                                  "train": [f"augmentation.{p}=0" for p in ("p_elastic", "p_blur", "p_motion_blur",
                                                                            "p_noise", "p_dropout")]}}

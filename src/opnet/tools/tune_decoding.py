@@ -13,7 +13,7 @@ them decides, so that the chosen defaults hold for more than one model.
 
 ``--root <dataset>`` tunes on every scene of that dataset instead (those with at least the run's
 ``data.test_min_objects`` parts, as ``data.test_root`` scores them): validation piles of their own, more than a
-run's validation share holds (two piles of a dense run choose a decoding that does not carry over; forty do).
+run's validation share holds (a dense run's: two piles).
 
 ``--write <file.ckpt>`` saves a copy of the (first) checkpoint whose config decodes with the tuned
 settings, so that eval.py, predict.py and export.py use them (an existing file only with ``--force``). ``--stride K`` tunes on every K-th
