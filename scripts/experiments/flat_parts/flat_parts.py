@@ -20,6 +20,7 @@ Writes ``results/flat_parts/flat_parts.csv`` (a row per part, lever, arm and see
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import json
 import os
@@ -452,12 +453,14 @@ def dense_roots(part: str) -> tuple[Path, Path]:
 #: the held-out piles' seed 1), made as the held-out piles are. The runs' validation split holds 2 piles (16 views),
 #: the held-out set 12: too few parts to find (about 6 a view) to tell apart arms 0.05 apart, and the two disagreed
 WIDE_VAL_PILES = 40
-SPLITS = ("val", "wide_val", "held_out")
 WIDE_VAL_SEED = 2
+SPLITS = ("val", "wide_val", "held_out")
 
 
+@functools.cache
 def wide_val_root(part: str) -> Path:
-    """The dense part's wide validation piles (:data:`WIDE_VAL_PILES`), generated on first use."""
+    """The dense part's wide validation piles (:data:`WIDE_VAL_PILES`), generated on first use (checked once a
+    run: every arm scored on them asks)."""
     root = DENSE_DATA / f"{part}_test_p{WIDE_VAL_PILES}_d75_s{WIDE_VAL_SEED}"
     bench = _load("bench_dense", REPO_ROOT / "scripts" / "bench" / "bench_dense.py")
     bench.generate(part, root, WIDE_VAL_PILES, 75, WIDE_VAL_SEED, 1, bench.CAMERA, None)

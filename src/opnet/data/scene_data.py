@@ -328,11 +328,16 @@ class SceneData:
             self._open_sources(self.test_roots)
             self._open_sources(self.val_roots)
 
+    @property
+    def _every_root(self) -> list[Path]:
+        """The training datasets, then those of a split of their own (validation, test)."""
+        return [*self.roots, *self.val_roots, *self.test_roots]
+
     def _check_datasets(self) -> None:
         """Every file of every dataset, before the first is used (fast: headers and sizes)."""
         from opnet.datasets.check import check_dataset
 
-        for root in [*self.roots, *self.val_roots, *self.test_roots]:
+        for root in self._every_root:
             report = check_dataset(root, fast=self.check == "fast", object_id=self.object_id, clip=self.clip)
             log.info("dataset check (%s): %s", self.check, report.summary(0).replace("\n", " "))
             if not report.ok:
@@ -360,7 +365,7 @@ class SceneData:
     def setup(self, stage: str | None = None) -> None:
         if self.splits:
             return
-        for root in (*self.roots, *self.val_roots, *self.test_roots):
+        for root in self._every_root:
             self._check_object(root)
         self._check_rotation()
         source = self._open_sources(self.roots)
