@@ -163,3 +163,25 @@ def test_a_stride_8_stem_feeds_twice_the_input_to_the_same_blocks() -> None:
         assert rest(wide) == rest(plain)
         with torch.no_grad():
             assert wide(torch.rand(1, 1, 256, 256)).shape == (1, 24, grid, grid)
+
+
+def test_fp32_stem_reads_depth_finer_than_bf16_under_autocast() -> None:
+    """Under bf16 autocast a plain stem reads the depth rounded to 1/256 of its value: a 0.3 mm step on a
+    0.25 m working range (0.0012 of it, under half of bf16's spacing of 1/256 at 0.7) vanishes; the float32
+    stem passes it on."""
+    torch.manual_seed(0)
+    plain = DenseNetBC(out_channels=4, out_grid=16, depth=16, growth_rate=12, stem_stride=4).eval()
+    fp32 = DenseNetBC(out_channels=4, out_grid=16, depth=16, growth_rate=12, stem_stride=4, fp32_stem=True).eval()
+    fp32.load_state_dict(plain.state_dict())
+    flat = torch.full((1, 1, 128, 128), 179 / 256)  # 0.699, a bf16 value
+    relief = flat.clone()
+    relief[..., 40:80, 40:80] += 0.0012
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        plain_gap = (plain(relief) - plain(flat)).abs().max().item()
+        fp32_gap = (fp32(relief) - fp32(flat)).abs().max().item()
+        out = fp32(relief)
+    assert plain_gap == 0.0
+    assert fp32_gap > 0.0
+    assert out.dtype == torch.float32 and out.shape == (1, 4, 16, 16)
+    with torch.no_grad():  # without autocast the two are one network
+        assert torch.equal(plain(relief), fp32(relief))

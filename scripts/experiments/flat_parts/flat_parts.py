@@ -133,7 +133,11 @@ BOTH_ARMS = {"view_spin_quality": {"scene": DATA_ARMS["view_spin"]["scene"], "tr
              # Its A/B: view_spin_again at the same seed
              "view_spin_clean": {"scene": DATA_ARMS["view_spin"]["scene"],
                                  "train": [f"augmentation.{p}=0" for p in ("p_elastic", "p_blur", "p_motion_blur",
-                                                                           "p_noise", "p_dropout")]}}
+                                                                           "p_noise", "p_dropout")]},
+             # fresh spins per view, the stem reading the depth in float32 (model.fp32_stem): under the training's
+             # bf16 autocast the stem read it rounded to 1/256 of its value, 0.5-1 mm at ITODD 08's rig, as much as
+             # the relief by which an oblique wheel shows its spin. Its A/B: view_spin_again at the same seed
+             "view_spin_fp32stem": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["model.fp32_stem=true"]}}
 
 #: the new-parts recipe frames a part at about 45 pixels of the 128-pixel input, a spoke or a tooth at 2-3; at the
 #: 256-pixel input a stride-8 stem hands the same network (its blocks at 32 x 32, the same grid) twice the pixels
