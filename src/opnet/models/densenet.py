@@ -160,9 +160,9 @@ class DenseNetBC(nn.Module):
             which oneDNN's CPU convolutions run faster (scripts/bench/model_stats.py --train measures it).
         fp32_stem: under autocast, run the stem convolution in float32 and hand its output to the first
             dense block in float32 (its batch norms and concatenations stay float32; the block's convolutions
-            cast after the norm). Without it the stem reads the depth rounded to bf16: 1/256 of the working
-            range (about 1 mm at a 0.25 m range, 3 mm at 0.83 m), as much as the relief by which a part's spin
-            shows. A no-op without autocast (float32 training and inference).
+            cast after the norm). Without it the stem reads the depth rounded to bf16, in steps of up to 1/256
+            of the working range (about 1 mm at a 0.25 m range, 3 mm at 0.83 m), as much as the relief by which
+            a part's spin shows. A no-op without autocast (float32 training and inference).
 
     Under autocast (bf16 mixed precision) the head and the output activation run in float32: a
     bf16 sigmoid would quantize positions to 1/256 of their range (millimetres at bin scale).
