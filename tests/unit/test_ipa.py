@@ -298,3 +298,22 @@ def test_csv_floats_survive_exactly(tmp_path_factory: pytest.TempPathFactory, qu
     for key in ("R_cam_obj", "t_cam_obj", "visibility_o", "visibility_p"):
         got, want = getattr(back, key), getattr(gt, key)
         np.testing.assert_array_equal(got, want, err_msg=key)  # exact (0.0 == -0.0)
+
+
+def test_pile_fingerprint_tells_other_piles_from_the_same(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from opnet.datasets.check import main as check_main
+    from opnet.datasets.check import pile_fingerprint
+
+    a, b = (make_folder(tmp_path / name, {0: [0, 2, 3]}) for name in ("a", "b"))
+    same = pile_fingerprint(a)
+    assert same == pile_fingerprint(b) and same[1] == 3
+    rec = make_record(3, seed=3)
+    rec.t_cam_obj[1, 2] += 1e-9  # under the hash's rounding (1 µm): the same pile written otherwise
+    write_ipa_scene(b, 0, rec, BIN_POSE)
+    assert pile_fingerprint(b) == same
+    rec.t_cam_obj[1, 2] += 2e-5  # a part settled 20 µm away: another pile
+    write_ipa_scene(b, 0, rec, BIN_POSE)
+    assert pile_fingerprint(b)[0] != same[0]
+    assert check_main(["--fingerprint", str(a), str(tmp_path / "none")]) == 2
+    out, err = capsys.readouterr()
+    assert out.split() == [same[0], "3", "scenes", str(a)] and "none" in err

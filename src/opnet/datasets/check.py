@@ -19,12 +19,18 @@ the first), and reports each with its file name.
   twice among those to find); every ``cam_R_w2c`` of ``scene_camera.json`` is a rotation
   (orthonormal to :data:`~opnet.datasets.validate.ORTHONORMAL_TOL`, det +1).
 
+``--fingerprint`` prints, instead of checking, one line per dataset: a hash of every scene's name and
+ground-truth poses (rounded to :data:`FINGERPRINT_DECIMALS` decimals of a metre and of a rotation entry)
+and the scene count. Equal lines, the same piles; the same seed run on another CPU can settle other piles
+(physics rounds its last bits otherwise and a deep pile amplifies that), which this tells at once.
+
 Exit status: 0 no problem, 1 problems found, 2 not a dataset.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import stat
 import struct
@@ -370,6 +376,40 @@ def check_dataset(root: str | Path, fast: bool = False, object_id: int | None = 
     return CheckReport(Path(root), len(ds), problems, time.perf_counter() - start)
 
 
+#: decimals the poses are rounded to before :func:`pile_fingerprint` hashes them (1 µm, 1e-6 of a rotation
+#: entry): the same piles written with more digits hash alike, piles a physics engine settled otherwise do not
+FINGERPRINT_DECIMALS = 6
+
+
+def _poses(ds: IPADataset | SileaneDataset | BOPDataset, scene: Any) -> np.ndarray:
+    """(N, 12) rotation entries and translations (metres) of the ground truth of ``scene``."""
+    if isinstance(ds, BOPDataset):
+        record = ds.read(*scene[:2])
+        R, t = record.R_cam_obj, record.t_cam_obj
+    else:
+        gt = ds.read_ground_truth(*scene) if isinstance(ds, IPADataset) else ds.read_ground_truth(scene)
+        R, t = gt.R, gt.t
+    return np.concatenate([np.reshape(R, (-1, 9)), np.reshape(t, (-1, 3))], axis=1)
+
+
+def pile_fingerprint(root: str | Path, object_id: int | None = None,
+                     clip: tuple[float, float] | None = None) -> tuple[str, int]:
+    """A 16-hex-digit hash of the dataset in ``root`` (its scenes' names and ground-truth poses in their
+    order, rounded to :data:`FINGERPRINT_DECIMALS`) and its scene count.
+
+    Raises:
+        FileNotFoundError / ValueError: ``root`` is not a readable dataset, or a scene's ground truth is
+            unreadable (the message names its file).
+    """
+    ds = open_dataset(root, object_id=object_id, clip=clip)
+    digest = hashlib.sha256()
+    scenes = ds.scenes()
+    for scene in scenes:
+        poses = np.round(_poses(ds, scene), FINGERPRINT_DECIMALS) + 0.0  # + 0.0: -0.0 hashes as 0.0
+        digest.update(repr(scene).encode() + poses.astype("<f8").tobytes())
+    return digest.hexdigest()[:16], len(scenes)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m opnet.datasets.check", description=__doc__.split("\n\n")[0])
     parser.add_argument("roots", nargs="+", type=Path, help="dataset folders (IPA or Siléane layout)")
@@ -377,6 +417,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, default=50, help="problems listed per dataset")
     parser.add_argument("--object-id", type=int, help="BOP splits: the obj_id to check")
     parser.add_argument("--clip", type=float, nargs=2, metavar=("NEAR", "FAR"), help="BOP splits: working range, metres")
+    parser.add_argument("--fingerprint", action="store_true",
+                        help="print a hash of each dataset's ground-truth poses instead of checking it")
     args = parser.parse_args(argv)
     try:  # the user's planes, not every image's camera, are wrong: one line, before any scene is read
         clip = parse_clip(args.clip, "--clip")
@@ -386,6 +428,9 @@ def main(argv: list[str] | None = None) -> int:
     status = 0
     for root in args.roots:
         try:
+            if args.fingerprint:
+                print("{}  {} scenes  {}".format(*pile_fingerprint(root, args.object_id, clip), root))
+                continue
             report = check_dataset(root, fast=args.fast, object_id=args.object_id, clip=clip)
         except (ValueError, FileNotFoundError) as e:
             print(f"error: {e}", file=sys.stderr)
