@@ -288,7 +288,9 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}},
         "decoding": TURN_ARMS,
         "quality": QUALITY_ARMS,
-        "data": DATA_ARMS,
+        # the float32 stem beside the fresh spins; its A/B: view_spin at the same seed (piles whose held-out side-on
+        # share matches view_spin's to the fourth decimal)
+        "data": {**DATA_ARMS, "view_spin_fp32stem": BOTH_ARMS["view_spin_fp32stem"]},
     },
 }
 
