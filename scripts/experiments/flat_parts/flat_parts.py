@@ -787,9 +787,10 @@ NOTES = [
     "seed spread of 0.041), and held-out agrees on the mean; still 0.17 below the part's 0.6. On ITODD 27 (seed 0, "
     "piles made again whose side-on shares match `view_spin`'s to the fourth decimal, 0.1227 validation and 0.2297 "
     "held-out; fingerprints: training c635cfd78735c6b5, held-out db2d747350eae08c) it scores validation 0.821 against "
-    "`view_spin`'s 0.810 and held-out 0.627 against 0.692 (found 71 % against 76 %, spin misses 17 % against 14 %): "
-    "a tie on validation, a loss held-out. Not measured on the plate. It helps one part of three, so no recipe "
-    "takes it (`model.fp32_stem: false` stays the default); ITODD 27's seeds 1 and 2 and the plate would settle it.",
+    "`view_spin`'s 0.810 and held-out 0.627 against 0.692 (found 71 % against 76 %, spin misses 17 % against 14 %); "
+    "seed 1 (the same piles) validation 0.788 against 0.785, held-out 0.665 against 0.684: over both seeds a tie on "
+    "validation (+0.007), a loss held-out (-0.042). Not measured on the plate. It helps one part of three, so no "
+    "recipe takes it (`model.fp32_stem: false` stays the default); ITODD 27's seed 2 and the plate would settle it.",
     "",
 ]
 
