@@ -140,7 +140,16 @@ BOTH_ARMS = {"view_spin_quality": {"scene": DATA_ARMS["view_spin"]["scene"], "tr
              # fresh spins per view, the stem reading the depth in float32 (model.fp32_stem): under the training's
              # bf16 autocast the stem read it rounded to 1/256 of its value, 0.5-1 mm at ITODD 08's rig, as much as
              # the relief by which an oblique wheel shows its spin. Its A/B: view_spin_again2 at the same seed
-             "view_spin_fp32stem": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["model.fp32_stem=true"]}}
+             "view_spin_fp32stem": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["model.fp32_stem=true"]},
+             # the view_spin command on a CPU without native bf16 (its training runs in float32 throughout): the A/B
+             # partner of the arms trained on such a machine
+             "view_spin_f32": DATA_ARMS["view_spin"]}
+
+#: fresh spins per view, the turn about a cyclic part's axis as its N-th harmonic (rotation=r6d_spin: the axis and
+#: cos N theta, sin N theta; docs/method.md#orientation-channels): the 6-D channels' nearest-of-N column has a seam
+#: that no continuous network can avoid, the harmonic none. A part without a cyclic group keeps r6d exactly. Its
+#: A/B: view_spin_f32 at the same seed on the same machine
+SPIN_CODEC_ARMS = {"view_spin_r6d_spin": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["rotation=r6d_spin"]}}
 
 #: the new-parts recipe frames a part at about 45 pixels of the 128-pixel input, a spoke or a tooth at 2-3; at the
 #: 256-pixel input a stride-8 stem hands the same network (its blocks at 32 x 32, the same grid) twice the pixels
@@ -274,7 +283,7 @@ ARMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                      "near_revolution": {"train": [*NEAR_REVOLUTION, "~object.symmetry.order"]}},
         "grid": {"g32": {"train": ["parameterization.grid=32"]}},
         "pixels": DENSE_PIXEL_ARMS,
-        "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}},
+        "orientation": {"lori3": {"train": ["loss.lambda_ori=3"]}, **SPIN_CODEC_ARMS},
         "decoding": TURN_ARMS,
         "quality": QUALITY_ARMS,
         # the data-scaling probe: the recipe trained on its first 10 training piles (of 20; the same steps)
