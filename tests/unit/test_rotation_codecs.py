@@ -99,7 +99,8 @@ def test_rotation_configs_build_codecs_with_the_object_symmetry():
     for name in names:
         make = hydra.utils.instantiate(OmegaConf.load(config_dir() / "rotation" / f"{name}.yaml"), _partial_=True)
         codec = make(symmetry=Symmetry("none"))
-        assert codec.name == name
+        # r6d_spin: a part without a cyclic group keeps the 6-D codec
+        assert codec.name == ("r6d" if name == "r6d_spin" else name)
         R = rotations(20, 4)
         back = codec.decode(codec.encode(R))
         np.testing.assert_allclose(back.numpy(), R.numpy(), atol=1e-6)

@@ -146,9 +146,9 @@ BOTH_ARMS = {"view_spin_quality": {"scene": DATA_ARMS["view_spin"]["scene"], "tr
              "view_spin_f32": DATA_ARMS["view_spin"]}
 
 #: fresh spins per view, the turn about a cyclic part's axis as its N-th harmonic (rotation=r6d_spin: the axis and
-#: cos N theta, sin N theta; docs/method.md#orientation-channels): the 6-D channels' nearest-of-N column has a seam
-#: that no continuous network can avoid, the harmonic none. A part without a cyclic group keeps r6d exactly. Its
-#: A/B: view_spin_f32 at the same seed on the same machine
+#: cos N theta, sin N theta; docs/method.md#cyclic-parts-the-turn-as-its-harmonic): the 6-D channels' nearest-of-N
+#: column has a seam that no continuous network can avoid, the harmonic none. A part without a cyclic group keeps
+#: r6d exactly. Its A/B: view_spin_f32 at the same seed on the same machine
 SPIN_CODEC_ARMS = {"view_spin_r6d_spin": {"scene": DATA_ARMS["view_spin"]["scene"], "train": ["rotation=r6d_spin"]}}
 
 #: the new-parts recipe frames a part at about 45 pixels of the 128-pixel input, a spoke or a tooth at 2-3; at the
